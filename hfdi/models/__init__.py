@@ -1,0 +1,41 @@
+"""The paper's benchmark models and a registry to get them by name."""
+from __future__ import annotations
+
+import inspect
+
+from .dumbbell import Dumbbell, dumbbell
+
+__all__ = ["Dumbbell", "dumbbell", "get", "available", "describe", "register"]
+
+_REGISTRY: dict = {}
+
+
+def register(name: str, cls) -> None:
+    """Make a model class available by ``name`` to :func:`get`."""
+    _REGISTRY[name] = cls
+
+
+def available() -> list:
+    """Names of the registered models."""
+    return sorted(_REGISTRY)
+
+
+def _lookup(name):
+    try:
+        return _REGISTRY[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown model {name!r}; available: {', '.join(available())}") from None
+
+
+def get(name: str, **params):
+    """A model by name, with its parameters as keyword arguments."""
+    return _lookup(name)(**params)
+
+
+def describe(name: str) -> dict:
+    """The parameters of a registered model and their defaults."""
+    sig = inspect.signature(_lookup(name).__init__)
+    return {k: p.default for k, p in sig.parameters.items() if k != "self"}
+
+
+register("dumbbell", Dumbbell)

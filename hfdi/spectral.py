@@ -1,0 +1,108 @@
+"""Spectral analysis of the schemes on ``u'' + ω² u = 0`` (paper Section 3, Eqs. 24–33).
+
+The amplification matrix ``A`` with ``r_{n+1} = A r_n``, ``r = (u, h v, h² a)``,
+is computed by driving each scheme's own one-step code with the unit states,
+so the curves describe the implementation rather than a transcription of it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .evaluation import Evaluator, State
+from .schemes import get_scheme
+from .system import LinearSystem
+
+__all__ = ["amplification_matrix", "spectral_properties", "SpectralProperties"]
+
+
+def amplification_matrix(scheme, tau: float) -> np.ndarray:
+    """Amplification matrix of ``scheme`` for ``τ = ω h`` (Eq. 24).
+
+    Parameters
+    ----------
+    scheme : str or Scheme
+    tau : float
+        ``ω h > 0``.
+
+    Returns
+    -------
+    ndarray (3, 3)
+        Columns are the images of the unit states ``r = e_j``.
+    """
+    scheme = get_scheme(scheme)
+    tau = float(tau)
+    if not (np.isfinite(tau) and tau > 0):
+        raise ValueError(f"tau must be a positive number, got {tau}")
+    ev = Evaluator(LinearSystem(mass=[1.0], stiffness=[[1.0]]))   # ω = 1
+    h = tau
+    zero = np.zeros(1)
+    A = np.empty((3, 3))
+    for j in range(3):
+        r = np.zeros(3)
+        r[j] = 1.0
+        start = State(0.0, r[:1].copy(), r[1:2] / h, r[2:3] / h ** 2, None, zero)
+        done = []
+        for index in range(scheme.n_stages):
+            problem = scheme.stage(ev, start, h, index, done)
+            u = zero
+            for _ in range(2):   # linear problem: one Newton correction, one to polish
+                residual, tangent = problem.residual_and_jacobian(u)
+                u = u - np.linalg.solve(np.atleast_2d(tangent), residual)
+            done.append(problem.finish(u))
+        end = done[-1]
+        A[:, j] = [end.u[0], h * end.v[0], h * h * end.a[0]]
+    return A
+
+
+@dataclass
+class SpectralProperties:
+    """Stability and accuracy measures over a range of ``Δt/T`` (Eqs. 29–33).
+
+    Attributes
+    ----------
+    ratio : ndarray
+        ``Δt/T = τ/(2π)``.
+    tau : ndarray
+    spectral_radius : ndarray
+        ``ρ(A) = max |λ_i|``.
+    principal_radius : ndarray
+        ``ρ_p = |λ|`` of the complex pair (NaN where A has none).
+    phase : ndarray
+        ``φ = atan2(λ_Im, λ_Re)``.
+    period_elongation : ndarray
+        ``PE = 100 (τ − φ)/φ``, percent.
+    amplitude_decay : ndarray
+        ``AD = 100 (1 − ρ_p^{2π/φ})``, percent.
+    """
+
+    ratio: np.ndarray
+    tau: np.ndarray
+    spectral_radius: np.ndarray
+    principal_radius: np.ndarray
+    phase: np.ndarray
+    period_elongation: np.ndarray
+    amplitude_decay: np.ndarray
+
+
+def spectral_properties(scheme, ratios) -> SpectralProperties:
+    """Spectral radius, period elongation and amplitude decay of ``scheme``
+    at each ``Δt/T`` in ``ratios``."""
+    ratios = np.atleast_1d(np.asarray(ratios, dtype=float))
+    if np.any(~np.isfinite(ratios)) or np.any(ratios <= 0):
+        raise ValueError("ratios (Δt/T) must be positive and finite")
+    tau = 2.0 * np.pi * ratios
+    n = ratios.size
+    radius, rho_p, phi = np.empty(n), np.full(n, np.nan), np.full(n, np.nan)
+    for k, t in enumerate(tau):
+        lam = np.linalg.eigvals(amplification_matrix(scheme, t))
+        radius[k] = np.abs(lam).max()
+        pair = lam[np.argmax(lam.imag)]
+        if pair.imag > 1e-14 * max(1.0, abs(pair)):
+            rho_p[k] = abs(pair)
+            phi[k] = np.arctan2(pair.imag, pair.real)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pe = 100.0 * (tau - phi) / phi
+        ad = 100.0 * (1.0 - rho_p ** (2.0 * np.pi / phi))
+    return SpectralProperties(ratios, tau, radius, rho_p, phi, pe, ad)

@@ -1,0 +1,342 @@
+"""The model protocol: a second-order system ``M u'' + C u' + f(u) = p(t)``.
+
+A model tells the integrator its size, its mass matrix ``M`` (diagonal, dense
+or sparse), its damping ``C`` (or none), the internal force ``f(u)``, the
+tangent ``K(u) = df/du``, the directional derivative of the tangent
+``T(u)[w] = d(K(u) w)/du`` that the HFDI tangent needs (paper, Eq. 21 and
+Table 1), the external load ``p(t)``, the potential energy ``V(u)`` used by the
+energy balance (Eq. 40) and named quantities of interest ``z(t, u, v)`` used
+by the error norms (Eq. 42).
+
+Derive a model from :class:`SecondOrderSystem` and override its methods, or
+build one from plain callables with :class:`System`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = [
+    "SecondOrderSystem",
+    "System",
+    "LinearSystem",
+    "DerivativeCheck",
+    "check_derivatives",
+]
+
+
+class SecondOrderSystem:
+    """Base class of a model ``M u'' + C u' + f(u) = p(t)``.
+
+    Subclasses set :attr:`n_dof`, :attr:`mass` and, where they have them,
+    :attr:`damping`, :attr:`initial_displacement` and
+    :attr:`initial_velocity`, and override :meth:`internal_force`,
+    :meth:`stiffness` and :meth:`stiffness_derivative`. The other methods
+    have defaults: no load, no potential energy (the energy balance is then
+    reported as NaN) and ``u`` as the only quantity of interest.
+
+    Attributes
+    ----------
+    name : str
+        Short name of the model.
+    n_dof : int
+        Number of degrees of freedom ``N``.
+    mass : ndarray (N,) or ndarray (N, N) or sparse (N, N)
+        Mass matrix; a 1-D array is a diagonal matrix.
+    damping : None or ndarray (N,) or ndarray (N, N) or sparse (N, N)
+        Damping matrix, ``None`` for an undamped model.
+    initial_displacement, initial_velocity : ndarray (N,)
+        Default initial conditions ``u(t0)`` and ``u'(t0)``.
+    observation_time : float or None
+        The paper's observation time ``T_o`` of the model's experiment.
+    paper_targets : dict
+        The paper's target iteration counts per scheme name (per sub-step for
+        Bathe, which the paper writes ``2·N``).
+    u_scale : float
+        A length of the model, the absolute floor of the Newton convergence
+        test (see :func:`hfdi.integrate`).
+    """
+
+    name: str = "system"
+    n_dof: int = 0
+    mass = None
+    damping = None
+    initial_displacement = None
+    initial_velocity = None
+    observation_time: float | None = None
+    paper_targets: Mapping[str, tuple] = {}
+    u_scale: float = 1.0
+
+    # -- mechanics ---------------------------------------------------------
+    def internal_force(self, u):
+        """Internal force ``f(u)``, shape (N,)."""
+        raise NotImplementedError
+
+    def stiffness(self, u):
+        """Tangent ``K(u) = df/du``, ndarray or sparse (N, N)."""
+        raise NotImplementedError
+
+    def stiffness_derivative(self, u, w):
+        """Directional derivative ``T(u)[w] = d(K(u) w)/du``, (N, N)."""
+        raise NotImplementedError
+
+    def load(self, t):
+        """External load ``p(t)``, shape (N,)."""
+        return np.zeros(self.n_dof)
+
+    #: Exact load rate ``p'(t)``; ``None`` when the model has none, in which
+    #: case HFDI uses the paper's difference quotient (Section 4).
+    load_rate: Callable | None = None
+
+    def potential_energy(self, u):
+        """Potential energy ``V(u)`` with ``f = dV/du``; NaN if unknown."""
+        return np.nan
+
+    def quantities(self, t, u, v):
+        """Quantities of interest, vectorised over times.
+
+        Parameters
+        ----------
+        t : ndarray (n,)
+        u, v : ndarray (n, N)
+
+        Returns
+        -------
+        dict of str to ndarray (n, m)
+        """
+        return {"u": np.asarray(u)}
+
+    def parameters(self) -> dict:
+        """The model's parameters (name to value), for reports."""
+        return {}
+
+    def __repr__(self):
+        params = ", ".join(f"{k}={v!r}" for k, v in self.parameters().items())
+        return f"{type(self).__name__}({params})"
+
+
+class System(SecondOrderSystem):
+    """A model assembled from callables.
+
+    Parameters
+    ----------
+    mass : array_like (N,) or (N, N) or sparse
+        Mass matrix; 1-D means diagonal.
+    internal_force : callable ``f(u) -> (N,)``
+    stiffness : callable ``K(u) -> (N, N)``
+    stiffness_derivative : callable ``T(u, w) -> (N, N)``
+    damping : array_like or sparse, optional
+    load : callable ``p(t) -> (N,)``, optional
+    load_rate : callable ``p'(t) -> (N,)``, optional
+    potential_energy : callable ``V(u) -> float``, optional
+    quantities : callable ``(t, u, v) -> dict``, optional
+    initial_displacement, initial_velocity : array_like (N,), optional
+        Zero when omitted.
+    name : str, optional
+    u_scale : float, optional
+    """
+
+    def __init__(self, mass, internal_force, stiffness, stiffness_derivative, *,
+                 damping=None, load=None, load_rate=None, potential_energy=None,
+                 quantities=None, initial_displacement=None,
+                 initial_velocity=None, name="system", u_scale=1.0,
+                 observation_time=None, paper_targets=None):
+        self.mass = mass if sp.issparse(mass) else np.asarray(mass, dtype=float)
+        self.n_dof = self.mass.shape[0]
+        self.damping = damping
+        self._f = internal_force
+        self._k = stiffness
+        self._t = stiffness_derivative
+        self._p = load
+        self.load_rate = load_rate
+        self._v = potential_energy
+        self._q = quantities
+        n = self.n_dof
+        self.initial_displacement = (np.zeros(n) if initial_displacement is None
+                                     else np.asarray(initial_displacement, float))
+        self.initial_velocity = (np.zeros(n) if initial_velocity is None
+                                 else np.asarray(initial_velocity, float))
+        self.name = name
+        self.u_scale = u_scale
+        self.observation_time = observation_time
+        self.paper_targets = paper_targets or {}
+
+    def internal_force(self, u):
+        return self._f(u)
+
+    def stiffness(self, u):
+        return self._k(u)
+
+    def stiffness_derivative(self, u, w):
+        return self._t(u, w)
+
+    def load(self, t):
+        return np.zeros(self.n_dof) if self._p is None else self._p(t)
+
+    def potential_energy(self, u):
+        return np.nan if self._v is None else self._v(u)
+
+    def quantities(self, t, u, v):
+        return {"u": np.asarray(u)} if self._q is None else self._q(t, u, v)
+
+
+class LinearSystem(SecondOrderSystem):
+    """The linear model ``M u'' + C u' + K u = p(t)``.
+
+    Parameters
+    ----------
+    mass, stiffness : array_like (N,) or (N, N) or sparse
+        ``M`` and ``K``; 1-D arrays are diagonal matrices.
+    damping : array_like or sparse, optional
+    load, load_rate : callable, optional
+    initial_displacement, initial_velocity : array_like (N,), optional
+    """
+
+    name = "linear"
+
+    def __init__(self, mass, stiffness, damping=None, load=None, load_rate=None,
+                 initial_displacement=None, initial_velocity=None):
+        self.mass = mass if sp.issparse(mass) else np.asarray(mass, dtype=float)
+        self.n_dof = self.mass.shape[0]
+        if sp.issparse(stiffness):
+            self._K = sp.csr_matrix(stiffness, dtype=float)
+        else:
+            k = np.asarray(stiffness, dtype=float)
+            self._K = np.diag(k) if k.ndim == 1 else k
+        self.damping = damping
+        self._p = load
+        self.load_rate = load_rate
+        n = self.n_dof
+        self.initial_displacement = (np.zeros(n) if initial_displacement is None
+                                     else np.asarray(initial_displacement, float))
+        self.initial_velocity = (np.zeros(n) if initial_velocity is None
+                                 else np.asarray(initial_velocity, float))
+
+    def internal_force(self, u):
+        return self._K @ u
+
+    def stiffness(self, u):
+        return self._K
+
+    def stiffness_derivative(self, u, w):
+        return sp.csr_matrix((self.n_dof, self.n_dof)) if sp.issparse(self._K) \
+            else np.zeros((self.n_dof, self.n_dof))
+
+    def load(self, t):
+        return np.zeros(self.n_dof) if self._p is None else np.asarray(self._p(t), float)
+
+    def potential_energy(self, u):
+        return 0.5 * float(u @ (self._K @ u))
+
+
+# -- finite-difference check ------------------------------------------------
+
+@dataclass
+class DerivativeCheck:
+    """Worst relative errors of a model's derivatives against finite differences.
+
+    Attributes
+    ----------
+    force : float
+        ``max ‖f − ∇V‖ / ‖f‖`` (NaN when the model has no potential energy).
+    stiffness : float
+        ``max ‖K w − D_w f‖ / ‖K w‖`` over random directions ``w``.
+    stiffness_derivative : float
+        ``max ‖T[w] z − D_z(K w)‖ / ‖T[w] z‖``.
+    samples : int
+        Number of random states tried.
+    """
+
+    force: float
+    stiffness: float
+    stiffness_derivative: float
+    samples: int
+    details: list = field(default_factory=list, repr=False)
+
+    @property
+    def worst(self) -> float:
+        return float(np.nanmax([self.force, self.stiffness, self.stiffness_derivative]))
+
+    def ok(self, rtol: float = 1e-6) -> bool:
+        return self.worst <= rtol
+
+
+def _richardson(fun, x, d, eps):
+    """Directional derivative of ``fun`` at ``x`` along ``d``, O(eps⁴) accurate."""
+    def central(e):
+        return (np.asarray(fun(x + e * d)) - np.asarray(fun(x - e * d))) / (2 * e)
+    return (4.0 * central(eps / 2) - central(eps)) / 3.0
+
+
+def _dense(a):
+    return a.toarray() if sp.issparse(a) else np.asarray(a)
+
+
+def _rel(err, ref):
+    ref_norm = np.linalg.norm(ref)
+    return float(np.linalg.norm(err) / ref_norm) if ref_norm > 0 else float(np.linalg.norm(err))
+
+
+def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 5,
+                      spread: float = 0.05, eps: float = 1e-4, seed: int = 0):
+    """Check ``f``, ``K`` and ``T`` of a model against finite differences.
+
+    Directional derivatives are taken by central differences with Richardson
+    extrapolation along random unit directions scaled by ``u_scale``.
+
+    Parameters
+    ----------
+    system : SecondOrderSystem
+    states : array_like (n, N), optional
+        States to check at. Default: ``samples`` random perturbations of the
+        initial displacement of relative size ``spread``.
+    samples : int
+    spread : float
+    eps : float
+        Finite-difference step, relative to ``system.u_scale``.
+    seed : int
+
+    Returns
+    -------
+    DerivativeCheck
+    """
+    rng = np.random.default_rng(seed)
+    n = system.n_dof
+    scale = float(getattr(system, "u_scale", 1.0) or 1.0)
+    if states is None:
+        base = np.asarray(system.initial_displacement, float)
+        states = base + spread * scale * rng.standard_normal((samples, n))
+    states = np.atleast_2d(np.asarray(states, float))
+    h = eps * scale
+    worst_f = worst_k = worst_t = 0.0
+    has_potential = True
+    details = []
+    for u in states:
+        d = rng.standard_normal(n)
+        d /= np.linalg.norm(d)
+        w = rng.standard_normal(n)
+        z = rng.standard_normal(n)
+        f = np.asarray(system.internal_force(u))
+        # f against the gradient of V, along d
+        dv = _richardson(lambda x: np.array(system.potential_energy(x)), u, d, h)
+        if np.isnan(dv).any():
+            has_potential = False
+            e_f = np.nan
+        else:
+            e_f = abs(float(dv) - float(f @ d)) / max(np.linalg.norm(f), 1e-300)
+        K = _dense(system.stiffness(u))
+        e_k = _rel(K @ d - _richardson(system.internal_force, u, d, h), K @ d)
+        Tw = _dense(system.stiffness_derivative(u, w))
+        e_t = _rel(Tw @ z - _richardson(lambda x: _dense(system.stiffness(x)) @ w, u, z, h),
+                   Tw @ z)
+        details.append((e_f, e_k, e_t))
+        if has_potential:
+            worst_f = max(worst_f, e_f)
+        worst_k = max(worst_k, e_k)
+        worst_t = max(worst_t, e_t)
+    return DerivativeCheck(force=worst_f if has_potential else np.nan,
+                           stiffness=worst_k, stiffness_derivative=worst_t,
+                           samples=len(states), details=details)
