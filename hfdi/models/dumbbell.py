@@ -79,14 +79,17 @@ class Dumbbell(SecondOrderSystem):
         return self._pair.geometry(np.asarray(u, float))[1]
 
     def internal_force(self, u):
+        u = np.asarray(u, dtype=float)
         r = self.distance(u)
         return self._pair.force(u, self._phi(r, 1))
 
     def stiffness(self, u):
+        u = np.asarray(u, dtype=float)
         r = self.distance(u)
         return self._pair.stiffness(u, self._phi(r, 1), self._phi(r, 2))
 
     def stiffness_derivative(self, u, w):
+        u = np.asarray(u, dtype=float)
         r = self.distance(u)
         return self._pair.stiffness_derivative(u, np.asarray(w, float), self._phi(r, 1),
                                                self._phi(r, 2), self._phi(r, 3))

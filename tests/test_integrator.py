@@ -1,0 +1,309 @@
+"""The driver: landing on times, carrying the proposal over, state copy and restore,
+guards, matrix forms, energy balance and input errors."""
+import math
+import pickle
+
+import numpy as np
+import pytest
+import scipy.sparse as sparse
+
+import hfdi
+from hfdi.corrector import predict
+from hfdi.evaluation import State
+from problems import coupled_duffing
+
+DUMBBELL = hfdi.models.dumbbell()
+
+
+# -- predictor ----------------------------------------------------------------
+def test_predictor_reproduces_quartics_exactly():
+    """Eqs. 36–37: five conditions fix a quartic, so a quartic motion is predicted exactly."""
+    c = np.array([0.3, -1.2, 0.7, 2.0, -0.4])
+    P = np.polynomial.Polynomial(c)
+    dP, ddP = P.deriv(), P.deriv(2)
+    t_prev, t_now = 0.2, 0.5
+    now = State(t_now, np.array([P(t_now)]), np.array([dP(t_now)]), np.array([ddP(t_now)]),
+                None, np.zeros(1))
+    prev = State(t_prev, np.array([P(t_prev)]), np.array([dP(t_prev)]), np.zeros(1), None,
+                 np.zeros(1))
+    for s in [0.05, 0.3, 0.9]:
+        np.testing.assert_allclose(predict(now, prev, s), P(t_now + s), rtol=1e-12)
+
+
+def test_first_step_predictor_is_linear():
+    now = State(0.0, np.array([1.0]), np.array([2.0]), np.array([5.0]), None, np.zeros(1))
+    np.testing.assert_allclose(predict(now, None, 0.1), [1.2])
+
+
+# -- landing and the controller -------------------------------------------------
+def test_advance_lands_exactly_and_continues():
+    itg = hfdi.Integrator(DUMBBELL, "hfdi", target_iterations=3.3)
+    for t_stop in [0.1, 0.1234567, 0.5, 0.5 + 1e-9, 1.0]:
+        assert itg.advance(t_stop)
+        assert itg.t == t_stop
+    st = itg.statistics
+    assert st.steps == st.accepted + st.rejected
+
+
+def test_landing_does_not_shrink_the_proposed_step():
+    itg = hfdi.Integrator(DUMBBELL, "hfdi", target_iterations=3.5)
+    itg.advance(0.5)
+    proposed = itg.proposed_step
+    itg.advance(itg.t + 1e-4 * proposed)       # a tiny communication step
+    assert itg.last_step == pytest.approx(1e-4 * proposed)
+    assert itg.proposed_step == proposed
+
+
+def test_many_small_advances_reach_the_same_solution():
+    """Splitting a run at communication points changes its steps, not its answer."""
+    one = hfdi.Integrator(DUMBBELL, "hfdi", target_iterations=3.3)
+    one.advance(1.0)
+    many = hfdi.Integrator(DUMBBELL, "hfdi", target_iterations=3.3)
+    for t in np.linspace(0.0, 1.0, 201)[1:]:
+        assert many.advance(t)
+    # both are accurate solutions of the same rigid rotation about the moving centre
+    exact = np.array([0.5 - 0.5 * np.cos(5.0), 7.5 + 0.5 * np.sin(5.0),
+                      0.5 + 0.5 * np.cos(5.0), 7.5 - 0.5 * np.sin(5.0)])
+    np.testing.assert_allclose(one.state.u, exact, atol=1e-3)
+    np.testing.assert_allclose(many.state.u, exact, atol=1e-3)
+    assert many.proposed_step > 0.005           # the proposal is not that of the 0.005 grid
+
+
+def test_t_eval_points_are_landed_on():
+    t_eval = [0.1, 0.37, 1.5, 2.0]
+    result = hfdi.integrate(DUMBBELL, "bathe", 2.0, target_iterations=3.0, t_eval=t_eval)
+    assert result.success
+    np.testing.assert_array_equal(result.t[result.t_eval_index], t_eval)
+
+
+def test_fixed_step_grid():
+    result = hfdi.integrate(coupled_duffing(), "newmark", 1.0, step=0.01)
+    assert result.stats.steps == 100
+    np.testing.assert_allclose(np.diff(result.t), 0.01, rtol=1e-9)
+    assert result.t[-1] == 1.0
+
+
+def test_first_step_is_sized_to_the_target():
+    result = hfdi.integrate(DUMBBELL, "hfdi", 2.0, target_iterations=3.0)
+    assert abs(result.iterations[1] - 3.0) <= 0.5
+    assert result.stats.first_step_trials >= 1
+
+
+def test_bathe_counts_both_sub_steps():
+    result = hfdi.integrate(DUMBBELL, "bathe", 2.0, target_iterations=3.0)
+    assert result.stats.mean_iterations > 4.0     # two sub-steps of ~3 each
+    assert result.stats.nlu >= result.stats.newton_iterations
+
+
+# -- state copy and restore ----------------------------------------------------------
+def test_state_restore_repeats_the_run_bit_for_bit():
+    itg = hfdi.Integrator(DUMBBELL, "hfdi", target_iterations=3.2)
+    itg.advance(0.4)
+    saved = itg.get_state()
+    itg.advance(1.3)
+    first = (itg.state.u.copy(), itg.state.v.copy(), itg.proposed_step, itg.statistics.steps,
+             itg.energy_error)
+    itg.set_state(saved)
+    assert itg.t == 0.4
+    itg.advance(1.3)
+    second = (itg.state.u, itg.state.v, itg.proposed_step, itg.statistics.steps,
+              itg.energy_error)
+    np.testing.assert_array_equal(first[0], second[0])
+    np.testing.assert_array_equal(first[1], second[1])
+    assert first[2:] == second[2:]
+
+
+def test_state_survives_pickling():
+    itg = hfdi.Integrator(DUMBBELL, "newmark", target_iterations=4.0)
+    itg.advance(0.3)
+    blob = pickle.dumps(itg.get_state())
+    itg.advance(0.6)
+    u = itg.state.u.copy()
+    other = hfdi.Integrator(DUMBBELL, "newmark", target_iterations=4.0)
+    other.set_state(pickle.loads(blob))
+    other.advance(0.6)
+    np.testing.assert_array_equal(other.state.u, u)
+
+
+def test_saved_state_is_not_aliased():
+    itg = hfdi.Integrator(DUMBBELL, "hfdi", target_iterations=3.0)
+    itg.advance(0.2)
+    saved = itg.get_state()
+    saved.current.u[:] = 99.0
+    assert not np.any(itg.state.u == 99.0)
+
+
+# -- guards ---------------------------------------------------------------------------
+def test_divergence_at_every_step_stops_with_the_last_good_state():
+    # one correction allowed cannot meet η = 1e-8 on a nonlinear problem
+    result = hfdi.integrate(DUMBBELL, "hfdi", 2.0, target_iterations=3.0, max_iterations=1,
+                            min_step=1e-3)
+    assert not result.success
+    assert result.status in (hfdi.Status.STEP_BELOW_MINIMUM, hfdi.Status.FIRST_STEP_FAILED,
+                             hfdi.Status.HALVINGS_EXHAUSTED)
+    assert "t = " in result.message
+    assert np.all(np.isfinite(result.u[-1]))
+
+
+def test_max_steps_guard():
+    result = hfdi.integrate(DUMBBELL, "newmark", 2.0, target_iterations=3.0, max_steps=10)
+    assert result.status == hfdi.Status.MAX_STEPS
+    assert result.stats.steps == 10
+    assert result.t[-1] < 2.0
+
+
+def test_halvings_guard():
+    result = hfdi.integrate(DUMBBELL, "newmark", 2.0, step=0.05, max_iterations=2)
+    assert result.status == hfdi.Status.NEWTON_FAILED
+    assert "fixed step" in result.message
+
+
+def test_model_that_fails_beyond_some_time_stops_cleanly():
+    base = coupled_duffing()
+
+    def force(u):
+        if u[0] < 0.0:        # the first mass swings through zero near t ≈ 1.4
+            return np.full(2, np.nan)
+        return base.internal_force(u)
+
+    model = hfdi.System(mass=base.mass, internal_force=force, stiffness=base.stiffness,
+                        stiffness_derivative=base.stiffness_derivative,
+                        initial_displacement=base.initial_displacement,
+                        initial_velocity=base.initial_velocity)
+    result = hfdi.integrate(model, "hfdi", 5.0, target_iterations=3.0, max_halvings=8)
+    assert not result.success
+    # halving until the step fits, the run creeps up to the bad region until a guard trips
+    assert result.status in (hfdi.Status.HALVINGS_EXHAUSTED, hfdi.Status.STEP_BELOW_MINIMUM)
+    assert "not finite" in result.message
+    assert result.u[-1][0] >= 0 and np.all(np.isfinite(result.u))
+
+
+def test_model_exception_becomes_a_status():
+    base = coupled_duffing()
+
+    def load(t):
+        if t > 0.5:
+            raise RuntimeError("load table ends at 0.5 s")
+        return np.zeros(2)
+
+    model = hfdi.System(mass=base.mass, internal_force=base.internal_force,
+                        stiffness=base.stiffness, stiffness_derivative=base.stiffness_derivative,
+                        load=load, initial_displacement=base.initial_displacement)
+    result = hfdi.integrate(model, "newmark", 1.0, target_iterations=3.0, max_halvings=5)
+    assert not result.success
+    assert "load table ends" in result.message
+    assert result.t[-1] <= 0.5
+
+
+def test_energy_growth_guard():
+    """Explicit-like Newmark (β small, γ > 1/2 would damp; γ < 1/2 amplifies)."""
+    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[100.0]], initial_displacement=[1.0])
+    result = hfdi.integrate(system, hfdi.Newmark(gamma=0.3, beta=0.25), 20.0, step=0.05,
+                            energy_limit=0.5)
+    assert result.status == hfdi.Status.ENERGY_GROWTH
+    assert "energy" in result.message
+
+
+# -- matrix forms ---------------------------------------------------------------------------
+def chain(mass, damping=None):
+    k = np.array([[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]]) * 50
+    return hfdi.LinearSystem(mass=mass, stiffness=k, damping=damping,
+                             initial_displacement=[0.1, 0.0, -0.1],
+                             load=lambda t: np.array([0.0, np.sin(5 * t), 0.0]))
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_mass_forms_give_the_same_solution(scheme):
+    m = np.array([1.0, 2.0, 3.0])
+    forms = [m, np.diag(m), sparse.diags(m).tocsr()]
+    results = [hfdi.integrate(chain(M, damping=0.1 * np.diag(m)), scheme, 1.0, step=0.01)
+               for M in forms]
+    for r in results[1:]:
+        np.testing.assert_allclose(r.u, results[0].u, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_consistent_sparse_mass_matches_dense(scheme):
+    M = np.array([[2.0, 0.5, 0.0], [0.5, 2.0, 0.5], [0.0, 0.5, 1.0]])
+    C = 0.05 * M
+    dense = hfdi.integrate(chain(M, C), scheme, 1.0, step=0.01)
+    sp_ = hfdi.integrate(chain(sparse.csr_matrix(M), sparse.csr_matrix(C)), scheme, 1.0,
+                         step=0.01)
+    np.testing.assert_allclose(sp_.u, dense.u, rtol=1e-10, atol=1e-13)
+
+
+# -- energy balance ---------------------------------------------------------------------------
+def test_newmark_conserves_energy_on_a_linear_problem():
+    system = hfdi.LinearSystem(mass=[1.0, 1.0], stiffness=[[5.0, -2.0], [-2.0, 3.0]],
+                               initial_displacement=[1.0, -0.5], initial_velocity=[0.2, 0.0])
+    result = hfdi.integrate(system, "newmark", 50.0, step=0.37)
+    np.testing.assert_allclose(result.total_energy, result.total_energy[0], rtol=1e-12)
+    np.testing.assert_allclose(result.energy_increment, 0, atol=1e-12)
+
+
+def test_dissipative_schemes_lose_energy_step_by_step_on_a_linear_problem():
+    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[400.0]], initial_displacement=[1.0],
+                               initial_velocity=[3.0])
+    final = {}
+    for scheme in ("bathe", "hfdi"):
+        result = hfdi.integrate(system, scheme, 5.0, step=0.05)     # Δt/T = 0.16
+        W = result.total_energy
+        assert np.all(np.diff(W) <= 1e-13 * W[0])
+        final[scheme] = W[-1] / W[0]
+    # HFDI's amplitude decay is the larger of the two (paper, Section 3)
+    assert final["hfdi"] < final["bathe"] < 0.9
+
+
+def test_energy_balance_includes_the_external_work():
+    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[4.0]],
+                               load=lambda t: np.array([1.0 if t < 1 else 0.0]))
+    result = hfdi.integrate(system, "newmark", 3.0, step=0.01)
+    # W − W0 − L summed over steps is Σ ΔE
+    np.testing.assert_allclose(result.total_energy - result.total_energy[0]
+                               - result.external_work, np.cumsum(result.energy_increment),
+                               atol=1e-12)
+
+
+# -- bad input ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(), "exactly one of target_iterations"),
+    (dict(target_iterations=3.0, step=0.1), "exactly one of target_iterations"),
+    (dict(target_iterations=0.5), "target_iterations must be >= 1"),
+    (dict(target_iterations=math.nan), "target_iterations"),
+    (dict(step=-0.1), "step must be a positive"),
+    (dict(step=0.1, tol=1.5), r"tol must be in \(0, 1\)"),
+    (dict(step=0.1, u0=[1.0, 2.0]), r"u0 must have shape \(4,\)"),
+    (dict(step=0.1, v0=[np.inf, 0, 0, 0]), "v0 must be finite"),
+    (dict(step=0.1, max_steps=0), "max_steps must be an integer >= 1"),
+])
+def test_bad_arguments_are_named(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        hfdi.integrate(DUMBBELL, "hfdi", 1.0, **kwargs)
+
+
+def test_bad_scheme_and_time():
+    with pytest.raises(ValueError, match="scheme must be one of"):
+        hfdi.integrate(DUMBBELL, "euler", 1.0, step=0.1)
+    with pytest.raises(ValueError, match="t_end must be"):
+        hfdi.integrate(DUMBBELL, "hfdi", -1.0, step=0.1)
+    with pytest.raises(ValueError, match="t_eval must be strictly increasing"):
+        hfdi.integrate(DUMBBELL, "hfdi", 1.0, step=0.1, t_eval=[0.5, 0.2])
+    with pytest.raises(ValueError, match="t_eval must lie in"):
+        hfdi.integrate(DUMBBELL, "hfdi", 1.0, step=0.1, t_eval=[0.5, 2.0])
+
+
+def test_wrong_model_shapes_are_reported():
+    base = coupled_duffing()
+    bad = hfdi.System(mass=base.mass, internal_force=lambda u: np.zeros(3),
+                      stiffness=base.stiffness, stiffness_derivative=base.stiffness_derivative)
+    with pytest.raises(hfdi.ModelError, match=r"internal_force returned shape \(3,\)"):
+        hfdi.integrate(bad, "hfdi", 1.0, step=0.1)
+
+
+def test_scheme_parameters_are_checked():
+    with pytest.raises(ValueError, match="Newmark beta"):
+        hfdi.Newmark(beta=0.0)
+    with pytest.raises(ValueError, match="Bathe gamma"):
+        hfdi.Bathe(gamma=1.0)
+    with pytest.raises(ValueError, match="HFDI load_rate"):
+        hfdi.HFDI(load_rate="spline")
