@@ -8,9 +8,15 @@ import hfdi
 
 from .paper import PAPER_TABLES
 
-__all__ = ["RunRecord", "run_experiment", "run_table", "format_table"]
+__all__ = ["RunRecord", "run_experiment", "run_table", "format_table", "ENERGY_LIMIT"]
 
 SCHEME_ORDER = ("newmark", "bathe", "hfdi")
+
+#: A run is reported "div" when a guard of the integrator stops it (step below
+#: its minimum, halvings exhausted) or when its energy balance breaks down: the
+#: spurious energy Σ ΔE (Eq. 40) exceeds this fraction of the run's energy
+#: scale (see ``hfdi.Integrator``'s ``energy_limit``).
+ENERGY_LIMIT = 0.5
 
 
 @dataclass
@@ -42,7 +48,8 @@ def run_experiment(problem: str, scheme: str, target: float, t_end: float | None
     """Integrate ``problem`` to its ``T_o`` (or ``t_end``); returns (model, result)."""
     model = hfdi.models.get(problem, **(params or {}))
     t_end = model.observation_time if t_end is None else t_end
-    result = hfdi.integrate(model, scheme, t_end, target_iterations=target)
+    result = hfdi.integrate(model, scheme, t_end, target_iterations=target,
+                            energy_limit=ENERGY_LIMIT)
     return model, result
 
 
