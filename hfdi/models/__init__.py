@@ -3,9 +3,13 @@ from __future__ import annotations
 
 import inspect
 
+from .articulated import Articulated, articulated
 from .dumbbell import Dumbbell, dumbbell
+from .loads import hat
+from .tetrahedra import Tetrahedra, tetrahedra
 
-__all__ = ["Dumbbell", "dumbbell", "get", "available", "describe", "register"]
+__all__ = ["Dumbbell", "dumbbell", "Tetrahedra", "tetrahedra", "Articulated", "articulated",
+           "hat", "get", "available", "describe", "register"]
 
 _REGISTRY: dict = {}
 
@@ -39,3 +43,5 @@ def describe(name: str) -> dict:
 
 
 register("dumbbell", Dumbbell)
+register("tetrahedra", Tetrahedra)
+register("articulated", Articulated)

@@ -1,0 +1,223 @@
+"""The tetrahedra of the paper's Section 5.2: four masses joined by six Neo-Hooke springs.
+
+Data from the paper (Eqs. 45–46): four unit masses at the corners
+(0,0,0), (1,0,0), (0,1,0), (0,0,1) of a tetrahedron, at rest; every pair is
+joined by a Neo-Hooke-type spring
+
+``φ(r) = k/6 [r² + (2 r0/r − 3) r0²]``                          (Eq. 45)
+
+with ``r0`` the initial distance of the pair (so the initial state is
+force-free), ``k = 10³`` for the pair (1, 2) and ``k = 1`` for the other five;
+a force on particle 1 in x; observation time ``T_o = 50``; the quantities of
+interest are the positions and the six interaction forces
+
+``f^{ij} = k/3 [r − (r0/r)² r0] e^{ij}``                          (Eq. 46)
+
+and the paper's targets are ``N̄ = 3.0, 3.5, 4.0, 4.5`` for every scheme.
+
+Chosen for this project (the paper's load figure is lost): the load history
+``P(t) = hat(t; 5, 1)``, a triangular pulse over ``0 ≤ t ≤ 2`` followed by free
+flight. The stiff spring 1–2 has ``ω = (2k)^{1/2} ≈ 45`` rad/s, the soft ones
+frequencies of order 1 rad/s.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..system import SecondOrderSystem
+from .loads import hat
+from .pair import PairPotential
+
+__all__ = ["Tetrahedra", "tetrahedra"]
+
+#: The paper's initial positions (particle i in row i).
+PAPER_POSITIONS = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+#: Pair order of the springs and of the force quantities: 12, 13, 14, 23, 24, 34.
+PAIRS_I = (0, 0, 0, 1, 1, 2)
+PAIRS_J = (1, 2, 3, 2, 3, 3)
+
+
+def _positive(name, value, allow_zero=False):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"tetrahedra {name} must be a number, got {value!r}") from None
+    ok = value >= 0 if allow_zero else value > 0
+    if not (math.isfinite(value) and ok):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"tetrahedra {name} must be finite and {bound}, got {value!r}")
+    return value
+
+
+class Tetrahedra(SecondOrderSystem):
+    """Four particles in space joined pairwise by Neo-Hooke springs (Eqs. 45–46).
+
+    ``u`` holds the positions: particle ``i`` (0-based) at ``u[3i:3i+3]``.
+    ``M = diag(masses)``, ``C = 0``, and the load acts on particle 1 in x:
+    ``p_0(t) = hat(t; load_amplitude, load_time)``.
+
+    Parameters
+    ----------
+    k_stiff : float
+        Spring constant of the pair (1, 2), > 0 (paper: 10³).
+    k_soft : float
+        Spring constant of the other five pairs, > 0 (paper: 1).
+    load_amplitude : float
+        Peak ``P`` of the load on particle 1 in x, finite (chosen: 5).
+    load_time : float
+        Rise time ``t1`` of the load, > 0; the load vanishes after ``2 t1``
+        (chosen: 1).
+    masses : array_like (4,)
+        Particle masses, > 0 (paper: 1).
+    positions : array_like (4, 3), optional
+        Initial positions, which also fix the rest lengths ``r0`` (the
+        initial state is force-free). Default: the paper's
+        (0,0,0), (1,0,0), (0,1,0), (0,0,1). No two particles may coincide.
+    v0 : array_like (12,), optional
+        Initial velocities (paper: at rest).
+
+    Notes
+    -----
+    Pair potential ``φ(r) = k/6 (r² + 2 r0³/r − 3 r0²)`` and its derivatives
+    ``φ' = k/3 (r − r0³/r²)``, ``φ'' = k/3 (1 + 2 r0³/r³)``,
+    ``φ''' = −2 k r0³/r⁴``; ``φ(r0) = φ'(r0) = 0`` and ``φ''(r0) = k``.
+    ``φ → ∞`` as ``r → 0``, so the springs resist collapse.
+
+    Sign of the force quantities: with ``e^{ij} = (x_j − x_i)/r`` the unit
+    vector from particle ``i`` to particle ``j``, ``f^{ij} = φ'(r) e^{ij}`` is the
+    pair's contribution to the internal force ``f = ∂V/∂u`` at particle ``j``
+    (and ``−f^{ij}`` at particle ``i``). A stretched spring (``r > r0``) has
+    ``f^{ij}`` along ``e^{ij}``: it pulls ``j`` back towards ``i`` with the force
+    ``−f^{ij}``.
+    """
+
+    name = "tetrahedra"
+    observation_time = 50.0
+    paper_targets = {"newmark": (3.0, 3.5, 4.0, 4.5),
+                     "bathe": (3.0, 3.5, 4.0, 4.5),
+                     "hfdi": (3.0, 3.5, 4.0, 4.5)}
+    #: No exact load rate: HFDI uses the paper's difference quotient.
+    load_rate = None
+    damping = None
+    u_scale = 1.0
+
+    def __init__(self, k_stiff=1e3, k_soft=1.0, load_amplitude=5.0, load_time=1.0,
+                 masses=(1.0, 1.0, 1.0, 1.0), positions=None, v0=None):
+        self.k_stiff = _positive("k_stiff", k_stiff)
+        self.k_soft = _positive("k_soft", k_soft)
+        try:
+            load_amplitude = float(load_amplitude)
+        except (TypeError, ValueError):
+            raise ValueError(f"tetrahedra load_amplitude must be a number, "
+                             f"got {load_amplitude!r}") from None
+        if not math.isfinite(load_amplitude):
+            raise ValueError(f"tetrahedra load_amplitude must be finite, got {load_amplitude!r}")
+        self.load_amplitude = load_amplitude
+        self.load_time = _positive("load_time", load_time)
+        masses = np.asarray(masses, dtype=float)
+        if masses.shape != (4,) or not np.all(np.isfinite(masses) & (masses > 0)):
+            raise ValueError(f"tetrahedra masses must be four positive finite numbers, "
+                             f"got {masses!r}")
+        self.masses = masses
+        x0 = np.asarray(PAPER_POSITIONS if positions is None else positions, dtype=float)
+        if x0.shape != (4, 3) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"tetrahedra positions must be a finite (4, 3) array, "
+                             f"got shape {x0.shape}")
+        self.n_dof = 12
+        self.mass = np.repeat(masses, 3)
+        self.initial_displacement = x0.ravel().copy()
+        if v0 is None:
+            self.initial_velocity = np.zeros(12)
+        else:
+            v0 = np.asarray(v0, dtype=float)
+            if v0.shape != (12,) or not np.all(np.isfinite(v0)):
+                raise ValueError(f"tetrahedra v0 must be 12 finite numbers, got shape {v0.shape}")
+            self.initial_velocity = v0.copy()
+        self._pair = PairPotential(4, 3, PAIRS_I, PAIRS_J)
+        self.rest_length = self._pair.geometry(self.initial_displacement)[1]
+        if not np.all(self.rest_length > 0):
+            raise ValueError("tetrahedra positions must be four distinct points")
+        self.spring_constant = np.array([self.k_stiff] + [self.k_soft] * 5)
+        self._positions_given = positions is not None
+
+    def parameters(self):
+        params = {"k_stiff": self.k_stiff, "k_soft": self.k_soft,
+                  "load_amplitude": self.load_amplitude, "load_time": self.load_time,
+                  "masses": tuple(self.masses.tolist())}
+        if self._positions_given:
+            x0 = self.initial_displacement.reshape(4, 3).tolist()
+            params["positions"] = tuple(map(tuple, x0))
+        if np.any(self.initial_velocity):
+            params["v0"] = tuple(self.initial_velocity.tolist())
+        return params
+
+    # -- pair potential ------------------------------------------------------
+    def _phi(self, r, order):
+        """``φ^{(order)}(r)`` per pair; ``r`` has the pairs on its last axis."""
+        k, r0 = self.spring_constant, self.rest_length
+        q = r0 ** 3 / r
+        if order == 0:
+            return k / 6.0 * (r ** 2 + 2.0 * q - 3.0 * r0 ** 2)
+        if order == 1:
+            return k / 3.0 * (r - q / r)
+        if order == 2:
+            return k / 3.0 * (1.0 + 2.0 * q / r ** 2)
+        return -2.0 * k * q / r ** 3
+
+    def distances(self, u):
+        """Pair distances ``r`` (6,) in the order 12, 13, 14, 23, 24, 34."""
+        return self._pair.geometry(np.asarray(u, dtype=float))[1]
+
+    # -- mechanics -----------------------------------------------------------
+    def internal_force(self, u):
+        u = np.asarray(u, dtype=float)
+        r = self.distances(u)
+        return self._pair.force(u, self._phi(r, 1))
+
+    def stiffness(self, u):
+        u = np.asarray(u, dtype=float)
+        r = self.distances(u)
+        return self._pair.stiffness(u, self._phi(r, 1), self._phi(r, 2))
+
+    def stiffness_derivative(self, u, w):
+        u = np.asarray(u, dtype=float)
+        r = self.distances(u)
+        return self._pair.stiffness_derivative(u, np.asarray(w, dtype=float), self._phi(r, 1),
+                                               self._phi(r, 2), self._phi(r, 3))
+
+    def potential_energy(self, u):
+        return float(self._phi(self.distances(u), 0).sum())
+
+    def load(self, t):
+        p = np.zeros(12)
+        p[0] = hat(t, self.load_amplitude, self.load_time)
+        return p
+
+    def quantities(self, t, u, v):
+        """Positions and the six interaction forces (Eq. 46), vectorised over times.
+
+        Parameters
+        ----------
+        t : ndarray (n,)
+        u, v : ndarray (n, 12)
+
+        Returns
+        -------
+        dict
+            ``"u"``: (n, 12) positions; ``"f"``: (n, 18), the force vectors
+            ``f^{ij}`` (x, y, z each) of the pairs 12, 13, 14, 23, 24, 34, with
+            the sign convention of the class notes.
+        """
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        x = u.reshape(-1, 4, 3)
+        d = x[:, PAIRS_J] - x[:, PAIRS_I]                      # (n, 6, 3)
+        r = np.sqrt(np.einsum("npk,npk->np", d, d))
+        f = (self._phi(r, 1) / r)[:, :, None] * d
+        return {"u": u, "f": f.reshape(-1, 18)}
+
+
+def tetrahedra(**params) -> Tetrahedra:
+    """The paper's tetrahedra (Section 5.2); keyword arguments as :class:`Tetrahedra`."""
+    return Tetrahedra(**params)
