@@ -7,9 +7,10 @@ from .articulated import Articulated, articulated
 from .dumbbell import Dumbbell, dumbbell
 from .loads import hat
 from .tetrahedra import Tetrahedra, tetrahedra
+from .toss_rule import TossRule, toss_rule
 
 __all__ = ["Dumbbell", "dumbbell", "Tetrahedra", "tetrahedra", "Articulated", "articulated",
-           "hat", "get", "available", "describe", "register"]
+           "TossRule", "toss_rule", "hat", "get", "available", "describe", "register"]
 
 _REGISTRY: dict = {}
 
@@ -45,3 +46,4 @@ def describe(name: str) -> dict:
 register("dumbbell", Dumbbell)
 register("tetrahedra", Tetrahedra)
 register("articulated", Articulated)
+register("toss_rule", TossRule)
