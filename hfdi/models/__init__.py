@@ -6,11 +6,13 @@ import inspect
 from .articulated import Articulated, articulated
 from .dumbbell import Dumbbell, dumbbell
 from .loads import hat
+from .symbolic import EnergyModel, elastic_pendulum, spring_chain
 from .tetrahedra import Tetrahedra, tetrahedra
 from .toss_rule import TossRule, toss_rule
 
 __all__ = ["Dumbbell", "dumbbell", "Tetrahedra", "tetrahedra", "Articulated", "articulated",
-           "TossRule", "toss_rule", "hat", "get", "available", "describe", "register"]
+           "TossRule", "toss_rule", "EnergyModel", "elastic_pendulum", "spring_chain",
+           "hat", "get", "available", "describe", "register"]
 
 _REGISTRY: dict = {}
 

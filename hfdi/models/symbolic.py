@@ -1,0 +1,771 @@
+"""Models defined by a potential energy written in sympy.
+
+:class:`EnergyModel` takes the degrees of freedom as sympy symbols and the
+potential energy ``V(u)`` as a sympy expression, and derives everything the
+integrator needs once, at construction:
+
+* the internal force ``f = ∂V/∂u`` (the gradient),
+* the tangent ``K = ∂f/∂u`` (the Hessian of ``V``),
+* the directional derivative of the tangent
+  ``T(u)[w]_ij = Σ_k ∂³V/∂u_i ∂u_j ∂u_k w_k``, with fresh symbols for ``w``.
+
+Each is compiled with :func:`sympy.lambdify` (numpy module, common
+subexpressions eliminated) into one generated function, so an evaluation is a
+single call with no Python loop over the degrees of freedom. ``K`` and ``T``
+are symmetric; only their structurally non-zero upper-triangle entries are
+compiled, and a fixed index map mirrors them into a dense array or a CSR
+matrix whose sparsity pattern is known from the symbolic expressions.
+
+Parameters of the energy (stiffnesses, lengths, ...) stay symbols in the
+compiled code and are passed as numbers at every evaluation, so changing one
+(:meth:`EnergyModel.set_parameters`) needs no new derivation.
+
+Two ready-made models built this way: :func:`elastic_pendulum` (a mass on a
+spring in the plane under gravity) and :func:`spring_chain` (a chain of masses
+joined by hardening springs, sparse).
+"""
+from __future__ import annotations
+
+import copy
+import math
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+import sympy
+from sympy.core.function import AppliedUndef
+
+from ..system import SecondOrderSystem
+
+__all__ = ["EnergyModel", "elastic_pendulum", "spring_chain"]
+
+
+# -- input checks -------------------------------------------------------------
+
+def _symbols(value, what, length=None):
+    """A tuple of distinct sympy Symbols from a Symbol or a sequence of them."""
+    if isinstance(value, sympy.Symbol):
+        value = (value,)
+    elif isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise ValueError(f"{what} must be a sympy Symbol or a sequence of them, got {value!r}")
+    items = tuple(sympy.Matrix(value)) if isinstance(value, sympy.MatrixBase) else tuple(value)
+    bad = [s for s in items if not isinstance(s, sympy.Symbol)]
+    if bad:
+        raise ValueError(f"{what} must be sympy Symbols (e.g. sympy.symbols('x y')), "
+                         f"got {bad[0]!r} of type {type(bad[0]).__name__}")
+    if not items:
+        raise ValueError(f"{what} must not be empty")
+    if length is not None and len(items) != length:
+        raise ValueError(f"{what} must have one symbol per degree of freedom ({length}), "
+                         f"got {len(items)}")
+    seen = set()
+    for s in items:
+        if s in seen:
+            raise ValueError(f"{what} contains the symbol {s} more than once")
+        seen.add(s)
+    return items
+
+
+def _expression(value, what):
+    """``value`` as a scalar sympy expression (numbers allowed, strings not)."""
+    if isinstance(value, (str, bytes)):
+        # parsing strings would create symbols by name behind the user's back
+        raise ValueError(f"{what} must be a sympy expression, not a string: {value!r}")
+    try:
+        expr = sympy.sympify(value, strict=True)
+    except (sympy.SympifyError, TypeError):
+        raise ValueError(f"{what} must be a sympy expression, got {value!r}") from None
+    if not isinstance(expr, sympy.Expr) or isinstance(expr, sympy.MatrixBase):
+        raise ValueError(f"{what} must be a scalar sympy expression, got "
+                         f"{type(expr).__name__}: {expr!r}")
+    undefined = expr.atoms(AppliedUndef)
+    if undefined:
+        raise ValueError(f"{what} contains undefined functions {sorted(map(str, undefined))}; "
+                         "write them out as expressions of the symbols")
+    return expr
+
+
+def _real(value, what):
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a real number, got {value!r}") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{what} must be finite, got {value!r}")
+    return out
+
+
+def _square_or_diagonal(value, n, what, positive_diagonal=False):
+    """A mass or damping matrix: 1-D diagonal (n,), dense (n, n) or sparse (n, n)."""
+    if sp.issparse(value):
+        if value.shape != (n, n):
+            raise ValueError(f"{what} must be ({n}, {n}) to match the {n} degrees of "
+                             f"freedom, got a sparse matrix of shape {value.shape}")
+        out = sp.csr_matrix(value, dtype=float)
+        if not np.all(np.isfinite(out.data)):
+            raise ValueError(f"{what} must be finite")
+        return out
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a numeric array or a sparse matrix, "
+                         f"got {value!r}") from None
+    if arr.shape not in ((n,), (n, n)):
+        raise ValueError(f"{what} must have shape ({n},) (diagonal) or ({n}, {n}) to match "
+                         f"the {n} degrees of freedom, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be finite")
+    if positive_diagonal and arr.ndim == 1 and not np.all(arr > 0):
+        raise ValueError(f"{what} given as a diagonal must be positive, got {arr}")
+    return arr
+
+
+def _vector(value, n, what):
+    arr = np.zeros(n) if value is None else np.array(value, dtype=float)
+    if arr.shape != (n,):
+        raise ValueError(f"{what} must have shape ({n},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be finite")
+    return arr
+
+
+# -- layout of a symmetric matrix from its upper-triangle entries ------------
+
+class _SymmetricLayout:
+    """Where the compiled upper-triangle values go in the full ``n × n`` matrix.
+
+    The compiled function returns one value per structurally non-zero entry
+    ``(i, j)`` with ``i <= j``; :meth:`dense` and :meth:`csr` mirror them with
+    one fancy-indexing operation, so no Python loop runs per entry.
+    """
+
+    def __init__(self, n, rows, cols):
+        rows = np.asarray(rows, dtype=np.intp)
+        cols = np.asarray(cols, dtype=np.intp)
+        off = rows != cols
+        full_rows = np.concatenate([rows, cols[off]])
+        full_cols = np.concatenate([cols, rows[off]])
+        source = np.concatenate([np.arange(rows.size), np.flatnonzero(off)])
+        order = np.lexsort((full_cols, full_rows))  # CSR order: by row, then column
+        self.n = n
+        self.rows = full_rows[order]
+        self.cols = full_cols[order]
+        self.source = source[order]
+        self.flat = self.rows * n + self.cols
+        index_dtype = np.int32 if n * n < np.iinfo(np.int32).max else np.int64
+        self.indices = self.cols.astype(index_dtype)
+        self.indptr = np.concatenate(
+            [[0], np.cumsum(np.bincount(self.rows, minlength=n))]).astype(index_dtype)
+
+    @property
+    def nnz(self):
+        return int(self.rows.size)
+
+    def dense(self, values):
+        out = np.zeros(self.n * self.n)
+        out[self.flat] = values[self.source]
+        return out.reshape(self.n, self.n)
+
+    def csr(self, values):
+        # fresh index arrays: a caller that edits the structure in place must not
+        # change the pattern of later evaluations
+        return sp.csr_matrix((values[self.source], self.indices.copy(), self.indptr.copy()),
+                             shape=(self.n, self.n))
+
+
+def _compile(args, exprs):
+    return sympy.lambdify(args, exprs, modules="numpy", cse=True)
+
+
+# -- the model ------------------------------------------------------------------
+
+class EnergyModel(SecondOrderSystem):
+    """A model ``M u'' + C u' + ∂V/∂u = p(t)`` from a sympy potential energy ``V``.
+
+    The gradient ``f``, the Hessian ``K`` and the third-derivative contraction
+    ``T(u)[w]_ij = Σ_k ∂³V/∂u_i ∂u_j ∂u_k w_k`` are derived once, at
+    construction, and compiled with :func:`sympy.lambdify` (numpy, common
+    subexpression elimination). They are exact, so the HFDI corrector gets
+    the tangent it needs (paper, Eq. 21).
+
+    Parameters
+    ----------
+    dofs : sympy.Symbol or sequence of sympy.Symbol
+        The ``N`` degrees of freedom ``u``, in the order of the state vector.
+    energy : sympy expression
+        Potential energy ``V``; may use the ``dofs`` and the symbols of
+        ``parameters`` and nothing else.
+    mass : array_like (N,) or (N, N) or scipy sparse (N, N)
+        Mass matrix; a 1-D array is a (positive) diagonal.
+    parameters : dict of sympy.Symbol to float, optional
+        Values of the parameter symbols in ``energy`` and ``quantities``. They
+        remain symbols in the compiled functions and are substituted at every
+        evaluation: :meth:`set_parameters` changes them without re-deriving.
+    load : callable ``p(t) -> (N,)``, optional
+        External load; zero when omitted.
+    load_rate : callable ``p'(t) -> (N,)``, optional
+        Exact load rate for HFDI (otherwise HFDI takes a difference quotient).
+    damping : array_like (N,) or (N, N) or scipy sparse (N, N), optional
+    quantities : dict of str to expression or sequence of expressions, optional
+        Quantities of interest in the ``dofs``, the ``velocities``, ``time``
+        and the parameters. :meth:`quantities` evaluates them for many times at
+        once and returns an ``(n, m)`` array per name (``m = 1`` for a single
+        expression). ``"u"`` (the displacement) is included unless given here.
+    velocities : sequence of sympy.Symbol, optional
+        Symbols standing for ``u'`` in ``quantities``, one per DOF.
+    time : sympy.Symbol, optional
+        Symbol standing for ``t`` in ``quantities``.
+    initial_displacement, initial_velocity : array_like (N,), optional
+        Default initial conditions; zero when omitted.
+    name : str, optional
+    u_scale : float, optional
+        A length of the model: the floor of the Newton convergence test and
+        the scale of the perturbations of :func:`hfdi.check_derivatives`.
+    observation_time : float, optional
+        A natural duration of the model's experiment.
+    sparse : bool, optional
+        Return ``K`` and ``T`` as scipy CSR matrices with a fixed pattern (the
+        structurally non-zero entries of the symbolic expressions) instead of
+        dense arrays. Worth it for large, sparsely coupled models.
+
+    Attributes
+    ----------
+    dofs : tuple of sympy.Symbol
+    energy : sympy.Expr
+    gradient : tuple of sympy.Expr
+        ``∂V/∂u_i`` in the user's symbols.
+    hessian : sympy.ImmutableSparseMatrix
+        ``∂²V/∂u_i ∂u_j`` in the user's symbols.
+    stiffness_pattern : tuple of ndarray
+        ``(rows, cols)`` of the structurally non-zero entries of ``K``.
+    stiffness_derivative_pattern : tuple of ndarray
+        The same for ``T``.
+
+    Raises
+    ------
+    ValueError
+        If a symbol is repeated or is not a Symbol, if the energy or a quantity
+        uses a symbol that is neither a DOF nor declared, if the mass or
+        damping does not match the number of DOFs, if a parameter value is not
+        a finite real number, ...
+
+    See Also
+    --------
+    hfdi.System : a model from plain callables.
+    hfdi.check_derivatives : check f, K and T against finite differences.
+    elastic_pendulum, spring_chain : models built with this class.
+
+    Examples
+    --------
+    A Duffing oscillator ``V = ½ k x² + ¼ k3 x⁴`` with ``k3`` a parameter:
+
+    >>> import sympy
+    >>> import hfdi
+    >>> from hfdi.models.symbolic import EnergyModel
+    >>> x, k3 = sympy.symbols("x k3")
+    >>> model = EnergyModel([x], x**2 / 2 + k3 * x**4 / 4, mass=[1.0],
+    ...                     parameters={k3: 2.0}, initial_displacement=[1.0])
+    >>> model.gradient
+    (k3*x**3 + x,)
+    >>> model.internal_force([1.0]), model.stiffness([1.0])
+    (array([3.]), array([[7.]]))
+    >>> model.stiffness_derivative([1.0], [1.0])
+    array([[12.]])
+    >>> model.set_parameters({k3: 0.0})
+    >>> model.internal_force([1.0])
+    array([1.])
+    >>> hfdi.check_derivatives(model).ok(1e-8)
+    True
+    """
+
+    def __init__(self, dofs, energy, mass, *, parameters: Mapping | None = None,
+                 load: Callable | None = None, load_rate: Callable | None = None,
+                 damping=None, quantities: Mapping | None = None,
+                 velocities: Sequence | None = None, time: sympy.Symbol | None = None,
+                 initial_displacement=None, initial_velocity=None,
+                 name: str = "energy_model", u_scale: float = 1.0,
+                 observation_time: float | None = None, sparse: bool = False):
+        dofs = _symbols(dofs, "dofs")
+        n = len(dofs)
+        energy = _expression(energy, "energy")
+
+        parameters = {} if parameters is None else parameters
+        if not isinstance(parameters, Mapping):
+            raise ValueError("parameters must be a dict mapping sympy Symbols to numbers, "
+                             f"got {type(parameters).__name__}")
+        param_symbols = _symbols(tuple(parameters), "parameters") if parameters else ()
+        param_values = tuple(_real(parameters[s], f"parameter {s}") for s in param_symbols)
+
+        velocity_symbols = (() if velocities is None
+                            else _symbols(velocities, "velocities", length=n))
+        if time is not None and not isinstance(time, sympy.Symbol):
+            raise ValueError(f"time must be a sympy Symbol, got {time!r}")
+        time_symbols = () if time is None else (time,)
+
+        # every symbol has one role and one name, so that the error messages,
+        # parameters() and set_parameters() by name are unambiguous
+        roles = ([(s, "dof") for s in dofs] + [(s, "parameter") for s in param_symbols]
+                 + [(s, "velocity") for s in velocity_symbols]
+                 + [(s, "time") for s in time_symbols])
+        by_name = {}
+        for s, role in roles:
+            if s.name in by_name:
+                other, other_role = by_name[s.name]
+                what = "twice" if other == s else "for two different symbols"
+                raise ValueError(f"the name {s.name!r} is used {what} "
+                                 f"(as {other_role} and as {role})")
+            by_name[s.name] = (s, role)
+
+        unknown = energy.free_symbols - set(dofs) - set(param_symbols)
+        if unknown:
+            names = ", ".join(sorted(map(str, unknown)))
+            raise ValueError(f"energy depends on unknown symbols {names}: "
+                             "declare them as dofs or give their values in parameters")
+
+        if not callable(load) and load is not None:
+            raise ValueError(f"load must be a callable t -> (N,), got {load!r}")
+        if not callable(load_rate) and load_rate is not None:
+            raise ValueError(f"load_rate must be a callable t -> (N,), got {load_rate!r}")
+
+        self.n_dof = n
+        self.mass = _square_or_diagonal(mass, n, "mass", positive_diagonal=True)
+        self.damping = None if damping is None else _square_or_diagonal(damping, n, "damping")
+        self.initial_displacement = _vector(initial_displacement, n, "initial_displacement")
+        self.initial_velocity = _vector(initial_velocity, n, "initial_velocity")
+        self.u_scale = _real(u_scale, "u_scale")
+        if self.u_scale <= 0:
+            raise ValueError(f"u_scale must be > 0, got {u_scale!r}")
+        self.observation_time = (None if observation_time is None
+                                 else _real(observation_time, "observation_time"))
+        if self.observation_time is not None and self.observation_time <= 0:
+            raise ValueError(f"observation_time must be > 0, got {observation_time!r}")
+        if not isinstance(name, str):
+            raise ValueError(f"name must be a string, got {name!r}")
+        self.name = name
+        self.sparse = bool(sparse)
+        self._load = load
+        self.load_rate = load_rate
+
+        self.dofs = dofs
+        self.energy = energy
+        self.parameter_symbols = param_symbols
+        self._param_values = param_values
+        self.velocity_symbols = velocity_symbols
+        self.time_symbol = time
+        self._quantity_names, self._quantity_sizes, quantity_exprs = self._parse_quantities(
+            quantities, set(dofs) | set(param_symbols) | set(velocity_symbols) | set(time_symbols))
+
+        k_exprs, t_exprs, w_user = self._derive()
+
+        # The compiled code uses internal symbols: the user's names may be
+        # Python keywords, invalid identifiers, or clash with the names that
+        # common-subexpression elimination generates.
+        self._u = sympy.symbols(f"_u0:{n}")
+        self._w = sympy.symbols(f"_w0:{n}")
+        self._v = sympy.symbols(f"_v0:{n}")
+        self._p = sympy.symbols(f"_p0:{len(param_symbols)}")
+        self._t = sympy.Symbol("_t")
+        rename = dict(zip(dofs, self._u))
+        rename.update(zip(param_symbols, self._p))
+        rename.update(zip(velocity_symbols, self._v))
+        rename.update(zip(time_symbols, (self._t,)))
+        w_rename = dict(zip(w_user, self._w))
+        w_rename.update(rename)
+        self._exprs = {
+            "V": energy.xreplace(rename),
+            "f": [g.xreplace(rename) for g in self.gradient],
+            "K": [e.xreplace(rename) for e in k_exprs],
+            "T": [e.xreplace(w_rename) for e in t_exprs],
+            "q": [e.xreplace(rename) for e in quantity_exprs],
+        }
+        self._build_functions()
+
+    # -- construction helpers ------------------------------------------------
+    @staticmethod
+    def _parse_quantities(quantities, allowed):
+        names, sizes, exprs = [], [], []
+        if quantities is None:
+            quantities = {}
+        if not isinstance(quantities, Mapping):
+            raise ValueError("quantities must be a dict mapping names to sympy expressions, "
+                             f"got {type(quantities).__name__}")
+        for qname, value in quantities.items():
+            if not isinstance(qname, str) or not qname:
+                raise ValueError(f"quantity names must be non-empty strings, got {qname!r}")
+            if isinstance(value, sympy.MatrixBase):
+                items = list(value)
+            elif isinstance(value, (list, tuple, np.ndarray)):
+                items = list(np.ravel(np.asarray(value, dtype=object)))
+            else:
+                items = [value]
+            if not items:
+                raise ValueError(f"quantity {qname!r} has no expressions")
+            items = [_expression(e, f"quantity {qname!r}") for e in items]
+            unknown = set().union(*(e.free_symbols for e in items)) - allowed
+            if unknown:
+                names_ = ", ".join(sorted(map(str, unknown)))
+                raise ValueError(f"quantity {qname!r} depends on unknown symbols {names_}: "
+                                 "quantities may use the dofs, the velocities, time and "
+                                 "the parameters")
+            names.append(qname)
+            sizes.append(len(items))
+            exprs.extend(items)
+        return tuple(names), tuple(sizes), exprs
+
+    def _derive(self):
+        """Gradient, Hessian and T[w] in the user's symbols.
+
+        Sets :attr:`gradient`, :attr:`hessian` and the layouts of ``K`` and
+        ``T``; returns the upper-triangle expressions of ``K`` and ``T`` and
+        the symbols standing for ``w``.
+        """
+        dofs = self.dofs
+        n = len(dofs)
+        dof_set = set(dofs)
+        # Differentiate term by term, each term only by the DOFs it contains:
+        # for an energy that is a sum of local terms (springs, bonds) this keeps
+        # the work proportional to the number of terms instead of N times it.
+        terms = sympy.Add.make_args(self.energy)
+        by_dof = {s: [] for s in dofs}
+        for term in terms:
+            for s in term.free_symbols & dof_set:
+                by_dof[s].append(term)
+        gradient = tuple(sympy.Add(*[term.diff(s) for term in by_dof[s]]) for s in dofs)
+        depends = [g.free_symbols & dof_set for g in gradient]
+        k_rows, k_cols, k_exprs = [], [], []
+        hessian = {}
+        for i in range(n):
+            for j in range(i, n):
+                # ∂g_i/∂u_j is structurally zero unless g_i contains u_j
+                if dofs[j] not in depends[i]:
+                    continue
+                e = gradient[i].diff(dofs[j])
+                if e == 0:
+                    continue
+                k_rows.append(i)
+                k_cols.append(j)
+                k_exprs.append(e)
+                hessian[(i, j)] = hessian[(j, i)] = e
+        # a Dummy cannot collide with any symbol of the user
+        w = tuple(sympy.Dummy(f"w{i}") for i in range(n))
+        t_rows, t_cols, t_exprs = [], [], []
+        for i, j, e in zip(k_rows, k_cols, k_exprs):
+            present = e.free_symbols
+            terms = [e.diff(s) * w[k] for k, s in enumerate(dofs) if s in present]
+            te = sympy.Add(*terms)
+            if te == 0:
+                continue
+            t_rows.append(i)
+            t_cols.append(j)
+            t_exprs.append(te)
+        leftover = [e for e in (*gradient, *k_exprs, *t_exprs) if e.has(sympy.Derivative)]
+        if leftover:
+            raise ValueError("sympy could not differentiate the energy in closed form: "
+                             f"{leftover[0]}; with Abs, sign, Max and the like, declare the "
+                             "DOF symbols real, e.g. sympy.symbols('x y', real=True)")
+        self.gradient = gradient
+        self.hessian = sympy.ImmutableSparseMatrix(n, n, hessian)
+        self._k_layout = _SymmetricLayout(n, k_rows, k_cols)
+        self._t_layout = _SymmetricLayout(n, t_rows, t_cols)
+        return k_exprs, t_exprs, w
+
+    def _build_functions(self):
+        u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
+        ex = self._exprs
+        self._fun_v = _compile([u, p], ex["V"])
+        self._fun_f = _compile([u, p], ex["f"])
+        self._fun_k = _compile([u, p], ex["K"])
+        self._fun_t = _compile([u, w, p], ex["T"])
+        self._fun_q = _compile([t, u, v, p], ex["q"]) if ex["q"] else None
+
+    # Generated functions do not pickle; the expressions do, so a copy in
+    # another process recompiles them (no new derivation).
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        for key in self._FUNCTIONS:
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._build_functions()
+
+    # Copies in the same process share the compiled functions (they hold no
+    # state), instead of recompiling through __getstate__/__setstate__.
+    _FUNCTIONS = ("_fun_v", "_fun_f", "_fun_k", "_fun_t", "_fun_q")
+
+    def __copy__(self):
+        other = object.__new__(type(self))
+        other.__dict__.update(self.__dict__)
+        return other
+
+    def __deepcopy__(self, memo):
+        other = object.__new__(type(self))
+        memo[id(self)] = other
+        for key, value in self.__dict__.items():
+            other.__dict__[key] = value if key in self._FUNCTIONS else copy.deepcopy(value, memo)
+        return other
+
+    @property
+    def stiffness_pattern(self):
+        """``(rows, cols)`` of the structurally non-zero entries of ``K``, CSR order."""
+        return self._k_layout.rows.copy(), self._k_layout.cols.copy()
+
+    @property
+    def stiffness_derivative_pattern(self):
+        """``(rows, cols)`` of the structurally non-zero entries of ``T``, CSR order."""
+        return self._t_layout.rows.copy(), self._t_layout.cols.copy()
+
+    # -- parameters --------------------------------------------------------------
+    def parameters(self) -> dict:
+        """The parameter values by symbol name."""
+        return {s.name: v for s, v in zip(self.parameter_symbols, self._param_values)}
+
+    def set_parameters(self, values: Mapping | None = None, **by_name) -> None:
+        """Change parameter values in place; the compiled functions are kept.
+
+        Parameters
+        ----------
+        values : dict of sympy.Symbol (or name) to float, optional
+        **by_name : float
+            Values by symbol name, e.g. ``set_parameters(k=2.0)``.
+        """
+        updates = dict(values or {})
+        updates.update(by_name)
+        current = list(self._param_values)
+        index = {s: i for i, s in enumerate(self.parameter_symbols)}
+        index.update({s.name: i for i, s in enumerate(self.parameter_symbols)})
+        for key, value in updates.items():
+            if key not in index:
+                known = ", ".join(s.name for s in self.parameter_symbols) or "none"
+                raise ValueError(f"{key!r} is not a parameter of this model (parameters: {known})")
+            current[index[key]] = _real(value, f"parameter {key}")
+        self._param_values = tuple(current)
+
+    def with_parameters(self, values: Mapping | None = None, **by_name) -> "EnergyModel":
+        """A copy with other parameter values, sharing the compiled functions."""
+        other = copy.copy(self)
+        other.set_parameters(values, **by_name)
+        return other
+
+    # -- mechanics -----------------------------------------------------------------
+    def _state(self, u, what="u"):
+        u = np.asarray(u, dtype=float)
+        if u.shape != (self.n_dof,):
+            raise ValueError(f"{what} must have shape ({self.n_dof},), got {u.shape}")
+        return u
+
+    def internal_force(self, u):
+        """``f(u) = ∂V/∂u``, shape (N,)."""
+        # a constant entry (0 for a DOF that V does not depend on) comes back as
+        # a Python scalar; the rest as numpy scalars: asarray takes both
+        return np.asarray(self._fun_f(self._state(u), self._param_values), dtype=float)
+
+    def stiffness(self, u):
+        """``K(u) = ∂²V/∂u²``: ndarray (N, N), or CSR when ``sparse``."""
+        values = np.asarray(self._fun_k(self._state(u), self._param_values), dtype=float)
+        return self._k_layout.csr(values) if self.sparse else self._k_layout.dense(values)
+
+    def stiffness_derivative(self, u, w):
+        """``T(u)[w] = d(K(u) w)/du``: ndarray (N, N), or CSR when ``sparse``."""
+        values = np.asarray(self._fun_t(self._state(u), self._state(w, "w"),
+                                        self._param_values), dtype=float)
+        return self._t_layout.csr(values) if self.sparse else self._t_layout.dense(values)
+
+    def potential_energy(self, u):
+        """``V(u)``: a float for ``u`` of shape (N,), an (n,) array for (n, N)."""
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 2 and u.shape[1] == self.n_dof:
+            value = self._fun_v(u.T, self._param_values)
+            return np.broadcast_to(np.asarray(value, dtype=float), u.shape[:1]).copy()
+        return float(self._fun_v(self._state(u), self._param_values))
+
+    def load(self, t):
+        """External load ``p(t)``, shape (N,)."""
+        return np.zeros(self.n_dof) if self._load is None else np.asarray(self._load(t), float)
+
+    def quantities(self, t, u, v=None):
+        """Quantities of interest at many times in one vectorised call.
+
+        Parameters
+        ----------
+        t : float or ndarray (n,)
+        u : ndarray (N,) or (n, N)
+        v : ndarray (N,) or (n, N), optional
+            Needed only if a quantity uses the velocity symbols.
+
+        Returns
+        -------
+        dict of str to ndarray (n, m)
+        """
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        if u.ndim != 2 or u.shape[1] != self.n_dof:
+            raise ValueError(f"u must have shape (n, {self.n_dof}), got {u.shape}")
+        n = u.shape[0]
+        t = np.asarray(t, dtype=float).ravel()
+        if t.size not in (1, n):
+            raise ValueError(f"t must be a scalar or have {n} entries, got {t.size}")
+        t = np.broadcast_to(t, (n,))
+        if v is None:
+            if self.velocity_symbols and self._fun_q is not None and any(
+                    e.has(*self._v) for e in self._exprs["q"]):
+                raise ValueError("these quantities use the velocities: pass v")
+            v = np.zeros_like(u)
+        v = np.atleast_2d(np.asarray(v, dtype=float))
+        if v.shape != u.shape:
+            raise ValueError(f"v must have the shape of u {u.shape}, got {v.shape}")
+        out = {"u": u}
+        if self._fun_q is None:
+            return out
+        values = self._fun_q(t, u.T, v.T, self._param_values)
+        # constant expressions come back as scalars: broadcast every column to (n,)
+        columns = np.stack(np.broadcast_arrays(*[np.asarray(c, dtype=float) for c in values],
+                                               np.empty(n))[:-1], axis=1)
+        start = 0
+        for qname, size in zip(self._quantity_names, self._quantity_sizes):
+            out[qname] = columns[:, start:start + size]
+            start += size
+        return out
+
+    def __repr__(self):
+        params = ", ".join(f"{k}={v!r}" for k, v in self.parameters().items())
+        dofs = ", ".join(s.name for s in self.dofs)
+        sep = "; " if params else ""
+        return f"EnergyModel({self.name!r}, dofs=({dofs}){sep}{params})"
+
+
+# -- ready-made models ------------------------------------------------------------
+
+def elastic_pendulum(k: float = 30.0, length: float = 1.0, mass: float = 1.0,
+                     g: float = 9.81, *, u0=(0.35, -1.6), v0=(0.0, 0.0),
+                     observation_time: float = 20.0) -> EnergyModel:
+    """A mass on a linear spring in the plane, swinging under gravity.
+
+    The spring is pinned at the origin; ``u = (x, y)`` is the position of the
+    mass with ``y`` upwards, and
+
+    ``V = ½ k (√(x² + y²) − L)² + m g y``.
+
+    With the defaults the spring frequency ``√(k/m) ≈ 5.48`` rad/s is close to
+    twice the pendulum frequency ``√(g/(L + m g/k)) ≈ 2.72`` rad/s, the 2:1
+    resonance at which the bouncing and the swinging trade energy back and
+    forth, so the motion is strongly nonlinear.
+
+    Parameters
+    ----------
+    k : float
+        Spring stiffness.
+    length : float
+        Unstretched length ``L`` of the spring.
+    mass : float
+        The mass ``m`` (in the mass matrix and the gravity term).
+    g : float
+        Gravity.
+    u0, v0 : array_like (2,)
+        Initial position and velocity. Default: released from rest, stretched
+        and a little off the vertical.
+    observation_time : float
+
+    Returns
+    -------
+    EnergyModel
+        With parameters ``k``, ``L`` and ``g`` (changeable with
+        :meth:`EnergyModel.set_parameters`; ``m`` is fixed because it is also
+        in the mass matrix), and the quantities ``length`` (``r``), ``angle``
+        (from the downward vertical), ``energy`` (``V + ½ m |u'|²``).
+
+    Examples
+    --------
+    >>> import hfdi
+    >>> from hfdi.models.symbolic import elastic_pendulum
+    >>> model = elastic_pendulum()
+    >>> res = hfdi.integrate(model, "hfdi", model.observation_time, target_iterations=4.0)
+    >>> res.success
+    True
+    """
+    m = _real(mass, "elastic_pendulum mass")
+    for what, value in (("k", k), ("length", length), ("g", g)):
+        if not _real(value, f"elastic_pendulum {what}") > 0:
+            raise ValueError(f"elastic_pendulum {what} must be > 0, got {value!r}")
+    if not m > 0:
+        raise ValueError(f"elastic_pendulum mass must be > 0, got {mass!r}")
+    x, y, vx, vy = sympy.symbols("x y v_x v_y")
+    ks, L, gs = sympy.symbols("k L g")
+    r = sympy.sqrt(x ** 2 + y ** 2)
+    energy = ks / 2 * (r - L) ** 2 + m * gs * y
+    quantities = {
+        "length": r,
+        "angle": sympy.atan2(x, -y),
+        "energy": energy + m / 2 * (vx ** 2 + vy ** 2),
+    }
+    return EnergyModel([x, y], energy, mass=[m, m],
+                       parameters={ks: float(k), L: float(length), gs: float(g)},
+                       quantities=quantities, velocities=[vx, vy],
+                       initial_displacement=u0, initial_velocity=v0,
+                       name="elastic_pendulum", u_scale=float(length),
+                       observation_time=observation_time)
+
+
+def spring_chain(n_masses: int = 5, k: float = 1.0, k3: float = 4.0, mass: float = 1.0, *,
+                 u0=None, v0=None, observation_time: float = 30.0) -> EnergyModel:
+    """A chain of masses joined by hardening springs, fixed at one end.
+
+    Mass ``i`` (``i = 1..n``) moves along the chain with displacement
+    ``u_i``; spring ``i`` joins mass ``i − 1`` to mass ``i``, with ``u_0 = 0``
+    the fixed end, and stores
+
+    ``V_i = ½ k d_i² + ¼ k3 d_i⁴``,  ``d_i = u_i − u_{i−1}``.
+
+    ``K`` and ``T`` are tridiagonal and returned as CSR matrices
+    (``sparse=True``).
+
+    Parameters
+    ----------
+    n_masses : int
+    k, k3 : float
+        Linear and cubic spring coefficients.
+    mass : float
+        Each mass.
+    u0, v0 : array_like (n_masses,), optional
+        Initial displacement and velocity. Default: every spring stretched by
+        0.8, so that the cubic force ``k3 d³`` exceeds the linear one, and
+        released from rest; the free end snaps back and a nonlinear wave runs
+        up and down the chain.
+    observation_time : float
+
+    Returns
+    -------
+    EnergyModel
+        With parameters ``k`` and ``k3`` and the quantity ``extension`` (the
+        ``d_i``, shape (n, n_masses)).
+
+    Examples
+    --------
+    >>> from hfdi.models.symbolic import spring_chain
+    >>> chain = spring_chain(n_masses=4)
+    >>> K = chain.stiffness(chain.initial_displacement)
+    >>> K.format, K.nnz
+    ('csr', 10)
+    """
+    if isinstance(n_masses, bool) or not isinstance(n_masses, (int, np.integer)) \
+            or n_masses < 1:
+        raise ValueError(f"spring_chain n_masses must be an integer >= 1, got {n_masses!r}")
+    n = int(n_masses)
+    if not _real(k, "spring_chain k") > 0:
+        raise ValueError(f"spring_chain k must be > 0, got {k!r}")
+    if not _real(k3, "spring_chain k3") >= 0:
+        raise ValueError(f"spring_chain k3 must be >= 0, got {k3!r}")
+    if not _real(mass, "spring_chain mass") > 0:
+        raise ValueError(f"spring_chain mass must be > 0, got {mass!r}")
+    u = sympy.symbols(f"u1:{n + 1}")
+    ks, k3s = sympy.symbols("k k3")
+    d = [u[0]] + [u[i] - u[i - 1] for i in range(1, n)]
+    energy = sympy.Add(*[ks / 2 * di ** 2 + k3s / 4 * di ** 4 for di in d])
+    if u0 is None:
+        u0 = 0.8 * np.arange(1, n + 1)
+    return EnergyModel(u, energy, mass=np.full(n, float(mass)),
+                       parameters={ks: float(k), k3s: float(k3)},
+                       quantities={"extension": d},
+                       initial_displacement=u0, initial_velocity=v0,
+                       name="spring_chain", u_scale=1.0,
+                       observation_time=observation_time, sparse=True)
