@@ -1,7 +1,7 @@
 """Predictor (paper Eqs. 36–37) and Newton corrector (Eqs. 35 and 38)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -67,11 +67,14 @@ class StepOutcome:
         Newton corrections per stage (summed, they are the step's ``N``).
     message : str
         Why the attempt failed (empty on success).
+    stages : list of State
+        End states of the stages before the last (Bathe's mid-step state).
     """
 
     state: State | None
     iterations: list
     message: str = ""
+    stages: list = field(default_factory=list)
 
     @property
     def converged(self) -> bool:
@@ -110,4 +113,4 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
         raise
     except Exception as exc:  # the model failed at some state: treat as a failed attempt
         return StepOutcome(None, iterations, f"model raised {type(exc).__name__}: {exc}")
-    return StepOutcome(done[-1], iterations)
+    return StepOutcome(done[-1], iterations, stages=done[:-1])

@@ -405,7 +405,12 @@ class Integrator:
         old, new = s.current, outcome.state
         potential = ev.potential_energy(new.u)
         kinetic_old, kinetic_new = ev.kinetic_energy(old.v), ev.kinetic_energy(new.v)
-        work = 0.5 * float((new.u - old.u) @ (old.p + new.p))                # Eq. 41
+        # Eq. 41, the trapezoidal rule over the points where the scheme samples
+        # the load: the step's ends, and Bathe's mid-step, whose load the
+        # scheme does feel and an end-point rule would miss.
+        work = 0.0
+        for a, b in zip([old, *outcome.stages], [*outcome.stages, new]):
+            work += 0.5 * float((b.u - a.u) @ (a.p + b.p))
         increment = potential - s.potential + kinetic_new - kinetic_old - work  # Eq. 40
         s.previous, s.current = old, new
         s.work += work
