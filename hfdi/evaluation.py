@@ -14,7 +14,12 @@ import scipy.sparse as sp
 from .linalg import Factorization, combine, matvec, normalise_matrix, solve
 from .system import SecondOrderSystem
 
-__all__ = ["State", "Evaluator", "ModelError"]
+__all__ = ["State", "Evaluator", "ModelError", "DENSE_BELOW"]
+
+#: Sparse matrices of models with fewer DOFs than this are handled as dense
+#: arrays: below about a hundred unknowns a dense LU costs microseconds, while
+#: every scipy.sparse operation costs tens of microseconds of overhead.
+DENSE_BELOW = 128
 
 
 class ModelError(ValueError):
@@ -66,6 +71,9 @@ class Evaluator:
         if self.mass is None:
             raise ValueError("system.mass must be given")
         self.damping = normalise_matrix(system.damping, n, "damping")
+        if n < DENSE_BELOW:
+            self.mass, self.damping = (a.toarray() if sp.issparse(a) else a
+                                       for a in (self.mass, self.damping))
         self.extra_load = extra_load
         self.nfev = self.njev = self.ntev = self.nlu = self.npev = 0
         self._mass_factor = None
@@ -84,7 +92,7 @@ class Evaluator:
         if sp.issparse(value):
             if value.shape != (self.n, self.n):
                 raise ModelError(f"{what} returned shape {value.shape}, expected ({self.n}, {self.n})")
-            return value
+            return value.toarray() if self.n < DENSE_BELOW else value
         arr = np.asarray(value, dtype=float)
         if arr.shape != (self.n, self.n):
             raise ModelError(f"{what} returned shape {arr.shape}, expected ({self.n}, {self.n})")

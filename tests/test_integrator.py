@@ -205,29 +205,42 @@ def test_energy_growth_guard():
 
 
 # -- matrix forms ---------------------------------------------------------------------------
-def chain(mass, damping=None):
-    k = np.array([[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]]) * 50
-    return hfdi.LinearSystem(mass=mass, stiffness=k, damping=damping,
-                             initial_displacement=[0.1, 0.0, -0.1],
-                             load=lambda t: np.array([0.0, np.sin(5 * t), 0.0]))
+def chain(mass, damping=None, n=3):
+    """A fixed-free chain of n masses; matrices given in the form of ``mass``."""
+    k = 50.0 * (2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1))
+    k[-1, -1] = 50.0
+    if sparse.issparse(mass):
+        k = sparse.csr_matrix(k)
+    u0 = np.zeros(n)
+    u0[0], u0[-1] = 0.1, -0.1
+    return hfdi.LinearSystem(mass=mass, stiffness=k, damping=damping, initial_displacement=u0,
+                             load=lambda t: np.where(np.arange(n) == 1, np.sin(5 * t), 0.0))
 
 
+# below hfdi.evaluation.DENSE_BELOW DOFs sparse input is handled densely; 150
+# DOFs exercise the sparse paths (diagonal B, and the block system for a
+# non-diagonal B)
+SIZES = [3, 150]
+
+
+@pytest.mark.parametrize("n", SIZES)
 @pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-def test_mass_forms_give_the_same_solution(scheme):
-    m = np.array([1.0, 2.0, 3.0])
+def test_mass_forms_give_the_same_solution(scheme, n):
+    m = 1.0 + np.arange(n) % 3
     forms = [m, np.diag(m), sparse.diags(m).tocsr()]
-    results = [hfdi.integrate(chain(M, damping=0.1 * np.diag(m)), scheme, 1.0, step=0.01)
+    results = [hfdi.integrate(chain(M, damping=0.1 * np.diag(m), n=n), scheme, 0.5, step=0.01)
                for M in forms]
     for r in results[1:]:
         np.testing.assert_allclose(r.u, results[0].u, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("n", SIZES)
 @pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-def test_consistent_sparse_mass_matches_dense(scheme):
-    M = np.array([[2.0, 0.5, 0.0], [0.5, 2.0, 0.5], [0.0, 0.5, 1.0]])
+def test_consistent_sparse_mass_matches_dense(scheme, n):
+    M = 2.0 * np.eye(n) + 0.5 * (np.eye(n, k=1) + np.eye(n, k=-1))
     C = 0.05 * M
-    dense = hfdi.integrate(chain(M, C), scheme, 1.0, step=0.01)
-    sp_ = hfdi.integrate(chain(sparse.csr_matrix(M), sparse.csr_matrix(C)), scheme, 1.0,
+    dense = hfdi.integrate(chain(M, C, n=n), scheme, 0.5, step=0.01)
+    sp_ = hfdi.integrate(chain(sparse.csr_matrix(M), sparse.csr_matrix(C), n=n), scheme, 0.5,
                          step=0.01)
     np.testing.assert_allclose(sp_.u, dense.u, rtol=1e-10, atol=1e-13)
 

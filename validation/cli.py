@@ -54,7 +54,19 @@ def build_parser():
                        help="target iteration counts (per sub-step for Bathe)")
     table.add_argument("--t-end", type=_positive, default=None, help="observation time T_o")
     table.add_argument("--json", metavar="FILE", help="write the runs as JSON records")
+    sub.add_parser("models", help="list the models, their parameters, T_o and the paper's targets")
     return parser
+
+
+def _models(args):
+    for name in hfdi.models.available():
+        model = hfdi.models.get(name)
+        print(f"{name}  (N = {model.n_dof}, T_o = {model.observation_time:g})")
+        targets = "; ".join(f"{s} {', '.join(format(t, 'g') for t in ts)}"
+                            for s, ts in model.paper_targets.items())
+        print(f"  paper's targets: {targets}")
+        for key, value in hfdi.models.describe(name).items():
+            print(f"  {key} = {value!r}")
 
 
 def _table(args):
@@ -81,6 +93,8 @@ def main(argv=None):
     try:
         if args.command == "table":
             _table(args)
+        elif args.command == "models":
+            _models(args)
     except _Exit as exc:
         print(f"hfdi-validate: error: {exc}", file=sys.stderr)
         return 2
