@@ -227,7 +227,9 @@ class _HFDIStage:
         if self.b_diag is not None:
             b = self.b_diag
             if sp.issparse(S):
-                tangent = sp.csr_matrix(S @ sp.diags(1.0 / b) @ S + R)
+                scaled = S.copy()
+                scaled.data /= b[scaled.indices]          # S B⁻¹, column scaling in place
+                tangent = scaled @ S + R
             else:
                 tangent = S @ (S / b[:, None]) + R
         elif sp.issparse(self.B):
