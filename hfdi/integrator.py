@@ -16,7 +16,7 @@ import copy
 import enum
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -602,6 +602,8 @@ class Result:
     scheme : str
     t_eval_index : ndarray of int or None
         Index into ``t`` of each requested ``t_eval`` point.
+    system : SecondOrderSystem
+        The model integrated.
     """
 
     t: np.ndarray
@@ -618,14 +620,15 @@ class Result:
     stats: Statistics
     scheme: str
     t_eval_index: np.ndarray | None = None
+    system: SecondOrderSystem | None = field(default=None, repr=False)
 
     @property
     def success(self) -> bool:
         return self.status == Status.SUCCESS
 
-    def quantities(self, system: SecondOrderSystem | None = None) -> dict:
+    def quantities(self) -> dict:
         """The model's quantities of interest at ``t`` (dict of (n, m) arrays)."""
-        return (system or self._system).quantities(self.t, self.u, self.v)
+        return self.system.quantities(self.t, self.u, self.v)
 
     def __repr__(self):
         st = self.stats
@@ -722,6 +725,5 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, target_iterations=Non
                     energy_increment=np.asarray(rows_de), total_energy=np.asarray(rows_w),
                     external_work=np.asarray(rows_l), status=status, message=message,
                     stats=copy.copy(integrator.statistics), scheme=integrator.scheme.name,
-                    t_eval_index=index)
-    result._system = system
+                    t_eval_index=index, system=system)
     return result
