@@ -12,24 +12,40 @@ FIELDS = {"problem", "scheme", "target", "steps", "mean_iterations", "mean_step"
           "status", "message", "t_reached", "eps"}
 
 
-def test_table_json_has_every_field(tmp_path, capsys):
-    out = tmp_path / "runs.json"
+def test_table_json_has_every_field(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
+    out, csv_out = tmp_path / "runs.json", tmp_path / "runs.csv"
     assert main(["table", "dumbbell", "--schemes", "hfdi,newmark", "--targets", "3.3",
-                 "--t-end", "0.5", "--json", str(out)]) == 0
+                 "--t-end", "0.5", "--json", str(out), "--csv", str(csv_out)]) == 0
     records = json.loads(out.read_text())
     assert [(r["scheme"], r["target"]) for r in records] == [("hfdi", 3.3), ("newmark", 3.3)]
     for r in records:
         assert FIELDS <= set(r)
         assert r["status"] == "SUCCESS" and r["t_reached"] == 0.5
         assert r["steps"] > 0 and r["mean_iterations"] > 0
+        assert set(r["eps"]) == {"u", "stretch"}
+        assert 0 < r["eps"]["u"] < 1e-2
+    # HFDI is the more accurate at equal target
+    assert records[0]["eps"]["u"] < records[1]["eps"]["u"]
     printed = capsys.readouterr().out
     assert "HFDI" in printed and "Newmark" in printed and "(paper)" in printed
+    assert "ε_u" in printed
+    header = csv_out.read_text().splitlines()[0].split(",")
+    assert "eps_u" in header and "eps_stretch" in header
 
 
 def test_unknown_problem_is_one_clear_line(capsys):
     assert main(["table", "pendulum"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown problem 'pendulum'" in err[0]
+
+
+def test_models_are_listed(capsys):
+    assert main(["models"]) == 0
+    printed = capsys.readouterr().out
+    for name in ("dumbbell", "tetrahedra", "articulated", "toss_rule"):
+        assert name in printed
+    assert "n_elements = 6" in printed
 
 
 @pytest.mark.parametrize("args", [["--schemes", "euler"], ["--targets", "0.5"],

@@ -7,7 +7,7 @@ import sys
 
 import hfdi
 
-from .tables import SCHEME_ORDER, format_table, run_table
+from .tables import SCHEME_ORDER, format_table, problem_reference, records_to_csv, run_table
 
 
 class _Exit(Exception):
@@ -54,6 +54,9 @@ def build_parser():
                        help="target iteration counts (per sub-step for Bathe)")
     table.add_argument("--t-end", type=_positive, default=None, help="observation time T_o")
     table.add_argument("--json", metavar="FILE", help="write the runs as JSON records")
+    table.add_argument("--csv", metavar="FILE", help="write the runs as CSV")
+    table.add_argument("--no-eps", action="store_true",
+                       help="skip the IDA reference and the error norms")
     sub.add_parser("models", help="list the models, their parameters, T_o and the paper's targets")
     return parser
 
@@ -78,13 +81,21 @@ def _table(args):
         print(f"  {record.scheme:8s} N̄={record.target:<4} steps={record.steps:<6d} "
               f"{record.status}", file=sys.stderr, flush=True)
 
-    records = run_table(args.problem, args.schemes, args.targets, args.t_end, progress=progress)
+    def say(text):
+        print(f"  {text}", file=sys.stderr, flush=True)
+
+    reference = None if args.no_eps else problem_reference(args.problem, args.t_end,
+                                                               progress=say)
+    records = run_table(args.problem, args.schemes, args.targets, args.t_end, progress=progress,
+                        reference=reference)
     print(f"{args.problem}: computational characteristics "
           f"(ours, with the paper's beneath)\n")
     print(format_table(records))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump([r.as_dict() for r in records], fh, indent=1)
+    if args.csv:
+        records_to_csv(records, args.csv)
 
 
 def main(argv=None):

@@ -6,9 +6,12 @@ from dataclasses import asdict, dataclass, field
 
 import hfdi
 
+from .errors import error_norms
 from .paper import PAPER_TABLES
+from .reference import cached_reference
 
-__all__ = ["RunRecord", "run_experiment", "run_table", "format_table", "ENERGY_LIMIT"]
+__all__ = ["RunRecord", "run_experiment", "run_table", "problem_reference", "format_table",
+           "records_to_csv", "ENERGY_LIMIT"]
 
 SCHEME_ORDER = ("newmark", "bathe", "hfdi")
 
@@ -53,18 +56,32 @@ def run_experiment(problem: str, scheme: str, target: float, t_end: float | None
     return model, result
 
 
+def problem_reference(problem: str, t_end=None, params=None, rtol=1e-12, progress=None):
+    """The cached dense IDA reference of ``problem`` over ``[0, t_end]``
+    (``T_o`` by default)."""
+    if progress is not None:
+        progress(f"IDA reference of {problem} (rtol {rtol:g}; computed once, then cached)")
+    return cached_reference(problem, params, t_end=t_end, rtol=rtol)
+
+
 def run_table(problem: str, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
-              progress=None) -> list:
-    """Every run of the paper's table for ``problem`` (its targets unless ``targets``)."""
+              progress=None, reference=None) -> list:
+    """Every run of the paper's table for ``problem`` (its targets unless ``targets``).
+
+    With a ``reference`` (see :func:`problem_reference`) each record carries
+    ``ε`` (Eq. 42) of every quantity of interest of the model.
+    """
     records = []
     model = hfdi.models.get(problem, **(params or {}))
     for scheme in schemes:
         for target in (targets or model.paper_targets[scheme]):
-            _, result = run_experiment(problem, scheme, target, t_end, params)
+            model, result = run_experiment(problem, scheme, target, t_end, params)
             st = result.stats
+            eps = error_norms(model, result, reference) if reference is not None else {}
             records.append(RunRecord(problem, scheme, float(target), st.steps,
                                      st.mean_iterations, st.mean_step, st.cpu_time,
-                                     result.status.name, result.message, float(result.t[-1])))
+                                     result.status.name, result.message, float(result.t[-1]),
+                                     eps))
             if progress is not None:
                 progress(records[-1])
     return records
@@ -108,8 +125,27 @@ def format_table(records: list) -> str:
                 theirs.append("n/a" if row == "n/a" else
                               ("div" if row is None else _fmt(row[key], key)))
             lines.append(f"  {'  (paper)':<16}" + "".join(f"{s:>{width}}" for s in theirs))
+        for name in rows[0].eps:
+            cells = [("div " if r.diverged else "") + format(r.eps.get(name, math.nan), ".2e")
+                     for r in rows]
+            lines.append(f"  {'ε_' + name:<16}" + "".join(f"{c:>{width}}" for c in cells))
         for r in rows:
             if r.diverged:
-                lines.append(f"  div at N̄ = {r.target}: {r.status}, {r.message}")
+                lines.append(f"  div at N̄ = {r.target}: {r.status}, {r.message}"
+                             + (" (ε over the interval reached)" if r.eps else ""))
         lines.append("")
     return "\n".join(lines)
+
+
+def records_to_csv(records: list, path) -> None:
+    """Write the runs as CSV, one row per run and one ``eps_<name>`` column per quantity."""
+    import csv
+    names = sorted({n for r in records for n in r.eps})
+    fields = ["problem", "scheme", "target", "steps", "mean_iterations", "mean_step",
+              "cpu_time", "status", "t_reached"]
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(fields + [f"eps_{n}" for n in names] + ["message"])
+        for r in records:
+            writer.writerow([getattr(r, f) for f in fields]
+                            + [r.eps.get(n, "") for n in names] + [r.message])
