@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from . import checks
 from .controller import FixedStep, IterationCountController
 from .corrector import predict, solve_step
 from .evaluation import Evaluator, State
@@ -123,22 +124,8 @@ class IntegratorState:
     last_energy_increment: float
 
 
-def _check_positive(name, value, allow_none=False):
-    if value is None and allow_none:
-        return None
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a positive number, got {value!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return value
-
-
-def _check_int(name, value, minimum):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
+def _optional_positive(name, value):
+    return None if value is None else checks.positive(name, value)
 
 
 class Integrator:
@@ -214,20 +201,20 @@ class Integrator:
         if self.t_bound is not None and not self.t_bound > self.t0:
             raise ValueError(f"t_bound must be > t0 = {self.t0}, got {t_bound!r}")
         span = None if self.t_bound is None else self.t_bound - self.t0
-        self.max_step = _check_positive("max_step", max_step, allow_none=True) \
+        self.max_step = _optional_positive("max_step", max_step) \
             or (span if span is not None else math.inf)
-        self.min_step = _check_positive("min_step", min_step, allow_none=True) \
+        self.min_step = _optional_positive("min_step", min_step) \
             or 1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0))
         if self.min_step >= self.max_step:
             raise ValueError(f"min_step must be < max_step = {self.max_step}, got {self.min_step}")
-        self.max_halvings = _check_int("max_halvings", max_halvings, 0)
-        self.max_steps = _check_int("max_steps", max_steps, 1)
-        self.first_step_trials = _check_int("first_step_trials", first_step_trials, 1)
-        self.energy_limit = _check_positive("energy_limit", energy_limit, allow_none=True)
+        self.max_halvings = checks.integer("max_halvings", max_halvings, 0)
+        self.max_steps = checks.integer("max_steps", max_steps, 1)
+        self.first_step_trials = checks.integer("first_step_trials", first_step_trials, 1)
+        self.energy_limit = _optional_positive("energy_limit", energy_limit)
 
         self.adaptive = target_iterations is not None
         if self.adaptive:
-            target = _check_positive("target_iterations", target_iterations)
+            target = checks.positive("target_iterations", target_iterations)
             if target < 1.0:
                 raise ValueError(f"target_iterations must be >= 1, got {target_iterations!r}")
             self.controller = IterationCountController(target * self.scheme.n_stages,
@@ -235,12 +222,12 @@ class Integrator:
             default_max = max(1, int(math.floor(2.0 * target)))
             self.sliver = 0.01
         else:
-            h = _check_positive("step", step)
+            h = checks.positive("step", step)
             self.controller = FixedStep(h)
             default_max = 50
             self.sliver = 1e-9
         self.max_iterations = default_max if max_iterations is None else \
-            _check_int("max_iterations", max_iterations, 1)
+            checks.integer("max_iterations", max_iterations, 1)
         self.floor = float(getattr(system, "u_scale", 1.0) or 1.0)
 
         n = ev.n
@@ -257,7 +244,7 @@ class Integrator:
         start = time.process_time()
         current = ev.state(self.t0, u0, v0)
         if self.adaptive:
-            h0 = _check_positive("first_step", first_step, allow_none=True) \
+            h0 = _optional_positive("first_step", first_step) \
                 or self._default_first_step(current)
             proposed = min(h0, self.max_step)
         else:
@@ -626,9 +613,10 @@ class Result:
     def success(self) -> bool:
         return self.status == Status.SUCCESS
 
-    def quantities(self) -> dict:
-        """The model's quantities of interest at ``t`` (dict of (n, m) arrays)."""
-        return self.system.quantities(self.t, self.u, self.v)
+    def quantities(self, system: SecondOrderSystem | None = None) -> dict:
+        """The quantities of interest of ``system`` (default: the model
+        integrated) at ``t``, a dict of (n, m) arrays."""
+        return (system or self.system).quantities(self.t, self.u, self.v)
 
     def __repr__(self):
         st = self.stats

@@ -283,7 +283,7 @@ def test_energy_balance_includes_the_external_work():
     (dict(target_iterations=3.0, step=0.1), "exactly one of target_iterations"),
     (dict(target_iterations=0.5), "target_iterations must be >= 1"),
     (dict(target_iterations=math.nan), "target_iterations"),
-    (dict(step=-0.1), "step must be a positive"),
+    (dict(step=-0.1), "step must be a finite number > 0, got -0.1"),
     (dict(step=0.1, tol=1.5), r"tol must be in \(0, 1\)"),
     (dict(step=0.1, u0=[1.0, 2.0]), r"u0 must have shape \(4,\)"),
     (dict(step=0.1, v0=[np.inf, 0, 0, 0]), "v0 must be finite"),

@@ -22,10 +22,10 @@ the load is ``P(t) = hat(t; 200, 0.025)``, a triangular pulse over
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
+from .. import checks
 from ..system import SecondOrderSystem
 from .loads import hat
 from .pair import PairPotential
@@ -65,18 +65,6 @@ def relative_angle(u):
     cross = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
     dot = d1[..., 0] * d2[..., 0] + d1[..., 1] * d2[..., 1]
     return -np.arctan2(cross, dot)
-
-
-def _positive(name, value, allow_zero=False):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"articulated {name} must be a number, got {value!r}") from None
-    ok = value >= 0 if allow_zero else value > 0
-    if not (math.isfinite(value) and ok):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"articulated {name} must be finite and {bound}, got {value!r}")
-    return value
 
 
 class Articulated(SecondOrderSystem):
@@ -157,40 +145,22 @@ class Articulated(SecondOrderSystem):
 
     def __init__(self, k_e=1e7, k_f=1e3, h=0.5, load_amplitude=200.0, load_time=0.025,
                  masses=(1.0, 1.0, 1.0), positions=None, v0=None):
-        self.k_e = _positive("k_e", k_e)
-        self.k_f = _positive("k_f", k_f, allow_zero=True)
-        self.h = _positive("h", h)
-        try:
-            load_amplitude = float(load_amplitude)
-        except (TypeError, ValueError):
-            raise ValueError(f"articulated load_amplitude must be a number, "
-                             f"got {load_amplitude!r}") from None
-        if not math.isfinite(load_amplitude):
-            raise ValueError(f"articulated load_amplitude must be finite, got {load_amplitude!r}")
-        self.load_amplitude = load_amplitude
-        self.load_time = _positive("load_time", load_time)
-        masses = np.asarray(masses, dtype=float)
-        if masses.shape != (3,) or not np.all(np.isfinite(masses) & (masses > 0)):
-            raise ValueError(f"articulated masses must be three positive finite numbers, "
-                             f"got {masses!r}")
-        self.masses = masses
-        if positions is None:
-            x0 = np.array([[0.0, 0.0], [self.h, 0.0], [2.0 * self.h, 0.0]])
-        else:
-            x0 = np.asarray(positions, dtype=float)
-            if x0.shape != (3, 2) or not np.all(np.isfinite(x0)):
-                raise ValueError(f"articulated positions must be a finite (3, 2) array, "
-                                 f"got shape {x0.shape}")
+        self.k_e = checks.positive("articulated k_e", k_e)
+        self.k_f = checks.non_negative("articulated k_f", k_f)
+        self.h = checks.positive("articulated h", h)
+        self.load_amplitude = checks.real("articulated load_amplitude", load_amplitude)
+        self.load_time = checks.positive("articulated load_time", load_time)
+        self.masses = masses = checks.finite_array("articulated masses", masses, (3,),
+                                                   positive=True)
+        x0 = checks.finite_array(
+            "articulated positions",
+            [[0.0, 0.0], [self.h, 0.0], [2.0 * self.h, 0.0]] if positions is None else positions,
+            (3, 2))
         self.n_dof = 6
         self.mass = np.repeat(masses, 2)
         self.initial_displacement = x0.ravel().copy()
-        if v0 is None:
-            self.initial_velocity = np.zeros(6)
-        else:
-            v0 = np.asarray(v0, dtype=float)
-            if v0.shape != (6,) or not np.all(np.isfinite(v0)):
-                raise ValueError(f"articulated v0 must be 6 finite numbers, got shape {v0.shape}")
-            self.initial_velocity = v0.copy()
+        self.initial_velocity = (np.zeros(6) if v0 is None else
+                                 checks.finite_array("articulated v0", v0, (6,)))
         self._pair = PairPotential(3, 2, [0, 1], [1, 2])
         if not np.all(self._pair.geometry(self.initial_displacement)[1] > 0):
             raise ValueError("articulated positions: neighbouring masses must not coincide")

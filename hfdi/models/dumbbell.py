@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from .. import checks
 from ..system import SecondOrderSystem
 from .pair import PairPotential
 
@@ -43,20 +44,16 @@ class Dumbbell(SecondOrderSystem):
 
     def __init__(self, A=1e6, sigma=math.sqrt(3.0 / 5.0), masses=(1.0, 1.0),
                  u0=(0.0, 0.0, 1.0, 0.0), v0=(0.0, 10.0, 0.0, 5.0)):
-        A, sigma = float(A), float(sigma)
-        if not (math.isfinite(A) and A > 0):
-            raise ValueError(f"dumbbell A must be > 0, got {A}")
-        if not (math.isfinite(sigma) and sigma > 0):
-            raise ValueError(f"dumbbell sigma must be > 0, got {sigma}")
-        masses = np.asarray(masses, dtype=float)
-        if masses.shape != (2,) or not np.all(masses > 0):
-            raise ValueError(f"dumbbell masses must be two positive numbers, got {masses}")
-        self.A, self.sigma, self.masses = A, sigma, masses
+        self.A = checks.positive("dumbbell A", A)
+        self.sigma = checks.positive("dumbbell sigma", sigma)
+        self.masses = checks.finite_array("dumbbell masses", masses, (2,), positive=True)
         self.n_dof = 4
-        self.mass = np.repeat(masses, 2)
-        self.initial_displacement = np.asarray(u0, dtype=float)
-        self.initial_velocity = np.asarray(v0, dtype=float)
-        self.rest_length = sigma * math.sqrt(5.0 / 3.0)
+        self.mass = np.repeat(self.masses, 2)
+        self.initial_displacement = checks.finite_array("dumbbell u0", u0, (4,))
+        self.initial_velocity = checks.finite_array("dumbbell v0", v0, (4,))
+        if np.hypot(*(self.initial_displacement[2:] - self.initial_displacement[:2])) == 0:
+            raise ValueError("dumbbell u0 must place the two masses apart")
+        self.rest_length = self.sigma * math.sqrt(5.0 / 3.0)
         self.u_scale = self.rest_length
         self._pair = PairPotential(2, 2, [0], [1])
 

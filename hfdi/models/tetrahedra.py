@@ -22,10 +22,10 @@ frequencies of order 1 rad/s.
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
+from .. import checks
 from ..system import SecondOrderSystem
 from .loads import hat
 from .pair import PairPotential
@@ -37,18 +37,6 @@ PAPER_POSITIONS = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0,
 #: Pair order of the springs and of the force quantities: 12, 13, 14, 23, 24, 34.
 PAIRS_I = (0, 0, 0, 1, 1, 2)
 PAIRS_J = (1, 2, 3, 2, 3, 3)
-
-
-def _positive(name, value, allow_zero=False):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"tetrahedra {name} must be a number, got {value!r}") from None
-    ok = value >= 0 if allow_zero else value > 0
-    if not (math.isfinite(value) and ok):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"tetrahedra {name} must be finite and {bound}, got {value!r}")
-    return value
 
 
 class Tetrahedra(SecondOrderSystem):
@@ -105,36 +93,19 @@ class Tetrahedra(SecondOrderSystem):
 
     def __init__(self, k_stiff=1e3, k_soft=1.0, load_amplitude=5.0, load_time=1.0,
                  masses=(1.0, 1.0, 1.0, 1.0), positions=None, v0=None):
-        self.k_stiff = _positive("k_stiff", k_stiff)
-        self.k_soft = _positive("k_soft", k_soft)
-        try:
-            load_amplitude = float(load_amplitude)
-        except (TypeError, ValueError):
-            raise ValueError(f"tetrahedra load_amplitude must be a number, "
-                             f"got {load_amplitude!r}") from None
-        if not math.isfinite(load_amplitude):
-            raise ValueError(f"tetrahedra load_amplitude must be finite, got {load_amplitude!r}")
-        self.load_amplitude = load_amplitude
-        self.load_time = _positive("load_time", load_time)
-        masses = np.asarray(masses, dtype=float)
-        if masses.shape != (4,) or not np.all(np.isfinite(masses) & (masses > 0)):
-            raise ValueError(f"tetrahedra masses must be four positive finite numbers, "
-                             f"got {masses!r}")
-        self.masses = masses
-        x0 = np.asarray(PAPER_POSITIONS if positions is None else positions, dtype=float)
-        if x0.shape != (4, 3) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"tetrahedra positions must be a finite (4, 3) array, "
-                             f"got shape {x0.shape}")
+        self.k_stiff = checks.positive("tetrahedra k_stiff", k_stiff)
+        self.k_soft = checks.positive("tetrahedra k_soft", k_soft)
+        self.load_amplitude = checks.real("tetrahedra load_amplitude", load_amplitude)
+        self.load_time = checks.positive("tetrahedra load_time", load_time)
+        self.masses = masses = checks.finite_array("tetrahedra masses", masses, (4,),
+                                                   positive=True)
+        x0 = checks.finite_array("tetrahedra positions",
+                                 PAPER_POSITIONS if positions is None else positions, (4, 3))
         self.n_dof = 12
         self.mass = np.repeat(masses, 3)
         self.initial_displacement = x0.ravel().copy()
-        if v0 is None:
-            self.initial_velocity = np.zeros(12)
-        else:
-            v0 = np.asarray(v0, dtype=float)
-            if v0.shape != (12,) or not np.all(np.isfinite(v0)):
-                raise ValueError(f"tetrahedra v0 must be 12 finite numbers, got shape {v0.shape}")
-            self.initial_velocity = v0.copy()
+        self.initial_velocity = (np.zeros(12) if v0 is None else
+                                 checks.finite_array("tetrahedra v0", v0, (12,)))
         self._pair = PairPotential(4, 3, PAIRS_I, PAIRS_J)
         self.rest_length = self._pair.geometry(self.initial_displacement)[1]
         if not np.all(self.rest_length > 0):

@@ -40,12 +40,11 @@ gradients, Hessians and third derivatives used for ``f``, ``K`` and ``T``.
 """
 from __future__ import annotations
 
-import math
-import numbers
 
 import numpy as np
 import scipy.sparse as sp
 
+from .. import checks
 from ..system import SecondOrderSystem
 from .loads import hat
 
@@ -66,26 +65,6 @@ _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2), (3, 3))
 # _BB is the flattened 6×6 contribution of the c-th independent entry.
 _BB = np.array([(np.outer(_B[i], _B[j]) + (np.outer(_B[j], _B[i]) if i != j else 0.0)).ravel()
                 for i, j in _PAIRS])
-
-
-def _positive(name, value, allowed="> 0"):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"toss rule {name} must be a number {allowed}, got {value!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"toss rule {name} must be finite and {allowed}, got {value!r}")
-    return value
-
-
-def _finite(name, value):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"toss rule {name} must be a finite number, got {value!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"toss rule {name} must be a finite number, got {value!r}")
-    return value
 
 
 class TossRule(SecondOrderSystem):
@@ -148,23 +127,17 @@ class TossRule(SecondOrderSystem):
     def __init__(self, n_elements=6, length=0.5, width=0.030, thickness=0.002, E=210e9,
                  nu=0.3, shear_factor=5.0 / 6.0, rho=7850.0, force_amplitude=200.0,
                  moment_amplitude=10.0, load_time=0.005):
-        if (isinstance(n_elements, bool) or not isinstance(n_elements, numbers.Integral)
-                or n_elements < 1):
-            raise ValueError(f"toss rule n_elements must be an integer >= 1, got {n_elements!r}")
-        self.n_elements = n_el = int(n_elements)
-        self.length = _positive("length", length)
-        self.width = _positive("width", width)
-        self.thickness = _positive("thickness", thickness)
-        self.E = _positive("E", E)
-        nu_f = _finite("nu", nu)
-        if not -1.0 < nu_f < 0.5:
-            raise ValueError(f"toss rule nu must satisfy -1 < nu < 0.5, got {nu!r}")
-        self.nu = nu_f
-        self.shear_factor = _positive("shear_factor", shear_factor)
-        self.rho = _positive("rho", rho)
-        self.force_amplitude = _finite("force_amplitude", force_amplitude)
-        self.moment_amplitude = _finite("moment_amplitude", moment_amplitude)
-        self.load_time = _positive("load_time", load_time)
+        self.n_elements = n_el = checks.integer("toss rule n_elements", n_elements, 1)
+        self.length = checks.positive("toss rule length", length)
+        self.width = checks.positive("toss rule width", width)
+        self.thickness = checks.positive("toss rule thickness", thickness)
+        self.E = checks.positive("toss rule E", E)
+        self.nu = checks.real("toss rule nu", nu, low=-1.0, high=0.5)
+        self.shear_factor = checks.positive("toss rule shear_factor", shear_factor)
+        self.rho = checks.positive("toss rule rho", rho)
+        self.force_amplitude = checks.real("toss rule force_amplitude", force_amplitude)
+        self.moment_amplitude = checks.real("toss rule moment_amplitude", moment_amplitude)
+        self.load_time = checks.positive("toss rule load_time", load_time)
 
         self.area = self.width * self.thickness
         self.inertia = self.width * self.thickness ** 3 / 12.0
