@@ -340,6 +340,23 @@ class Integrator:
         ev = self.ev
         ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu = st.nfev, st.njev, st.ntev, st.npev, st.nlu
 
+    def load_changed(self) -> None:
+        """Tell the integrator that the load jumps at the current time.
+
+        The current state keeps the load ``p_n`` and the acceleration ``a_n``
+        computed when it was reached; the schemes read both (Newmark and Bathe
+        through ``a_n``, HFDI through ``p_n`` in its load rate, the energy
+        balance through the work). After a jump of the load at ``t_n`` (a
+        co-simulation input changed at a communication point), both are
+        recomputed from the load now, the acceleration being the right limit.
+        """
+        current = self._s.current
+        p = self.ev.load(current.t)
+        f = current.f if current.f is not None else self.ev.force(current.u)
+        a = self.ev.acceleration(current.t, current.u, current.v, f, p)
+        self._s.current = State(current.t, current.u, current.v, a, f, p)
+        self._sync_counters()
+
     # -- stepping ------------------------------------------------------------
     def _default_first_step(self, current: State) -> float:
         """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""

@@ -1,0 +1,780 @@
+"""An FMI 2.0 co-simulation slave around :class:`hfdi.Integrator`, for pythonfmu 0.7.
+
+The slave only translates FMI calls into hfdi's public API. One FMU wraps one
+model of hfdi's registry (``hfdi.models``); :mod:`fmu.build` copies this file
+into the FMU's resources under a build-specific module name and generates a
+small subclass of :class:`HfdiSlave` that names the model, the bundled copy of
+``hfdi`` and the model's units (see :mod:`fmu.metadata`).
+
+This module must import without ``hfdi`` being installed: it loads the copy of
+``hfdi`` bundled in the FMU's resources under a private, build-specific module
+name, so the FMU runs the code it was built with whatever ``hfdi`` the
+importing process has (see :func:`load_bundle`).
+
+Variables (DOF numbers are 1-based, the convention of the Modelica-based tools
+that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
+
+* parameters (fixed): ``scheme`` (newmark | bathe | hfdi), ``target_iterations``,
+  ``tolerance`` (Newton tolerance η), ``initial_step`` (0: automatic),
+  ``max_step`` (0: no limit) and every scalar constructor parameter of the
+  model (``model.NAME`` when the bare name is taken);
+* inputs: ``F[i]``, an external force added to the model's load through
+  ``extra_load`` and held constant over each communication step;
+* outputs: ``u[i]``, ``v[i]``, ``a[i]``, the model's quantities of interest
+  (``NAME`` or ``NAME[k]``; ``z.NAME`` when the bare name is taken; a
+  quantity equal to the displacement is not repeated), ``W`` (total energy),
+  ``dE`` (Σ ΔE, paper Eq. 40), and the Integer outputs ``internal_steps`` and
+  ``newton_iterations``.
+
+How pythonfmu 0.7's C++ layer maps Python behaviour onto FMI status codes
+(read from its sources and checked against the shipped binary):
+
+* ``do_step`` returning ``False`` gives ``fmi2Discard``;
+* **any** Python exception, in any callback, gives ``fmi2Fatal``; there is no
+  way to obtain ``fmi2Error`` from Python. The C++ layer also releases its
+  references to the slave, its class and its log list when it meets an
+  exception, and releases them once more when the instance is freed: without
+  precaution the log list is freed while the slave still uses it, and the
+  cyclic garbage collector, finding fewer references than referrers, corrupts
+  the heap. Every exception this module lets through goes through
+  :meth:`HfdiSlave._reject`, which first adds one reference to each of the
+  three objects, owned by nobody, for the C++ layer to release.
+
+Its loader (``findClass``) also releases the generated module's namespace,
+a borrowed reference, each time it creates an instance, after executing the
+module's source in it once more: the generated module calls
+:func:`hold_namespace` at top level, which adds one unowned reference per
+execution.
+
+Hence: ``do_step`` never raises (a failure is logged and answered with
+``fmi2Discard``, the FMU back at the step's start, the time pythonfmu reports
+as ``fmi2LastSuccessfulTime``); invalid parameters are rejected by ``fmi2ExitInitializationMode``
+with ``fmi2Fatal`` and a log message naming the parameter; a corrupt or foreign
+FMU state is rejected by ``fmi2SetFMUstate`` the same way; so is a call with
+an invalid value reference.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import math
+import numbers
+import os
+import pickle
+import re
+import sys
+from xml.etree.ElementTree import Element, SubElement
+
+import numpy as np
+from pythonfmu import (Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave,
+                       Fmi2Variability, Integer, Real, String)
+from pythonfmu.enums import Fmi2Status
+
+__all__ = ["HfdiSlave", "FmuError", "load_bundle", "hold_namespace"]
+
+#: Serialized FMU states start with this line; a version bump makes old ones unreadable.
+_MAGIC = b"hfdi-fmu-state/1\n"
+
+_SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "tolerance": 1e-8,
+                    "initial_step": 0.0, "max_step": 0.0}
+_RESERVED = frozenset(_SOLVER_DEFAULTS) | {"u", "v", "a", "F", "W", "dE", "internal_steps",
+                                           "newton_iterations", "time"}
+_INT32_MAX = 2 ** 31 - 1
+
+#: SI exponents of the units the metadata tables use (FMI 2.0 BaseUnit).
+_BASE_UNITS = {
+    "1": {}, "m": {"m": 1}, "m/s": {"m": 1, "s": -1}, "m/s2": {"m": 1, "s": -2},
+    "rad": {"rad": 1}, "rad/s": {"rad": 1, "s": -1}, "rad/s2": {"rad": 1, "s": -2},
+    "1/s": {"s": -1}, "1/s2": {"s": -2}, "s": {"s": 1}, "kg": {"kg": 1},
+    "N": {"kg": 1, "m": 1, "s": -2}, "N.m": {"kg": 1, "m": 2, "s": -2},
+    "J": {"kg": 1, "m": 2, "s": -2}, "N/m": {"kg": 1, "s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1}, "Pa": {"kg": 1, "m": -1, "s": -2},
+    "kg/m3": {"kg": 1, "m": -3},
+}
+#: Velocity, acceleration and force units belonging to a DOF unit.
+_DERIVED = {"m": ("m/s", "m/s2", "N"), "rad": ("rad/s", "rad/s2", "N.m"),
+            "1": ("1/s", "1/s2", "1")}
+
+
+def _add_reference(obj) -> None:
+    """Increment ``obj``'s reference count for a release pythonfmu's C++ layer
+    makes without owning the reference (see the module docstring).
+
+    The reference must belong to no container: the cyclic garbage collector
+    requires a count at least equal to the references it can find.
+    """
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+
+
+def hold_namespace(namespace: dict) -> None:
+    """Add one reference to a module namespace (see the module docstring).
+
+    The generated slave module calls this at top level with ``globals()``: it
+    then runs once at import and once in each of pythonfmu's re-executions,
+    which balance the reference the loader releases after each of them; the
+    one of the import keeps the namespace alive for good.
+    """
+    _add_reference(namespace)
+
+
+class FmuError(Exception):
+    """A request the FMU refuses (reported to the master as ``fmi2Fatal``)."""
+
+
+class _InvalidState:
+    """What a serialized state that cannot be read deserializes to.
+
+    ``_fmu_state_from_bytes`` is called on the class, with no instance to log
+    through or to protect, so it must not raise; :meth:`HfdiSlave._set_fmu_state`
+    rejects this marker instead.
+    """
+
+    def __init__(self, reason: str):
+        self.reason = reason
+
+
+def load_bundle(alias: str, resources):
+    """Import the ``hfdi`` package bundled in ``resources`` as module ``alias``.
+
+    The bundled package uses relative imports only, so it can live under any
+    name; a build-specific name keeps it apart from an ``hfdi`` the host
+    process may have imported and from the copies inside other FMUs. Loaded
+    once per process; a later instance whose resources lie elsewhere (another
+    extraction of the same FMU) re-points the packages' search paths there, so
+    that the classes, and the FMU states that refer to them, stay the same.
+
+    Parameters
+    ----------
+    alias : str
+        Module name, e.g. ``_hfdi_fmu_1a2b3c4d5e6f``.
+    resources : str
+        The FMU's ``resources`` directory, holding ``hfdi/``.
+
+    Returns
+    -------
+    module
+    """
+    package_dir = os.path.join(str(resources), "hfdi")
+    module = sys.modules.get(alias)
+    if module is not None:
+        if not all(os.path.isdir(p) for p in getattr(module, "__path__", [])) \
+                and os.path.isdir(package_dir):
+            prefix = alias + "."
+            for name, sub in list(sys.modules.items()):
+                if (name == alias or name.startswith(prefix)) and hasattr(sub, "__path__"):
+                    rel = name[len(alias):].lstrip(".").replace(".", os.sep)
+                    sub.__path__ = [os.path.join(package_dir, rel) if rel else package_dir]
+        return module
+    init = os.path.join(package_dir, "__init__.py")
+    if not os.path.isfile(init):
+        raise ImportError(f"the FMU's resources hold no hfdi package ({package_dir})")
+    spec = importlib.util.spec_from_file_location(alias, init,
+                                                  submodule_search_locations=[package_dir])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[alias] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        for name in [n for n in sys.modules if n == alias or n.startswith(alias + ".")]:
+            del sys.modules[name]
+        raise
+    return module
+
+
+class _Real(Real):
+    """A Real variable with a unit, whose start value is written to round-trip exactly."""
+
+    def __init__(self, name, unit=None, **kwargs):
+        super().__init__(name, **kwargs)
+        self.unit = unit
+
+    def to_xml(self):
+        node = super().to_xml()
+        real = node.find("Real")
+        if self.unit:
+            real.set("unit", self.unit)
+        if self.start is not None:
+            # pythonfmu writes 16 significant digits, which need not round-trip
+            real.set("start", repr(float(self.start)))
+        return node
+
+
+def _finite_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) \
+        and math.isfinite(float(value))
+
+
+class HfdiSlave(Fmi2Slave):
+    """FMI 2.0 co-simulation slave integrating one model of ``hfdi.models``.
+
+    Subclasses (generated by :mod:`fmu.build`) set the class attributes below;
+    pythonfmu instantiates them with the keyword arguments ``instance_name``,
+    ``resources`` and others.
+
+    Attributes
+    ----------
+    model_name : str
+        Registry name of the model.
+    bundle : str
+        Module name under which the bundled ``hfdi`` is imported.
+    metadata : dict
+        Units and labels (see :mod:`fmu.metadata`).
+    """
+
+    model_name: str = ""
+    bundle: str = ""
+    metadata: dict = {}
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        hfdi = self._hfdi = load_bundle(self.bundle, self.resources)
+        name = self.model_name
+        meta = self.metadata or {}
+        self._defaults = hfdi.models.describe(name)
+        model = hfdi.models.get(name)
+        n = self._n = int(model.n_dof)
+
+        self.modelName = "hfdi_" + re.sub(r"\W", "_", name)
+        self.description = (
+            f"hfdi model {name!r} ({n} DOFs): M u'' + C u' + f(u) = p(t) + F integrated by "
+            "the adaptive Newmark / Bathe / HFDI predictor-corrector with the "
+            "iteration-count step-size rule")
+        self.version = str(getattr(hfdi, "__version__", ""))
+        self.license = "MIT"
+        stop = float(getattr(model, "observation_time", None) or 1.0)
+        self.default_experiment = DefaultExperiment(start_time=0.0, stop_time=stop,
+                                                    step_size=stop / 100.0)
+
+        self._params = dict(_SOLVER_DEFAULTS)
+        self._mparams = {}                   # constructor keyword -> value
+        self._start_time = 0.0
+        self._stop_time = None
+        self._phase = "instantiated"
+        self._itg = None                     # the hfdi.Integrator, from exitInitializationMode on
+        self._itg_key = None                 # (params, model params, t0) it was made with
+        self._F_input = np.zeros(n)          # inputs as last set by the master
+        self._F_applied = np.zeros(n)        # inputs the integrator's current state was computed with
+        self._cache = None                   # outputs at the current state, computed on demand
+
+        dof_pattern = meta.get("dofs") or [["m", "degree of freedom {k}"]]
+        self._dof_units = [dof_pattern[i % len(dof_pattern)][0] for i in range(n)]
+        self._dof_labels = [dof_pattern[i % len(dof_pattern)][1].format(
+            k=i // len(dof_pattern) + 1, k0=i // len(dof_pattern)) for i in range(n)]
+        self._layout_quantities(model, meta.get("quantities") or {})
+        self._register_parameters(meta.get("parameters") or {})
+        self._register_inputs()
+        self._register_outputs()
+
+    # -- variables --------------------------------------------------------------
+    def _layout_quantities(self, model, qmeta):
+        """Which quantities of interest become outputs, and their sizes."""
+        u0 = np.zeros(self._n) if model.initial_displacement is None \
+            else np.asarray(model.initial_displacement, dtype=float)
+        v0 = np.zeros(self._n) if model.initial_velocity is None \
+            else np.asarray(model.initial_velocity, dtype=float)
+        values = model.quantities(np.array([0.0]), u0[None, :], v0[None, :])
+        state = {"u": u0, "v": v0}
+        self._zlayout = []                    # (quantity name, offset, width)
+        self._zvars = []                      # (FMU name, unit, description)
+        offset = 0
+        for qname, value in values.items():
+            arr = np.asarray(value, dtype=float)
+            width = int(arr.size)             # one time: (1, m) or (1,)
+            if qname in state and width == self._n \
+                    and np.array_equal(arr.reshape(-1), state[qname]):
+                continue                      # the same as the u[i] outputs
+            unit, text, labels = (list(qmeta.get(qname, [])) + [None, None, None])[:3]
+            unit = unit or "1"
+            text = text or f"quantity of interest {qname!r}"
+            base = re.sub(r"\W", "_", str(qname))
+            if base in _RESERVED or base in self._defaults or not base[:1].isalpha():
+                base = "z." + base
+            for k in range(width):
+                if width == 1:
+                    self._zvars.append((base, unit, text))
+                else:
+                    label = labels[k] if labels and k < len(labels) else f"component {k + 1}"
+                    self._zvars.append((f"{base}[{k + 1}]", unit,
+                                        f"{text}: {label} ({k + 1} of {width})"))
+            self._zlayout.append((qname, offset, width))
+            offset += width
+        self._nz = offset
+
+    def _register_parameters(self, pmeta):
+        fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
+        self.register_variable(String(
+            "scheme", description="integration scheme: newmark, bathe or hfdi",
+            getter=lambda: self._params["scheme"],
+            setter=self._param_setter("scheme", str), **fixed))
+        solver = [
+            ("target_iterations", "1", "target Newton iterations per (sub-)step N-bar "
+                                       "(paper Eq. 39), >= 1"),
+            ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in (0, 1); "
+                               "the master's tolerance is not used"),
+            ("initial_step", "s", "first trial step size; 0: automatic (1/omega_max)"),
+            ("max_step", "s", "largest internal step size; 0: no limit"),
+        ]
+        for key, unit, text in solver:
+            self.register_variable(_Real(key, unit=unit, description=text,
+                                         getter=(lambda k=key: self._params[k]),
+                                         setter=self._param_setter(key, float), **fixed))
+        for key, default in self._defaults.items():
+            fmu_name = f"model.{key}" if key in _RESERVED else key
+            unit, text = (list(pmeta.get(key, [])) + [None, None])[:2]
+            text = (text or "model parameter") + f" (hfdi.models.get({self.model_name!r}, "\
+                f"{key}=...))"
+            common = dict(description=text, getter=(lambda k=key: self._mparams[k]), **fixed)
+            if isinstance(default, bool):
+                var = Boolean(fmu_name, setter=self._param_setter(key, bool, True), **common)
+            elif isinstance(default, numbers.Integral):
+                var = Integer(fmu_name, setter=self._param_setter(key, int, True), **common)
+            elif isinstance(default, numbers.Real):
+                var = _Real(fmu_name, unit=unit or "1",
+                            setter=self._param_setter(key, float, True), **common)
+            elif isinstance(default, str):
+                var = String(fmu_name, setter=self._param_setter(key, str, True), **common)
+            else:
+                continue                      # tuples, None: not scalar, the model's default is used
+            self._mparams[key] = default.item() if isinstance(default, np.generic) else default
+            self.register_variable(var)
+
+    def _param_setter(self, key, convert, model=False):
+        store = self._mparams if model else self._params
+
+        def setter(value):
+            if self._phase not in ("instantiated", "initialization"):
+                self.log(f"parameter {key} is fixed after initialization; the value {value!r} "
+                         "is ignored", Fmi2Status.warning)
+                return
+            store[key] = convert(value)
+            self._cache = None
+        return setter
+
+    def _register_inputs(self):
+        for i in range(self._n):
+            unit = _DERIVED.get(self._dof_units[i], (None, None, "1"))[2]
+            self.register_variable(_Real(
+                f"F[{i + 1}]", unit=unit, causality=Fmi2Causality.input,
+                variability=Fmi2Variability.continuous,
+                description=f"external force on DOF {i + 1} ({self._dof_labels[i]}), added "
+                            "to the model's load and held over each communication step",
+                getter=(lambda i=i: self._F_input[i]), setter=self._input_setter(i)))
+
+    def _input_setter(self, i):
+        def setter(value):
+            self._F_input[i] = float(value)
+        return setter
+
+    def _register_outputs(self):
+        out = dict(causality=Fmi2Causality.output, initial=Fmi2Initial.calculated,
+                   setter=self._output_setter)
+        continuous = dict(variability=Fmi2Variability.continuous, **out)
+        n = self._n
+        for key, what, index in (("u", "displacement", 0), ("v", "velocity", 1),
+                                 ("a", "acceleration", 2)):
+            for i in range(n):
+                unit = self._dof_units[i] if index == 0 else \
+                    _DERIVED.get(self._dof_units[i], (self._dof_units[i] + "/s",
+                                                      self._dof_units[i] + "/s2", "1"))[index - 1]
+                self.register_variable(_Real(
+                    f"{key}[{i + 1}]", unit=unit,
+                    description=f"{what} {key} of DOF {i + 1} of {n} ({self._dof_labels[i]}; "
+                                f"hfdi index {i})",
+                    getter=(lambda k=key, i=i: self._outputs()[k][i]), **continuous))
+        for j, (name, unit, text) in enumerate(self._zvars):
+            self.register_variable(_Real(name, unit=unit, description=text,
+                                         getter=(lambda j=j: self._quantities()[j]),
+                                         **continuous))
+        self.register_variable(_Real(
+            "W", unit="J", description="total energy W = V + T at the communication point",
+            getter=lambda: self._outputs()["W"], **continuous))
+        self.register_variable(_Real(
+            "dE", unit="J", description="cumulative energy error: sum of Delta E of the "
+                                        "accepted steps (paper Eq. 40)",
+            getter=lambda: self._outputs()["dE"], **continuous))
+        discrete = dict(variability=Fmi2Variability.discrete, **out)
+        self.register_variable(Integer(
+            "internal_steps", description="predictor-corrector steps since the start, "
+                                          "diverged attempts included",
+            getter=lambda: self._outputs()["steps"], **discrete))
+        self.register_variable(Integer(
+            "newton_iterations", description="Newton corrections since the start, diverged "
+                                             "attempts included",
+            getter=lambda: self._outputs()["iterations"], **discrete))
+
+    def _output_setter(self, value):
+        self.log(f"outputs cannot be set (value {value!r} ignored)", Fmi2Status.warning)
+
+    # -- model description --------------------------------------------------------
+    def to_xml(self, model_options=dict()):
+        """pythonfmu's model description plus unit definitions, no direct
+        feedthrough, and the initial unknowns of the calculated outputs."""
+        root = super().to_xml(model_options)
+        units = sorted({v.unit for v in self.vars.values() if isinstance(v, _Real) and v.unit})
+        definitions = Element("UnitDefinitions")
+        for unit in units:
+            node = SubElement(definitions, "Unit", {"name": unit})
+            base = _BASE_UNITS.get(unit)
+            if base:
+                SubElement(node, "BaseUnit", {k: str(e) for k, e in base.items()})
+        children = list(root)
+        root.insert(children.index(root.find("CoSimulation")) + 1, definitions)
+        structure = root.find("ModelStructure")
+        outputs = structure.find("Outputs")
+        if outputs is not None:
+            # an output changes only in doStep: it does not depend on the inputs directly
+            for unknown in outputs:
+                unknown.set("dependencies", "")
+        initial = SubElement(structure, "InitialUnknowns")
+        for index, var in enumerate(self.vars.values(), start=1):
+            if var.causality == Fmi2Causality.output:
+                SubElement(initial, "Unknown", {"index": str(index)})
+        return root
+
+    # -- life cycle -----------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        try:
+            if start_time is not None and math.isfinite(float(start_time)):
+                self._start_time = float(start_time)
+            self._stop_time = None if stop_time is None else float(stop_time)
+        except Exception as exc:  # keep exceptions away from pythonfmu's C++ layer
+            self.log(f"setup_experiment({start_time!r}, {stop_time!r}) ignored: {exc!r}",
+                     Fmi2Status.warning)
+
+    def enter_initialization_mode(self):
+        self._phase = "initialization"
+
+    def exit_initialization_mode(self):
+        try:
+            bad = [f"F[{i + 1}] = {x!r}" for i, x in enumerate(self._F_input)
+                   if not math.isfinite(x)]
+            if bad:
+                raise FmuError(f"input {', '.join(bad)} is not finite")
+            self._F_applied = self._F_input.copy()
+            model, itg = self._make_integrator(self._params, self._mparams, self._start_time)
+        except FmuError as exc:
+            self._reject(f"initialization rejected: {exc}")
+        except Exception as exc:
+            self._reject(f"initialization failed: {exc!r}")
+        self._itg = itg
+        self._itg_key = (dict(self._params), dict(self._mparams), self._start_time)
+        self._phase = "stepping"
+        self._cache = None
+        self.log(f"{self.model_name}: scheme {self._params['scheme']}, target "
+                 f"{self._params['target_iterations']}, t0 = {self._start_time}, first trial "
+                 f"step {itg.proposed_step:.6g}", Fmi2Status.ok)
+
+    def terminate(self):
+        self._phase = "terminated"
+
+    def _make_integrator(self, params, mparams, start_time):
+        """Check the parameters and make the model and its integrator.
+
+        Raises
+        ------
+        FmuError
+            Naming every parameter that is wrong.
+        """
+        hfdi = self._hfdi
+        errors = []
+        scheme = params["scheme"]
+        key = str(scheme).strip().lower()
+        if key not in hfdi.SCHEMES:
+            errors.append(f"parameter scheme = {scheme!r} must be one of "
+                          f"{', '.join(sorted(hfdi.SCHEMES))}")
+        target = params["target_iterations"]
+        if not (_finite_number(target) and target >= 1.0):
+            errors.append(f"parameter target_iterations = {target!r} must be a finite "
+                          "number >= 1")
+        tol = params["tolerance"]
+        if not (_finite_number(tol) and 0.0 < tol < 1.0):
+            errors.append(f"parameter tolerance = {tol!r} must lie in (0, 1)")
+        for name, zero in (("initial_step", "automatic"), ("max_step", "no limit")):
+            value = params[name]
+            if not (_finite_number(value) and value >= 0.0):
+                errors.append(f"parameter {name} = {value!r} must be a finite number >= 0 "
+                              f"(0: {zero})")
+        changed = {k: v for k, v in mparams.items() if v != self._defaults.get(k)}
+        model = None
+        try:
+            model = hfdi.models.get(self.model_name, **mparams)
+        except Exception as exc:
+            listed = ", ".join(f"{k} = {v!r}" for k, v in changed.items()) or "the defaults"
+            errors.append(f"model parameter(s) {listed} rejected by {self.model_name}: {exc}")
+        if model is not None:
+            problem = self._structure_problem(model)
+            if problem:
+                listed = ", ".join(f"{k} = {v!r}" for k, v in changed.items())
+                errors.append(f"model parameter(s) {listed}: {problem}; this FMU was built "
+                              f"for the model's default structure, rebuild it for others")
+        if errors:
+            raise FmuError("; ".join(errors))
+        try:
+            itg = hfdi.Integrator(model, key, target_iterations=float(target), tol=float(tol),
+                                  t0=float(start_time),
+                                  first_step=float(params["initial_step"]) or None,
+                                  max_step=float(params["max_step"]) or None,
+                                  extra_load=self._extra_load)
+        except Exception as exc:
+            raise FmuError(f"the integrator rejected the parameters (scheme = {scheme!r}, "
+                           f"target_iterations = {target!r}, tolerance = {tol!r}, "
+                           f"initial_step = {params['initial_step']!r}, "
+                           f"max_step = {params['max_step']!r}): {exc}") from None
+        return model, itg
+
+    def _structure_problem(self, model):
+        """Why ``model`` does not fit this FMU's variables, or ``""``."""
+        if int(model.n_dof) != self._n:
+            return f"the model has {model.n_dof} DOFs instead of {self._n}"
+        u0 = np.zeros(self._n) if model.initial_displacement is None \
+            else np.asarray(model.initial_displacement, dtype=float)
+        v0 = np.zeros(self._n) if model.initial_velocity is None \
+            else np.asarray(model.initial_velocity, dtype=float)
+        values = model.quantities(np.array([0.0]), u0[None, :], v0[None, :])
+        for qname, _, width in self._zlayout:
+            if qname not in values or np.asarray(values[qname]).size != width:
+                return f"quantity {qname!r} no longer has {width} component(s)"
+        return ""
+
+    def _extra_load(self, t):
+        # the input held over the current communication step
+        return self._F_applied
+
+    # -- stepping -------------------------------------------------------------------
+    def do_step(self, current_time, step_size):
+        """Advance to ``current_time + step_size`` exactly.
+
+        Returns ``False`` (``fmi2Discard``) when the step cannot be taken; the
+        FMU is then back at ``current_time`` (the time pythonfmu reports as
+        ``fmi2LastSuccessfulTime``), with its outputs there, and the log says
+        why. Never raises.
+        """
+        snapshot = None
+        try:
+            itg = self._itg
+            t, h = float(current_time), float(step_size)
+            if itg is None:
+                return self._discard(f"doStep({t}, {h}) before a successful "
+                                     "exitInitializationMode")
+            if not (math.isfinite(h) and h > 0.0 and math.isfinite(t)):
+                return self._discard(f"doStep({t}, {h}): the step size must be positive "
+                                     "and finite")
+            here = itg.t
+            if abs(t - here) > max(64.0 * math.ulp(max(abs(t), abs(here))), 1e-10 * h):
+                return self._discard(f"doStep({t}, {h}) but the FMU is at t = {here!r}; "
+                                     "restore an FMU state to go back")
+            bad = [f"F[{i + 1}] = {x!r}" for i, x in enumerate(self._F_input)
+                   if not math.isfinite(x)]
+            if bad:
+                return self._discard(f"doStep({t}, {h}): input {', '.join(bad)} is not finite")
+            t_end = t + h
+            if not t_end > here:
+                return self._discard(f"doStep({t}, {h}): the step is below the time "
+                                     "resolution at t")
+            snapshot = (itg.get_state(), self._F_applied.copy())
+            self._apply_inputs()
+            ok = itg.advance(t_end)
+            self._cache = None
+            if ok:
+                return True
+            reason = f"{itg.status.name}: {itg.message}"
+            self._rollback(snapshot)
+            return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
+                                 f"t = {t!r}: retry with a shorter communication step or "
+                                 "other inputs, or restore an earlier FMU state")
+        except Exception as exc:  # keep exceptions away from pythonfmu's C++ layer
+            try:
+                if snapshot is not None:
+                    self._rollback(snapshot)
+            except Exception as again:
+                self._itg = None
+                self.log(f"rollback failed ({again!r}); restore an FMU state",
+                         Fmi2Status.error)
+            return self._discard(f"doStep({current_time}, {step_size}) failed: {exc!r}")
+
+    def _apply_inputs(self):
+        """Make the current state consistent with inputs that changed at this
+        communication point.
+
+        The state at the start of the step keeps the load and acceleration
+        computed with the previous inputs; the schemes read both (Newmark and
+        Bathe through ``a_n``, HFDI through ``p_n`` in the load rate, the energy
+        balance through the work). They are recomputed with the new inputs, the
+        acceleration's right limit at the jump of the load.
+        """
+        if np.array_equal(self._F_input, self._F_applied):
+            return
+        self._F_applied = self._F_input.copy()
+        self._itg.load_changed()
+
+    def _rollback(self, snapshot):
+        saved, applied = snapshot
+        self._itg.set_state(saved)
+        self._F_applied = applied
+        self._cache = None
+
+    def _discard(self, message):
+        self.log(message, Fmi2Status.discard)
+        return False
+
+    def _reject(self, message):
+        """Log ``message`` and raise :class:`FmuError` into pythonfmu (``fmi2Fatal``)."""
+        self.log(message, Fmi2Status.error)
+        # the C++ layer will release these once more than it holds them
+        for obj in (self, type(self), self.log_queue):
+            _add_reference(obj)
+        raise FmuError(message)
+
+    # -- outputs ----------------------------------------------------------------------
+    def _outputs(self):
+        cache = self._cache
+        if cache is None:
+            cache = self._cache = self._compute_outputs()
+        return cache
+
+    def _compute_outputs(self):
+        itg = self._itg
+        if itg is None:
+            # initialization mode: the initial state the current parameters give
+            try:
+                self._F_applied = self._F_input.copy()
+                _, itg = self._make_integrator(self._params, self._mparams, self._start_time)
+            except Exception:
+                nan = np.full(self._n, np.nan)
+                return {"u": nan, "v": nan, "a": nan, "z": np.full(self._nz, np.nan),
+                        "W": math.nan, "dE": math.nan, "steps": 0, "iterations": 0, "itg": None}
+        state, stats = itg.state, itg.statistics
+        return {"u": state.u, "v": state.v, "a": state.a, "z": None,
+                "W": float(itg.total_energy), "dE": float(itg.energy_error),
+                "steps": min(int(stats.steps), _INT32_MAX),
+                "iterations": min(int(stats.newton_iterations), _INT32_MAX), "itg": itg}
+
+    def _quantities(self):
+        cache = self._outputs()
+        if cache["z"] is None:
+            itg = cache["itg"]
+            state = itg.state
+            z = np.full(self._nz, np.nan)
+            try:
+                values = itg.system.quantities(np.array([state.t]), state.u[None, :],
+                                               state.v[None, :])
+                for qname, offset, width in self._zlayout:
+                    z[offset:offset + width] = np.asarray(values[qname], dtype=float).reshape(-1)
+            except Exception as exc:
+                self.log(f"quantities of interest unavailable at t = {state.t!r}: {exc!r}",
+                         Fmi2Status.warning)
+            cache["z"] = z
+        return cache["z"]
+
+    # -- getters and setters: no unguarded exception into the C++ layer --------------
+    def get_real(self, vrs):
+        try:
+            return super().get_real(vrs)
+        except Exception as exc:
+            self._reject(f"fmi2GetReal({list(vrs)}): {exc!r}")
+
+    def get_integer(self, vrs):
+        try:
+            return super().get_integer(vrs)
+        except Exception as exc:
+            self._reject(f"fmi2GetInteger({list(vrs)}): {exc!r}")
+
+    def get_boolean(self, vrs):
+        try:
+            return super().get_boolean(vrs)
+        except Exception as exc:
+            self._reject(f"fmi2GetBoolean({list(vrs)}): {exc!r}")
+
+    def get_string(self, vrs):
+        try:
+            return super().get_string(vrs)
+        except Exception as exc:
+            self._reject(f"fmi2GetString({list(vrs)}): {exc!r}")
+
+    def set_real(self, vrs, values):
+        try:
+            super().set_real(vrs, values)
+        except Exception as exc:
+            self._reject(f"fmi2SetReal({list(vrs)}): {exc!r}")
+
+    def set_integer(self, vrs, values):
+        try:
+            super().set_integer(vrs, values)
+        except Exception as exc:
+            self._reject(f"fmi2SetInteger({list(vrs)}): {exc!r}")
+
+    def set_boolean(self, vrs, values):
+        try:
+            super().set_boolean(vrs, values)
+        except Exception as exc:
+            self._reject(f"fmi2SetBoolean({list(vrs)}): {exc!r}")
+
+    def set_string(self, vrs, values):
+        try:
+            super().set_string(vrs, values)
+        except Exception as exc:
+            self._reject(f"fmi2SetString({list(vrs)}): {exc!r}")
+
+    # -- FMU state ------------------------------------------------------------------------
+    def _get_fmu_state(self):
+        """Everything the continuation depends on: parameters, inputs and the
+        integrator's whole state (:meth:`hfdi.Integrator.get_state`)."""
+        try:
+            return {"model": self.model_name, "bundle": self.bundle, "phase": self._phase,
+                    "params": dict(self._params), "mparams": dict(self._mparams),
+                    "start_time": self._start_time, "stop_time": self._stop_time,
+                    "inputs": self._F_input.copy(), "applied": self._F_applied.copy(),
+                    "integrator": None if self._itg is None else self._itg.get_state(),
+                    "built": None if self._itg_key is None else
+                    (dict(self._itg_key[0]), dict(self._itg_key[1]), self._itg_key[2])}
+        except Exception as exc:
+            self._reject(f"fmi2GetFMUstate failed: {exc!r}")
+
+    def _set_fmu_state(self, state):
+        try:
+            if isinstance(state, _InvalidState):
+                raise FmuError(state.reason)
+            if not isinstance(state, dict) or state.get("model") != self.model_name \
+                    or state.get("bundle") != self.bundle:
+                raise FmuError(f"the state was not made by this FMU (model {self.model_name!r}, "
+                               f"build {self.bundle})")
+            itg, key = self._itg, self._itg_key
+            if state["integrator"] is None:
+                itg = key = None
+            else:
+                key = state["built"]
+                if self._itg is None or self._itg_key != key:
+                    _, itg = self._make_integrator(key[0], key[1], key[2])
+                itg.set_state(state["integrator"])
+            self._itg, self._itg_key = itg, key
+            self._params = dict(state["params"])
+            self._mparams = dict(state["mparams"])
+            self._start_time, self._stop_time = state["start_time"], state["stop_time"]
+            self._F_input = np.array(state["inputs"], dtype=float)
+            self._F_applied = np.array(state["applied"], dtype=float)
+            self._phase = state["phase"]
+            self._cache = None
+        except Exception as exc:
+            self._reject(f"fmi2SetFMUstate: cannot restore the state: {exc}")
+
+    @staticmethod
+    def _fmu_state_to_bytes(state) -> bytes:
+        # pickle: the integrator's state holds numpy arrays and dataclasses. Called on
+        # the class, with no instance to protect, so it must not raise: bytes that do
+        # not deserialize are rejected by fmi2SetFMUstate instead.
+        try:
+            return _MAGIC + pickle.dumps(state, protocol=4)
+        except Exception:
+            return b""
+
+    @staticmethod
+    def _fmu_state_from_bytes(data):
+        # Unpickling runs code named in the bytes: accept serialized states only
+        # from a source as trusted as the FMU itself.
+        try:
+            data = bytes(data)
+            if not data.startswith(_MAGIC):
+                return _InvalidState("the bytes are not a serialized hfdi FMU state")
+            return pickle.loads(data[len(_MAGIC):])
+        except Exception as exc:
+            return _InvalidState(f"the serialized state cannot be read: {exc!r}")

@@ -1,0 +1,369 @@
+"""The FMI 2.0 co-simulation FMUs (``fmu``): validity, equivalence with
+``hfdi.Integrator``, rollback, discards, communication step sizes, bad
+parameters, the CLI and the example master.
+
+The FMUs are built once per session. pythonfmu runs the slaves inside this
+Python process, so the slaves import the ``hfdi`` bundled in each FMU, not the
+one under test here; both are the same sources.
+"""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pythonfmu")
+fmpy = pytest.importorskip("fmpy")
+
+from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import fmi2Error, fmi2Fatal  # noqa: E402
+from fmpy.validation import validate_fmu  # noqa: E402
+
+import hfdi  # noqa: E402
+from fmu.build import build_all  # noqa: E402
+from fmu.cli import main  # noqa: E402
+from fmu.master import Unit, coupled_dumbbells, cosimulate  # noqa: E402
+
+MODELS = hfdi.models.available()
+SCHEMES = ("newmark", "bathe", "hfdi")
+N = 4                                              # dumbbell DOFs
+STATE = [f"{k}[{i}]" for k in "uva" for i in range(1, N + 1)]
+OBSERVED = STATE + ["stretch", "W", "dE", "internal_steps", "newton_iterations"]
+# a force no step can integrate: the Newton residuals overflow at every step size
+HUGE = 1.7e308
+
+
+@pytest.fixture(scope="session")
+def fmus(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fmus")
+    built = build_all(out)
+    failed = {name: str(r) for name, r in built.items() if not isinstance(r, Path)}
+    assert not failed, failed
+    return built
+
+
+@pytest.fixture(scope="session")
+def dumbbell(fmus, tmp_path_factory):
+    """One extraction of the dumbbell FMU, shared by the units of the session."""
+    return fmus["dumbbell"], extract(str(fmus["dumbbell"]),
+                                     unzipdir=str(tmp_path_factory.mktemp("dumbbell")))
+
+
+def unit(dumbbell, parameters=None, name="unit"):
+    path, unzip = dumbbell
+    u = Unit(path, name, unzip_dir=unzip)
+    u.initialize(parameters or {}, start_time=0.0)
+    return u
+
+
+def reference_row(itg):
+    """The dumbbell FMU's observed outputs, from an in-process integrator."""
+    s = itg.state
+    stretch = itg.system.quantities(np.array([s.t]), s.u[None], s.v[None])["stretch"]
+    st = itg.statistics
+    return np.concatenate([s.u, s.v, s.a, np.ravel(stretch),
+                           [itg.total_energy, itg.energy_error, st.steps,
+                            st.newton_iterations]])
+
+
+def assert_rows_close(fmu_rows, ref_rows, rtol=1e-12):
+    fmu_rows, ref_rows = np.atleast_2d(fmu_rows), np.atleast_2d(ref_rows)
+    scale = np.maximum(np.abs(ref_rows).max(axis=0), 1e-300)
+    # dE is a sum of round-off-sized terms: measure it on the energy's scale
+    scale[OBSERVED.index("dE")] = max(scale[OBSERVED.index("W")], 1.0)
+    err = np.abs(fmu_rows - ref_rows) / scale
+    assert err.max() <= rtol, (err.max(), np.unravel_index(err.argmax(), err.shape))
+
+
+# -- the model descriptions -------------------------------------------------------------
+@pytest.mark.parametrize("name", MODELS)
+def test_fmu_validates_with_units_and_descriptions(fmus, name):
+    path = fmus[name]
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(str(path))
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
+    assert md.coSimulation.modelIdentifier == f"hfdi_{name}"
+    n = hfdi.models.get(name).n_dof
+    names = {v.name for v in md.modelVariables}
+    for key in ("u", "v", "a", "F"):
+        assert {f"{key}[{i}]" for i in range(1, n + 1)} <= names
+    assert {"scheme", "target_iterations", "tolerance", "initial_step", "max_step", "W", "dE",
+            "internal_steps", "newton_iterations"} <= names
+    for v in md.modelVariables:
+        assert v.description, v.name
+        if v.type == "Real":
+            assert v.unit, v.name
+    defaults = hfdi.models.describe(name)
+    for v in md.modelVariables:
+        if v.causality == "parameter" and v.name in defaults:
+            assert type(defaults[v.name])(v.start) == defaults[v.name], v.name
+
+
+def test_dumbbell_variables(fmus):
+    md = read_model_description(str(fmus["dumbbell"]))
+    by_name = {v.name: v for v in md.modelVariables}
+    assert by_name["u[3]"].unit == "m" and by_name["a[3]"].unit == "m/s2"
+    assert by_name["F[3]"].unit == "N" and by_name["W"].unit == "J"
+    assert by_name["F[3]"].causality == "input" and by_name["stretch"].causality == "output"
+    assert by_name["internal_steps"].type == "Integer"
+    assert by_name["internal_steps"].variability == "discrete"
+    assert {"A", "sigma"} <= set(by_name) and by_name["scheme"].start == "hfdi"
+    assert not any(name.startswith("z.") for name in by_name)   # quantity "u" not repeated
+    assert all(u.dependencies == [] for u in md.outputs)          # no direct feedthrough
+
+
+# -- equivalence with the library -----------------------------------------------------------
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_simulate_fmu_reproduces_integrator_advance(fmus, scheme):
+    result = simulate_fmu(str(fmus["dumbbell"]), start_values={"scheme": scheme},
+                          stop_time=2.0, output_interval=0.04, output=OBSERVED)
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), scheme, target_iterations=3.0)
+    rows, refs, previous = [], [], 0.0
+    for row in result:
+        t = float(row["time"])
+        if t > previous:
+            # the FMU advanced to current + step, the master's two numbers
+            assert itg.advance(previous + (t - previous))
+            previous = t
+        rows.append([row[name] for name in OBSERVED])
+        refs.append(reference_row(itg))
+    assert len(rows) == 51 and result["time"][-1] == 2.0
+    assert_rows_close(rows, refs)
+    assert result["internal_steps"][-1] == itg.statistics.steps > 50     # same internal steps
+
+
+@pytest.mark.parametrize("name", [m for m in MODELS if m != "dumbbell"])
+def test_other_models_reproduce_integrator_advance(fmus, name):
+    model = hfdi.models.get(name)
+    stop = 0.1 * float(model.observation_time or 1.0)
+    result = simulate_fmu(str(fmus[name]), stop_time=stop, output_interval=stop / 10,
+                          output=[f"u[{i}]" for i in range(1, model.n_dof + 1)] + ["W"])
+    itg = hfdi.Integrator(model, "hfdi", target_iterations=3.0)
+    previous = 0.0
+    for row in result[1:]:
+        t = float(row["time"])
+        assert itg.advance(previous + (t - previous))
+        previous = t
+        u = np.array([row[f"u[{i}]"] for i in range(1, model.n_dof + 1)])
+        scale = max(np.abs(itg.state.u).max(), 1e-300)
+        assert np.abs(u - itg.state.u).max() <= 1e-12 * scale
+        assert abs(row["W"] - itg.total_energy) <= 1e-12 * max(abs(itg.total_energy), 1.0)
+
+
+@pytest.mark.parametrize("step", [2.5e-4, 1.0])
+def test_communication_steps_far_below_and_above_the_internal_step(dumbbell, step):
+    # the internal steps of the dumbbell are about 0.016 with HFDI
+    t_end = 0.05 if step < 0.01 else 2.0
+    u = unit(dumbbell)
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), "hfdi", target_iterations=3.0)
+    t, rows, refs = 0.0, [], []
+    while t < t_end - 1e-12:
+        assert u.step(t, step)
+        t += step
+        assert itg.advance(t)
+        rows.append(u.get(OBSERVED))
+        refs.append(reference_row(itg))
+    u.close()
+    assert_rows_close(rows, refs)
+    steps = rows[-1][OBSERVED.index("internal_steps")]
+    if step < 0.01:
+        assert steps == len(rows)             # one internal step per communication step
+    else:
+        assert steps > 50 * len(rows)
+    assert abs(rows[-1][OBSERVED.index("dE")]) < 1e-3 * abs(rows[-1][OBSERVED.index("W")])
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_input_step_moves_the_centre_of_mass_exactly(dumbbell, scheme):
+    # M_tot x_cm'' = F_x: every scheme integrates the constant acceleration after
+    # the jump exactly, provided the step after the jump starts from its right limit
+    u = unit(dumbbell, {"scheme": scheme})
+    x0 = u.get(["u[1]", "u[3]", "v[1]", "v[3]"])
+    t, h, t_jump, force = 0.0, 0.03, 0.09, 600.0
+    while t < 0.3 - 1e-12:
+        if abs(t - t_jump) < 1e-12:
+            u.set({"F[1]": force / 2, "F[3]": force / 2})
+        assert u.step(t, h)
+        t += h
+    x = u.get(["u[1]", "u[3]"])
+    u.close()
+    exact = 0.5 * (x0[0] + x0[1]) + 0.5 * (x0[2] + x0[3]) * t \
+        + 0.5 * (force / 2.0) * (t - t_jump) ** 2
+    assert abs(x.mean() - exact) < 1e-9 * abs(exact)
+
+
+# -- FMU state -------------------------------------------------------------------------------
+@pytest.mark.parametrize("scheme", ["bathe", "hfdi"])
+def test_rollback_and_serialization_are_bit_identical(dumbbell, scheme):
+    u = unit(dumbbell, {"scheme": scheme})
+    t, h = 0.0, 0.03
+    for k in range(5):
+        u.set({"F[1]": 100.0 * k})
+        assert u.step(t, h)
+        t += h
+    saved = u.get_state()
+    t_saved = t
+
+    def ten_steps(v, t):
+        rows = []
+        for k in range(10):
+            v.set({"F[2]": -50.0 * k})
+            assert v.step(t, h)
+            t += h
+            rows.append(v.get(OBSERVED))
+        return np.array(rows)
+
+    first = ten_steps(u, t_saved)
+    u.set_state(saved)
+    assert u.get(["F[1]", "F[2]"]).tolist() == [400.0, 0.0]      # inputs are part of the state
+    again = ten_steps(u, t_saved)
+    data = u.serialize(saved)
+    u.set_state(u.deserialize(data))
+    restored = ten_steps(u, t_saved)
+    u.free_state(saved)
+    u.close()
+    fresh = unit(dumbbell, {"scheme": scheme}, name="fresh")   # another instance, same FMU
+    fresh.set_state(fresh.deserialize(data))
+    elsewhere = ten_steps(fresh, t_saved)
+    fresh.close()
+    assert np.array_equal(first, again)
+    assert np.array_equal(first, restored)
+    assert np.array_equal(first, elsewhere)
+
+
+def test_corrupt_state_is_refused_not_a_crash(dumbbell):
+    u = unit(dumbbell)
+    with pytest.raises(FMICallException) as info:
+        u.set_state(u.deserialize(b"not a state"))
+    assert info.value.status in (fmi2Error, fmi2Fatal)
+    assert any("not a serialized hfdi FMU state" in m[2] for m in u.messages)
+    u.close(terminate=False)
+
+
+# -- failures ----------------------------------------------------------------------------------
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_rejected_step_is_discarded_at_the_last_communication_point(dumbbell, scheme):
+    u, clean = unit(dumbbell, {"scheme": scheme}), unit(dumbbell, {"scheme": scheme}, "clean")
+    t, h = 0.0, 0.05
+    for v in (u, clean):
+        assert v.step(t, h)
+    t += h
+    before = u.get(OBSERVED)
+    u.set({"F[3]": HUGE})
+    assert not u.step(t, h)
+    message = u.messages[-1]
+    assert message[0] == "DISCARD" and "rejected" in message[2]
+    assert "HALVINGS_EXHAUSTED" in message[2] or "STEP_BELOW_MINIMUM" in message[2]
+    assert np.array_equal(u.get(OBSERVED), before)
+    assert u.last_successful_time() == t
+    u.set({"F[3]": 0.0})                      # no restore needed: the FMU is back at t
+    for v in (u, clean):
+        assert v.step(t, h / 2) and v.step(t + h / 2, h / 2)
+    assert np.array_equal(u.get(OBSERVED), clean.get(OBSERVED))
+    assert not u.step(0.0, h)                 # a step from elsewhere is refused
+    assert "restore an FMU state" in u.messages[-1][2]
+    u.set({"F[1]": math.nan})
+    assert not u.step(t + h, h) and "not finite" in u.messages[-1][2]
+    u.close()
+    clean.close()
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_master_halves_and_repeats_a_discarded_step(dumbbell):
+    path, unzip = dumbbell
+    glitch_at, glitches = 0.1, []
+
+    def run(exchange, times=None):
+        units = [Unit(path, name, unzip_dir=unzip) for name in "AB"]
+        try:
+            for v in units:
+                v.initialize({"scheme": "newmark"})
+            return cosimulate(units, exchange, [STATE, STATE], 0.2, 0.02, times=times)
+        finally:
+            for v in units:
+                v.close()
+
+    def spring(t, h, values):
+        a, b = values
+        f = 1e3 * (b[0] + 2.0 - a[2] - 1.0)
+        return [{"F[3]": f}, {"F[1]": -f}]
+
+    def glitchy(t, h, values):
+        inputs = spring(t, h, values)
+        if abs(t - glitch_at) < 1e-12 and not glitches:
+            glitches.append(h)                # once: as if a sensor spiked
+            inputs[0]["F[3]"] = HUGE
+        return inputs
+
+    trace = run(glitchy)
+    assert len(trace.discards) == 1
+    t, h, who = trace.discards[0]
+    assert t == pytest.approx(glitch_at, abs=1e-12) and h == pytest.approx(0.02) and who == [0]
+    assert np.any(np.isclose(trace.times, glitch_at + 0.01))    # the halved step
+    assert trace.times[-1] == 0.2 and trace.macro_steps == 11
+    clean = run(spring, times=trace.times[1:])
+    assert not clean.discards
+    for mine, theirs in zip(trace.values, clean.values):
+        assert np.array_equal(mine, theirs)
+
+
+@pytest.mark.parametrize("parameters, named", [
+    ({"scheme": "euler"}, "scheme"),
+    ({"target_iterations": 0.0}, "target_iterations"),
+    ({"tolerance": 1.5}, "tolerance"),
+    ({"max_step": -1.0}, "max_step"),
+    ({"A": -1.0}, "A"),
+])
+def test_bad_parameter_is_an_error_status_not_a_crash(dumbbell, parameters, named):
+    path, unzip = dumbbell
+    u = Unit(path, "bad", unzip_dir=unzip)
+    with pytest.raises(FMICallException) as info:
+        u.initialize(parameters)
+    # pythonfmu 0.7 turns every Python exception into fmi2Fatal (see fmu/slave.py)
+    assert info.value.status in (fmi2Error, fmi2Fatal)
+    errors = [m[2] for m in u.messages if m[0] == "ERROR"]
+    assert errors and (f"parameter {named} = " in errors[0] or f"{named} = " in errors[0])
+    u.close(terminate=False)
+    again = unit(dumbbell, name="after")     # the process and the FMU are still usable
+    assert again.step(0.0, 0.01)
+    again.close()
+
+
+@pytest.mark.skipif("toss_rule" not in MODELS, reason="toss_rule is not registered")
+def test_structural_parameter_is_refused(fmus):
+    u = Unit(fmus["toss_rule"], "structure")
+    with pytest.raises(FMICallException):
+        u.initialize({"n_elements": 3})
+    assert any("n_elements = 3" in m[2] and "DOFs" in m[2] for m in u.messages)
+    u.close(terminate=False)
+
+
+# -- command line and example master ---------------------------------------------------------------
+def test_cli_unknown_problem_is_one_clear_line(capsys):
+    assert main(["build", "pendulum"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "unknown problem 'pendulum'" in err and "dumbbell" in err
+
+
+def test_cli_lists_the_problems(capsys):
+    assert main(["list"]) == 0
+    assert capsys.readouterr().out.split() == MODELS
+
+
+def test_coupled_dumbbells_conserve_momentum(fmus):
+    result = coupled_dumbbells(fmus["dumbbell"], t_end=0.1, step=0.002, stiffness=1e3)
+    trace, momentum, energy = result["trace"], result["momentum"], result["total_energy"]
+    assert trace.macro_steps == 50 and not trace.discards
+    assert np.abs(momentum - momentum[0]).max() < 1e-9 * np.abs(momentum[0]).max()
+    assert abs(energy[-1] - energy[0]) < 1e-4 * abs(energy[0])
+    assert result["spring_energy"].max() > 0
+
+
+def test_demo_command_matches_in_process(tmp_path, capsys):
+    from fmu.cli import main
+    assert main(["demo", "dumbbell", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "largest relative difference 0.00e+00" in printed
+    assert (tmp_path / "hfdi_dumbbell.fmu").is_file()
