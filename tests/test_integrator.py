@@ -335,3 +335,18 @@ def test_bathe_work_counts_the_load_at_its_mid_step():
     for scheme in ("newmark", "hfdi"):
         result = hfdi.integrate(system, scheme, 3.0, step=1.0)
         np.testing.assert_array_equal(result.total_energy, 0.0)
+
+
+def test_load_changed_recomputes_the_current_load_and_acceleration():
+    force = np.array([0.0, 0.0])
+    system = coupled_duffing()
+    itg = hfdi.Integrator(system, "newmark", target_iterations=3.0, extra_load=lambda t: force)
+    itg.advance(0.5)
+    before = itg.state
+    force[:] = [2.0, -1.0]
+    itg.load_changed()
+    after = itg.state
+    np.testing.assert_array_equal(after.u, before.u)
+    np.testing.assert_allclose(after.p, before.p + force)
+    expected = (after.p - system.internal_force(after.u) - system.damping @ after.v) / system.mass
+    np.testing.assert_allclose(after.a, expected, rtol=1e-12)
