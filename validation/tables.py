@@ -10,7 +10,8 @@ from .errors import error_norms
 from .paper import PAPER_TABLES
 from .reference import cached_reference
 
-__all__ = ["RunRecord", "run_experiment", "run_table", "problem_reference", "format_table",
+__all__ = ["RunRecord", "run_experiment", "run_table", "make_record", "problem_reference",
+           "format_table",
            "records_to_csv", "ENERGY_LIMIT"]
 
 SCHEME_ORDER = ("newmark", "bathe", "hfdi")
@@ -56,6 +57,15 @@ def run_experiment(problem: str, scheme: str, target: float, t_end: float | None
     return model, result
 
 
+def make_record(problem, scheme, target, model, result, reference=None) -> RunRecord:
+    """The table record of one run, with ``ε`` against ``reference`` when given."""
+    st = result.stats
+    eps = error_norms(model, result, reference) if reference is not None else {}
+    return RunRecord(problem, scheme, float(target), st.steps, st.mean_iterations,
+                     st.mean_step, st.cpu_time, result.status.name, result.message,
+                     float(result.t[-1]), eps)
+
+
 def problem_reference(problem: str, t_end=None, params=None, rtol=1e-12, progress=None):
     """The cached dense IDA reference of ``problem`` over ``[0, t_end]``
     (``T_o`` by default)."""
@@ -76,12 +86,7 @@ def run_table(problem: str, schemes=SCHEME_ORDER, targets=None, t_end=None, para
     for scheme in schemes:
         for target in (targets or model.paper_targets[scheme]):
             model, result = run_experiment(problem, scheme, target, t_end, params)
-            st = result.stats
-            eps = error_norms(model, result, reference) if reference is not None else {}
-            records.append(RunRecord(problem, scheme, float(target), st.steps,
-                                     st.mean_iterations, st.mean_step, st.cpu_time,
-                                     result.status.name, result.message, float(result.t[-1]),
-                                     eps))
+            records.append(make_record(problem, scheme, target, model, result, reference))
             if progress is not None:
                 progress(records[-1])
     return records
