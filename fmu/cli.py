@@ -55,6 +55,12 @@ def build_parser():
     demo.add_argument("problem", nargs="?", default="dumbbell")
     demo.add_argument("--out", default="out/fmu", metavar="DIR")
     demo.add_argument("--scheme", choices=("newmark", "bathe", "hfdi"), default="hfdi")
+    bench = sub.add_parser("bench", help="time the FMU through fmpy against in-process "
+                                         "advance, communication step ≈ 10 internal steps")
+    bench.add_argument("problem", nargs="?", default="dumbbell")
+    bench.add_argument("--scheme", choices=("newmark", "bathe", "hfdi"), default="hfdi")
+    bench.add_argument("--repeats", type=int, default=5)
+    bench.add_argument("--json", metavar="FILE")
     return parser
 
 
@@ -77,6 +83,12 @@ def main(argv=None) -> int:
             return 1 if failed else 0
         elif args.command == "build":
             print(build(args.problem, args.out))
+        elif args.command == "bench":
+            if args.problem not in problems():
+                raise BuildError(f"unknown problem {args.problem!r}; available: "
+                                 f"{', '.join(problems())}")
+            from .bench import main as bench_main
+            return bench_main(args.problem, args.scheme, max(1, args.repeats), args.json)
         elif args.command == "demo":
             from .demo import run_demo
             return run_demo(args.problem, args.out, args.scheme)

@@ -367,3 +367,11 @@ def test_demo_command_matches_in_process(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "largest relative difference 0.00e+00" in printed
     assert (tmp_path / "hfdi_dumbbell.fmu").is_file()
+
+
+def test_bench_runs_and_reports_a_ratio():
+    from fmu.bench import benchmark
+    result = benchmark("dumbbell", "hfdi", t_end=0.2, repeats=1)
+    assert result["internal_steps_fmu"] == result["internal_steps_in_process"]
+    assert result["communication_steps"] >= 1
+    assert result["ratio"] > 0 and result["in_process_s"] > 0 and result["fmu_s"] > 0
