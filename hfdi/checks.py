@@ -5,8 +5,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
-__all__ = ["real", "positive", "non_negative", "integer", "finite_array"]
+__all__ = ["real", "positive", "non_negative", "integer", "finite_array",
+           "callable_or_none", "square_matrix", "symmetric_definite"]
 
 
 def real(name: str, value, *, low=None, high=None, low_closed=False, high_closed=False) -> float:
@@ -68,3 +71,131 @@ def finite_array(name: str, value, shape, *, positive: bool = False) -> np.ndarr
     if not np.all(np.isfinite(arr)) or (positive and not np.all(arr > 0)):
         raise ValueError(f"{name} must have {what} entries, got {arr.tolist()!r}")
     return arr
+
+
+def callable_or_none(name: str, value, signature: str):
+    """``value`` if it is callable or ``None``; ``signature`` describes what is expected."""
+    if value is not None and not callable(value):
+        raise ValueError(f"{name} must be a callable {signature} or None, got {value!r}")
+    return value
+
+
+def square_matrix(name: str, value):
+    """``value`` as a float ndarray of shape (N,) (a diagonal) or (N, N), or a
+    scipy sparse (N, N) matrix, with finite entries and ``N >= 1``."""
+    if sp.issparse(value):
+        if value.ndim != 2 or value.shape[0] != value.shape[1] or value.shape[0] < 1:
+            raise ValueError(f"{name} must be square (N, N) with N >= 1, got sparse shape "
+                             f"{value.shape}")
+        if not np.all(np.isfinite(value.data)):
+            raise ValueError(f"{name} must have finite entries, got a sparse matrix with "
+                             f"{np.count_nonzero(~np.isfinite(value.data))} non-finite entries")
+        return value
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of numbers of shape (N,) (diagonal) or "
+                         f"(N, N), or a scipy sparse matrix, got {value!r}") from None
+    if arr.ndim not in (1, 2) or arr.shape[0] < 1 or arr.shape != arr.shape[:1] * arr.ndim:
+        raise ValueError(f"{name} must have shape (N,) (diagonal) or (N, N) with N >= 1, "
+                         f"got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"{name} must have finite entries, got {float(arr[tuple(bad)])!r} at "
+                         f"index {tuple(int(i) for i in bad)}")
+    return arr
+
+
+#: Relative size of the antisymmetric part below which a matrix counts as
+#: symmetric: assembly in floating point leaves differences of a few ulps.
+SYMMETRY_RTOL = 1e-10
+#: Negative eigenvalues down to this fraction of ``‖A‖_∞`` are taken as
+#: round-off when a matrix must be positive *semi*-definite.
+SEMIDEFINITE_RTOL = 1e-10
+
+
+def _sparse_non_positive_pivots(a) -> int:
+    """Number of pivots ``≤ 0`` of a symmetric ``LDLᵀ`` of the sparse ``a``.
+
+    SuperLU in symmetric mode with no threshold pivoting (``diag_pivot_thresh
+    = 0``) factorises ``P A Pᵀ = L U`` with ``U = D Lᵀ``, so ``diag(U)`` is
+    ``D`` and, by Sylvester's law of inertia, has as many non-positive
+    entries as ``A`` has non-positive eigenvalues. A zero pivot forces SuperLU
+    to swap rows (``perm_r ≠ perm_c``) or to stop; both mean ``A`` is not
+    positive definite and count as one.
+    """
+    try:
+        lu = spla.splu(sp.csc_matrix(a), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options=dict(SymmetricMode=True))
+    except RuntimeError:            # "Factor is exactly singular"
+        return 1
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return max(1, int(np.count_nonzero(lu.U.diagonal() <= 0)))
+    return int(np.count_nonzero(lu.U.diagonal() <= 0))
+
+
+def symmetric_definite(name: str, a, *, semi: bool = False, what: str = ""):
+    """Check that ``a`` is symmetric positive definite (``semi``: semi-definite).
+
+    ``a`` is a 1-D array (a diagonal), a 2-D ndarray or a scipy sparse matrix
+    with finite entries. The checks are the cheap ones, each a factorisation
+    at most: a diagonal must be ``> 0`` (``>= 0``); a dense or sparse matrix
+    must be symmetric to ``SYMMETRY_RTOL`` and have a positive (non-negative)
+    diagonal, and then a dense one must admit a Cholesky factorisation, a
+    sparse one a symmetric ``LDLᵀ`` with positive pivots. For ``semi`` the
+    factorisation is of ``A + δ I``, ``δ = SEMIDEFINITE_RTOL ‖A‖_∞``, so that
+    negative eigenvalues of round-off size pass.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``, what is wrong and what is allowed.
+    """
+    allowed = "symmetric positive " + ("semi-definite" if semi else "definite")
+    lead = f"{name} must be {allowed}{what}"
+    if isinstance(a, np.ndarray) and a.ndim == 1:
+        bad = np.flatnonzero(a < 0) if semi else np.flatnonzero(~(a > 0))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"{lead}; its diagonal entry [{i}] is {float(a[i])!r} "
+                             f"(allowed: {'>= 0' if semi else '> 0'})")
+        return
+    sparse = sp.issparse(a)
+    diag = np.asarray(a.diagonal()).ravel()
+    scale = float(abs(a).max()) if (a.nnz if sparse else a.size) else 0.0
+    if scale == 0.0:
+        if semi:
+            return
+        raise ValueError(f"{lead}; it is zero")
+    asym = abs(a - a.T)
+    if float(asym.max()) > SYMMETRY_RTOL * scale:
+        if sparse:
+            asym = asym.tocoo()
+            k = int(np.argmax(asym.data))
+            i, j = int(asym.row[k]), int(asym.col[k])
+        else:
+            i, j = (int(x) for x in np.unravel_index(np.argmax(asym), a.shape))
+        aij, aji = a[i, j], a[j, i]
+        raise ValueError(f"{lead}; it is not symmetric: [{i}, {j}] is {float(aij)!r} but "
+                         f"[{j}, {i}] is {float(aji)!r}")
+    bad = np.flatnonzero(diag < 0) if semi else np.flatnonzero(~(diag > 0))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{lead}; its diagonal entry [{i}, {i}] is {float(diag[i])!r} "
+                         f"(allowed: {'>= 0' if semi else '> 0'})")
+    n = a.shape[0]
+    shift = SEMIDEFINITE_RTOL * float(abs(a).sum(axis=1).max()) if semi else 0.0
+    if sparse:
+        shifted = a + shift * sp.identity(n, format="csr") if semi else a
+        count = _sparse_non_positive_pivots(shifted)
+        if count:
+            raise ValueError(f"{lead}; a symmetric LDLᵀ factorisation has {count} "
+                             f"non-positive pivot(s), so it has "
+                             f"{'negative' if semi else 'non-positive'} eigenvalues")
+        return
+    try:
+        np.linalg.cholesky(a + shift * np.eye(n) if semi else a)
+    except np.linalg.LinAlgError:
+        low = float(np.linalg.eigvalsh(a)[0])
+        raise ValueError(f"{lead}; its Cholesky factorisation fails (smallest eigenvalue "
+                         f"{low:.6g})") from None

@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .evaluation import Evaluator, ModelError, State
+from .evaluation import Evaluator, ModelError, NonFiniteError, State
 from .linalg import SingularMatrixError
 
 __all__ = ["predict", "newton", "solve_step", "StepOutcome"]
@@ -90,8 +90,10 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
     """One attempt at the step ``start.t → t_end``: every stage, predictor then Newton.
 
     ``predictor(s)`` gives the initial guess a time ``s`` after ``start.t``.
-    An exception raised by the model (other than a wrong shape) fails the
-    attempt with its message, like a diverged corrector.
+    A non-finite value or an exception raised by the model fails the attempt
+    with its message, like a diverged corrector: a shorter step may avoid the
+    state where the model fails. A wrong shape (:class:`ModelError`) is a
+    mistake in the model that no step size cures, and is raised.
     """
     h = t_end - start.t
     done = []
@@ -106,11 +108,14 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
                 stage = f" (sub-step {index + 1})" if scheme.n_stages > 1 else ""
                 return StepOutcome(None, iterations, message + stage)
             end = problem.finish(u)
-            if not (np.all(np.isfinite(end.v)) and np.all(np.isfinite(end.a))):
+            if not (np.all(np.isfinite(end.u)) and np.all(np.isfinite(end.v))
+                    and np.all(np.isfinite(end.a))):
                 return StepOutcome(None, iterations, "end-of-step state is not finite")
             done.append(end)
-    except (ModelError, TypeError):
+    except ModelError:
         raise
+    except NonFiniteError as exc:
+        return StepOutcome(None, iterations, str(exc))
     except Exception as exc:  # the model failed at some state: treat as a failed attempt
         return StepOutcome(None, iterations, f"model raised {type(exc).__name__}: {exc}")
     return StepOutcome(done[-1], iterations, stages=done[:-1])

@@ -11,10 +11,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from . import checks
 from .linalg import Factorization, combine, matvec, normalise_matrix, solve
 from .system import SecondOrderSystem
 
-__all__ = ["State", "Evaluator", "ModelError", "DENSE_BELOW"]
+__all__ = ["State", "Evaluator", "ModelError", "NonFiniteError", "DENSE_BELOW"]
 
 #: Sparse matrices of models with fewer DOFs than this are handled as dense
 #: arrays: below about a hundred unknowns a dense LU costs microseconds, while
@@ -23,7 +24,39 @@ DENSE_BELOW = 128
 
 
 class ModelError(ValueError):
-    """The model returned something unusable (wrong shape, not finite) or raised."""
+    """A mistake in the model: a function returned the wrong shape, or at the
+    initial state a value that is not finite, or raised there."""
+
+
+class NonFiniteError(ArithmeticError):
+    """A model function returned NaN or infinity at some state.
+
+    Unlike a :class:`ModelError` this is not a mistake in the model as such:
+    a trial state of the corrector may lie where the model is undefined, and a
+    shorter step may avoid it. The corrector treats it as a failed attempt.
+    """
+
+
+def brief(x) -> str:
+    """A short text of a vector for messages (long vectors are elided)."""
+    x = np.asarray(x, dtype=float).ravel()
+    parts = [f"{v:.6g}" for v in (x if x.size <= 8 else np.concatenate([x[:3], x[-3:]]))]
+    if x.size > 8:
+        parts[3:3] = [f"... ({x.size} entries) ..."]
+    return "[" + ", ".join(parts) + "]"
+
+
+def _first_bad(values) -> str:
+    """The first non-finite entry of ``values`` (an array or sparse matrix) and its index."""
+    if sp.issparse(values):
+        coo = values.tocoo()
+        k = int(np.flatnonzero(~np.isfinite(coo.data))[0])
+        value, index = coo.data[k], [int(coo.row[k]), int(coo.col[k])]
+    else:
+        arr = np.asarray(values)
+        position = np.argwhere(~np.isfinite(arr))[0]
+        value, index = arr[tuple(position)], [int(i) for i in position]
+    return f"{float(value)!r} at {index}"
 
 
 @dataclass(frozen=True)
@@ -67,10 +100,25 @@ class Evaluator:
             raise ValueError(f"system.n_dof must be >= 1, got {system.n_dof}")
         self.system = system
         self.n = n
-        self.mass = normalise_matrix(system.mass, n, "mass")
+        self.mass = normalise_matrix(system.mass, n, "system.mass")
         if self.mass is None:
             raise ValueError("system.mass must be given")
-        self.damping = normalise_matrix(system.damping, n, "damping")
+        self.damping = normalise_matrix(system.damping, n, "system.damping")
+        # A mass that is not positive definite has no acceleration (or an
+        # unbounded one); a damping that is not semi-definite feeds energy in.
+        # Both are mistakes in a model, cheaper to report here than as a
+        # diverging run later.
+        for name, matrix, semi in (("system.mass", self.mass, False),
+                                   ("system.damping", self.damping, True)):
+            if matrix is None:
+                continue
+            values = matrix.data if sp.issparse(matrix) else matrix
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"{name} must have finite entries, got "
+                                 f"{_first_bad(matrix)}")
+            checks.symmetric_definite(
+                name, matrix, semi=semi,
+                what=" (negative damping is not allowed)" if semi else "")
         if n < DENSE_BELOW:
             self.mass, self.damping = (a.toarray() if sp.issparse(a) else a
                                        for a in (self.mass, self.damping))
@@ -82,38 +130,59 @@ class Evaluator:
             isinstance(self.damping, np.ndarray) and self.damping.ndim == 1)
 
     # -- counted model calls --------------------------------------------------
-    def _vector(self, value, what):
-        arr = np.asarray(value, dtype=float)
+    # Every value is checked for its shape (a wrong one is a mistake in the
+    # model: ModelError) and for being finite (NaN at some trial state is a
+    # failed attempt that a shorter step may avoid: NonFiniteError).
+    def _vector(self, value, what, where):
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ModelError(f"{what} returned {value!r:.80}, expected an array of "
+                             f"shape ({self.n},)") from None
         if arr.shape != (self.n,):
             raise ModelError(f"{what} returned shape {arr.shape}, expected ({self.n},)")
+        if not np.isfinite(arr).all():
+            raise NonFiniteError(f"{what} is not finite ({_first_bad(arr)}) at {where()}")
         return arr
 
-    def _matrix(self, value, what):
+    def _matrix(self, value, what, where):
+        n = self.n
         if sp.issparse(value):
-            if value.shape != (self.n, self.n):
-                raise ModelError(f"{what} returned shape {value.shape}, expected ({self.n}, {self.n})")
-            return value.toarray() if self.n < DENSE_BELOW else value
-        arr = np.asarray(value, dtype=float)
-        if arr.shape != (self.n, self.n):
-            raise ModelError(f"{what} returned shape {arr.shape}, expected ({self.n}, {self.n})")
+            if value.shape != (n, n):
+                raise ModelError(f"{what} returned shape {value.shape}, expected ({n}, {n})")
+            if not np.isfinite(value.data).all():
+                raise NonFiniteError(f"{what} is not finite ({_first_bad(value)}) at {where()}")
+            return value.toarray() if n < DENSE_BELOW else value
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ModelError(f"{what} returned {type(value).__name__} {value!r:.80}, expected "
+                             f"an array or sparse matrix of shape ({n}, {n})") from None
+        if arr.shape != (n, n):
+            raise ModelError(f"{what} returned shape {arr.shape}, expected ({n}, {n})")
+        if not np.isfinite(arr).all():
+            raise NonFiniteError(f"{what} is not finite ({_first_bad(arr)}) at {where()}")
         return arr
 
     def force(self, u):
         self.nfev += 1
-        return self._vector(self.system.internal_force(u), "internal_force")
+        return self._vector(self.system.internal_force(u), "internal_force",
+                            lambda: f"u = {brief(u)}")
 
     def stiffness(self, u):
         self.njev += 1
-        return self._matrix(self.system.stiffness(u), "stiffness")
+        return self._matrix(self.system.stiffness(u), "stiffness",
+                            lambda: f"u = {brief(u)}")
 
     def stiffness_derivative(self, u, w):
         self.ntev += 1
-        return self._matrix(self.system.stiffness_derivative(u, w), "stiffness_derivative")
+        return self._matrix(self.system.stiffness_derivative(u, w), "stiffness_derivative",
+                            lambda: f"u = {brief(u)}, w = {brief(w)}")
 
     def load(self, t):
-        p = self._vector(self.system.load(t), "load")
+        p = self._vector(self.system.load(t), "load", lambda: f"t = {t:.10g}")
         if self.extra_load is not None:
-            p = p + self._vector(self.extra_load(t), "extra load")
+            p = p + self._vector(self.extra_load(t), "extra_load", lambda: f"t = {t:.10g}")
         return p
 
     @property
@@ -121,11 +190,21 @@ class Evaluator:
         return self.system.load_rate is not None and self.extra_load is None
 
     def load_rate(self, t):
-        return self._vector(self.system.load_rate(t), "load_rate")
+        return self._vector(self.system.load_rate(t), "load_rate", lambda: f"t = {t:.10g}")
 
     def potential_energy(self, u):
+        """``V(u)`` as a float; NaN (the model's "unknown") passes unchecked."""
         self.npev += 1
-        return float(self.system.potential_energy(u))
+        value = self.system.potential_energy(u)
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            arr = None
+        if arr is None or arr.size != 1:
+            shape = "" if arr is None else f" of shape {arr.shape}"
+            raise ModelError(f"potential_energy returned {type(value).__name__}{shape}, "
+                             f"expected a float")
+        return float(arr.reshape(()))
 
     # -- mass and damping -----------------------------------------------------
     def mass_times(self, x):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import enum
+import inspect
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -23,7 +24,7 @@ import numpy as np
 from . import checks
 from .controller import FixedStep, IterationCountController
 from .corrector import predict, solve_step
-from .evaluation import Evaluator, State
+from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
 from .schemes import HFDI, Scheme, get_scheme
 from .system import SecondOrderSystem
 
@@ -31,7 +32,12 @@ __all__ = ["Integrator", "IntegratorState", "Result", "Statistics", "Status", "i
 
 
 class Status(enum.IntEnum):
-    """How a run ended (negative values are failures)."""
+    """How a run ended (negative values are failures).
+
+    ``MODEL_ERROR``: during the run the model returned a value of the wrong
+    shape (or a potential energy that is not a number), a mistake that no
+    step size cures; the message names the function.
+    """
 
     SUCCESS = 0
     RUNNING = 1
@@ -41,6 +47,7 @@ class Status(enum.IntEnum):
     NEWTON_FAILED = -4
     ENERGY_GROWTH = -5
     FIRST_STEP_FAILED = -6
+    MODEL_ERROR = -7
 
 
 @dataclass
@@ -128,6 +135,24 @@ def _optional_positive(name, value):
     return None if value is None else checks.positive(name, value)
 
 
+def _initial_vector(name, value, n, source):
+    """An initial condition as a finite float array of shape (n,)."""
+    label = name if source is None else f"{name} (from {source})"
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{label} must be an array of {n} finite numbers, "
+                         f"got {value!r}") from None
+    if arr.shape != (n,):
+        raise ValueError(f"{label} must have shape ({n},) (one entry per degree of freedom), "
+                         f"got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        i = int(np.flatnonzero(~np.isfinite(arr))[0])
+        raise ValueError(f"{label} must be finite, got {brief(arr)} (entry {i} is "
+                         f"{float(arr[i])!r})")
+    return arr
+
+
 class Integrator:
     """Adaptive predictor–corrector integration of ``M u'' + C u' + f(u) = p(t)``.
 
@@ -174,6 +199,19 @@ class Integrator:
         energy and external work). ``None`` disables the check.
     extra_load : callable ``t -> (N,)``, optional
         Added to the model's load.
+
+    Raises
+    ------
+    ValueError
+        For an argument out of its range, naming it, its value and what is
+        allowed; for a mass matrix that is not symmetric positive definite or
+        a damping matrix that is not symmetric positive semi-definite.
+    ModelError
+        (a ``ValueError``) when the model fails at the initial state: ``f``,
+        ``K``, ``T`` (HFDI only), ``p``, ``p'`` (when used) or ``V`` returns
+        the wrong shape or a value that is not finite, or raises. They are
+        evaluated here once so that such mistakes come up front rather than
+        as failed steps.
     """
 
     def __init__(self, system: SecondOrderSystem, scheme="hfdi", *, target_iterations=None,
@@ -182,6 +220,7 @@ class Integrator:
                  max_iterations=None, first_step_trials=40, t_bound=None, energy_limit=None,
                  extra_load=None):
         self.scheme: Scheme = get_scheme(scheme)
+        checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
         self.ev = ev = Evaluator(system, extra_load)
         self.system = system
         if (target_iterations is None) == (step is None):
@@ -189,15 +228,18 @@ class Integrator:
                              f"got target_iterations={target_iterations!r}, step={step!r}")
         if isinstance(self.scheme, HFDI) and self.scheme.load_rate == "exact" \
                 and not ev.has_load_rate:
-            raise ValueError("scheme HFDI(load_rate='exact') needs a model with load_rate")
-        tol = float(tol)
-        if not (0.0 < tol < 1.0):
-            raise ValueError(f"tol must be in (0, 1), got {tol!r}")
+            why = "extra_load is given" if system.load_rate is not None else \
+                "the model has no load_rate"
+            raise ValueError(f"scheme HFDI(load_rate='exact') needs the exact load rate, but "
+                             f"{why}; use HFDI(load_rate='auto') or "
+                             f"HFDI(load_rate='difference')")
+        try:
+            tol = checks.real("tol", tol, low=0.0, high=1.0)
+        except ValueError:
+            raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
         self.tol = tol
-        self.t0 = float(t0)
-        if not math.isfinite(self.t0):
-            raise ValueError(f"t0 must be finite, got {t0!r}")
-        self.t_bound = None if t_bound is None else float(t_bound)
+        self.t0 = checks.real("t0", t0)
+        self.t_bound = None if t_bound is None else checks.real("t_bound", t_bound)
         if self.t_bound is not None and not self.t_bound > self.t0:
             raise ValueError(f"t_bound must be > t0 = {self.t0}, got {t_bound!r}")
         span = None if self.t_bound is None else self.t_bound - self.t0
@@ -214,15 +256,23 @@ class Integrator:
 
         self.adaptive = target_iterations is not None
         if self.adaptive:
-            target = checks.positive("target_iterations", target_iterations)
-            if target < 1.0:
-                raise ValueError(f"target_iterations must be >= 1, got {target_iterations!r}")
+            try:
+                target = checks.real("target_iterations", target_iterations, low=1.0,
+                                     low_closed=True)
+            except ValueError:
+                raise ValueError(f"target_iterations must be >= 1 and finite (Newton "
+                                 f"corrections per step), got {target_iterations!r}") from None
             self.controller = IterationCountController(target * self.scheme.n_stages,
                                                        self.min_step, self.max_step)
             default_max = max(1, int(math.floor(2.0 * target)))
             self.sliver = 0.01
         else:
             h = checks.positive("step", step)
+            if span is not None and span / h > self.max_steps * (1.0 + 1e-9):
+                raise ValueError(f"step = {step!r} needs {math.ceil(span / h)} steps from t0 = "
+                                 f"{self.t0:g} to t_bound = {self.t_bound:g}, more than "
+                                 f"max_steps = {self.max_steps}; allowed: step >= "
+                                 f"{span / self.max_steps:.6g}")
             self.controller = FixedStep(h)
             default_max = 50
             self.sliver = 1e-9
@@ -231,25 +281,25 @@ class Integrator:
         self.floor = float(getattr(system, "u_scale", 1.0) or 1.0)
 
         n = ev.n
-        u0 = system.initial_displacement if u0 is None else u0
-        v0 = system.initial_velocity if v0 is None else v0
-        u0 = np.zeros(n) if u0 is None else np.asarray(u0, dtype=float)
-        v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
-        for name, arr in (("u0", u0), ("v0", v0)):
-            if arr.shape != (n,):
-                raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"{name} must be finite, got {arr}")
+        initial = []
+        for name, given, attribute in (("u0", u0, "initial_displacement"),
+                                       ("v0", v0, "initial_velocity")):
+            source = None
+            if given is None:
+                given = getattr(system, attribute, None)
+                source = f"system.{attribute}"
+            initial.append(np.zeros(n) if given is None else
+                           _initial_vector(name, given, n, source))
+        u0, v0 = initial
+        first_step = _optional_positive("first_step", first_step)
 
         start = time.process_time()
-        current = ev.state(self.t0, u0, v0)
+        current, K0, potential = self._initial_state(u0, v0)
         if self.adaptive:
-            h0 = _optional_positive("first_step", first_step) \
-                or self._default_first_step(current)
+            h0 = first_step or self._default_first_step(K0)
             proposed = min(h0, self.max_step)
         else:
             proposed = self.controller.step
-        potential = ev.potential_energy(current.u)
         stats = Statistics(t_start=self.t0, t_reached=self.t0)
         self._s = IntegratorState(
             current=current, previous=None, proposed_step=proposed,
@@ -358,9 +408,52 @@ class Integrator:
         self._sync_counters()
 
     # -- stepping ------------------------------------------------------------
-    def _default_first_step(self, current: State) -> float:
+    def _initial_state(self, u0, v0):
+        """The initial :class:`State`, ``K(u0)`` and ``V(u0)``, every model function
+        checked once.
+
+        A model is often wrong at first. Evaluating each function the run will
+        use at the initial state turns a wrong shape, a NaN or an exception
+        into a :class:`ModelError` that names the function, instead of a run
+        whose every step fails for a reason the user has to guess.
+        """
+        ev, t0 = self.ev, self.t0
+        name = getattr(self.system, "name", type(self.system).__name__)
+        where = f"at the initial state (t0 = {t0:g}, u0 = {brief(u0)}, v0 = {brief(v0)})"
+
+        def call(function, fun, *args):
+            try:
+                return fun(*args)
+            except ModelError as exc:
+                raise ModelError(f"model {name!r}: {exc} {where}") from None
+            except NonFiniteError as exc:
+                raise ModelError(f"model {name!r}: {exc}, the initial state (t0 = {t0:g}); "
+                                 f"the run cannot start there") from None
+            except NotImplementedError as exc:
+                raise ModelError(f"model {name!r}: scheme {self.scheme.name!r} needs "
+                                 f"{function}, which raised NotImplementedError"
+                                 f"{': ' + str(exc) if str(exc) else ''}") from exc
+            except Exception as exc:
+                raise ModelError(f"model {name!r}: {function} raised {type(exc).__name__}: "
+                                 f"{exc} {where}") from exc
+
+        f = call("internal_force", ev.force, u0)
+        p = call("load", ev.load, t0)
+        K = call("stiffness", ev.stiffness, u0)
+        if isinstance(self.scheme, HFDI):
+            call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
+            if self.scheme.load_rate == "exact" or (self.scheme.load_rate == "auto"
+                                                     and ev.has_load_rate):
+                call("load_rate", ev.load_rate, t0)
+        potential = call("potential_energy", ev.potential_energy, u0)
+        a = ev.acceleration(t0, u0, v0, f, p)
+        if not np.all(np.isfinite(a)):
+            raise ModelError(f"model {name!r}: the initial acceleration "
+                             f"M⁻¹(p − f − C v0) is not finite ({brief(a)}) {where}")
+        return State(t0, u0.copy(), v0.copy(), a, f, p), K, potential
+
+    def _default_first_step(self, K) -> float:
         """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""
-        K = self.ev.stiffness(current.u)
         row_sums = np.asarray(abs(K).sum(axis=1)).ravel()
         m = self.ev.mass
         m_diag = m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
@@ -407,7 +500,13 @@ class Integrator:
         s = self._s
         ev = self.ev
         old, new = s.current, outcome.state
-        potential = ev.potential_energy(new.u)
+        try:
+            potential = ev.potential_energy(new.u)
+        except Exception as exc:
+            # the converged state is not accepted: the run keeps its last good state
+            return self._fail(Status.MODEL_ERROR,
+                              f"potential_energy failed at the end of the step to t = "
+                              f"{new.t:.10g}: {type(exc).__name__}: {exc}")
         kinetic_old, kinetic_new = ev.kinetic_energy(old.v), ev.kinetic_energy(new.v)
         # Eq. 41, the trapezoidal rule over the points where the scheme samples
         # the load: the step's ends, and Bathe's mid-step, whose load the
@@ -453,6 +552,11 @@ class Integrator:
             if self._s.first_step_pending:
                 return self._first_step(t_limit)
             return self._regular_step(t_limit)
+        except ModelError as exc:
+            # a wrong shape mid-run: retrying cannot help, and raising would
+            # lose the run of integrate(); stop with the last good state
+            return self._fail(Status.MODEL_ERROR, f"the model returned an unusable value in "
+                                                  f"a step from this time: {exc}")
         finally:
             self._sync_counters()
             self._cpu(start)
@@ -463,10 +567,17 @@ class Integrator:
         halvings = 0
         while True:
             if st.steps >= self.max_steps:
-                return self._fail(Status.MAX_STEPS, f"max_steps = {self.max_steps} reached")
+                before = f" before t = {t_limit:.10g}" if math.isfinite(t_limit) else ""
+                return self._fail(Status.MAX_STEPS,
+                                  f"max_steps = {self.max_steps} reached (attempts, diverged "
+                                  f"ones included){before}")
             proposed = s.proposed_step
             t_end, clipped = self._clip(proposed, t_limit)
             h = t_end - self.t
+            if not h > 0.0:
+                # the halvings went below the spacing of floating-point times at t
+                return self._fail(Status.STEP_BELOW_MINIMUM,
+                                  f"step {proposed:.6g} is below the resolution of time at t")
             outcome = self._attempt(t_end)
             st.steps += 1
             st.newton_iterations += outcome.total_iterations
@@ -475,18 +586,20 @@ class Integrator:
                                                             outcome.total_iterations)
                 return self._accept(outcome, h)
             st.rejected += 1
+            attempt = f"h = {h:.6g}, to t = {t_end:.10g}"
             if not self.adaptive:
                 return self._fail(Status.NEWTON_FAILED,
-                                  f"corrector failed with fixed step {h:.6g}: {outcome.message}")
+                                  f"corrector failed with fixed step {h:.6g} (to t = "
+                                  f"{t_end:.10g}): {outcome.message}")
             halvings += 1
             if halvings > self.max_halvings:
                 return self._fail(Status.HALVINGS_EXHAUSTED,
-                                  f"step diverged after {self.max_halvings} halvings, "
-                                  f"last h = {h:.6g}: {outcome.message}")
+                                  f"step diverged after {self.max_halvings} halvings (last "
+                                  f"attempt {attempt}): {outcome.message}")
             if 0.5 * h < self.min_step:
                 return self._fail(Status.STEP_BELOW_MINIMUM,
                                   f"step {0.5 * h:.6g} below min_step = {self.min_step:.6g} "
-                                  f"after: {outcome.message}")
+                                  f"after the attempt with {attempt} failed: {outcome.message}")
             s.proposed_step = 0.5 * h
 
     def _first_step(self, t_limit):
@@ -501,9 +614,13 @@ class Integrator:
         low = high = None
         best = None            # (distance to target, outcome, h, proposed, clipped)
         message = ""
+        smallest = math.inf
         for _ in range(self.first_step_trials):
             t_end, clipped = self._clip(h, t_limit)
             h_try = t_end - self.t
+            if not h_try > 0.0:        # below the resolution of time at t
+                break
+            smallest = min(smallest, h_try)
             outcome = self._attempt(t_end)
             st.first_step_trials += 1
             st.first_step_trial_iterations += outcome.total_iterations
@@ -533,7 +650,7 @@ class Integrator:
         if best is None:
             return self._fail(Status.FIRST_STEP_FAILED,
                               f"no first step converged in {st.first_step_trials} trials "
-                              f"down to h = {h:.6g}: {message}")
+                              f"down to h = {smallest:.6g}: {message}")
         _, outcome, h_try, proposed, clipped = best
         # The accepted trial is the run's first step; the others are reported apart.
         st.first_step_trial_iterations -= outcome.total_iterations
@@ -674,9 +791,18 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, target_iterations=Non
     -------
     Result
         ``status`` and ``message`` say how the run ended; on failure the
-        arrays end at the last good state.
+        arrays end at the last good state and the message starts with its
+        time (``"t = ...: "``).
+
+    Raises
+    ------
+    ValueError
+        For bad input, naming the parameter, its value and what is allowed;
+        :class:`~hfdi.ModelError` (a ``ValueError``) for a model that fails at
+        the initial state (see :class:`Integrator`). Faults during the run
+        do not raise; they end it with a failed ``status``.
     """
-    t0 = float(t0)
+    t0 = checks.real("t0", t0)
     try:
         t_end = float(t_end)
     except (TypeError, ValueError):
@@ -685,16 +811,31 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, target_iterations=Non
         raise ValueError(f"t_end must be finite and > t0 = {t0}, got {t_end!r}")
     stops = [t_end]
     if t_eval is not None:
-        t_eval = np.asarray(t_eval, dtype=float).ravel()
+        try:
+            t_eval = np.asarray(t_eval, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise ValueError(f"t_eval must be an array of times in [t0, t_end], "
+                             f"got {t_eval!r}") from None
         if not np.all(np.isfinite(t_eval)):
-            raise ValueError("t_eval must be finite")
+            i = int(np.flatnonzero(~np.isfinite(t_eval))[0])
+            raise ValueError(f"t_eval must be finite, got t_eval[{i}] = {float(t_eval[i])!r}")
         if np.any(np.diff(t_eval) <= 0):
-            raise ValueError("t_eval must be strictly increasing")
+            i = int(np.flatnonzero(np.diff(t_eval) <= 0)[0])
+            raise ValueError(f"t_eval must be strictly increasing, got t_eval[{i}] = "
+                             f"{float(t_eval[i])!r} followed by t_eval[{i + 1}] = "
+                             f"{float(t_eval[i + 1])!r}")
         if t_eval.size and (t_eval[0] < t0 or t_eval[-1] > t_end):
             raise ValueError(f"t_eval must lie in [t0, t_end] = [{t0}, {t_end}], "
                              f"got [{t_eval[0]}, {t_eval[-1]}]")
         stops = [t for t in t_eval if t > t0] + ([t_end] if not t_eval.size or
                                                   t_eval[-1] < t_end else [])
+    allowed = [name for name in inspect.signature(Integrator).parameters
+               if name not in ("system", "scheme", "target_iterations", "step", "t0", "u0", "v0",
+                               "tol", "t_bound")]
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise ValueError(f"unknown option(s) {', '.join(unknown)} of integrate; allowed: "
+                         f"{', '.join(allowed)}")
     integrator = Integrator(system, scheme, target_iterations=target_iterations, step=step,
                             t0=t0, u0=u0, v0=v0, tol=tol, t_bound=t_end, **options)
     s0 = integrator.state

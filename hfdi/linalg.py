@@ -34,7 +34,11 @@ def normalise_matrix(a, n: int, name: str):
         if a.nnz == 0 or (a - sp.diags(a.diagonal())).count_nonzero() == 0:
             return np.asarray(a.diagonal(), dtype=float)
         return a
-    arr = np.asarray(a, dtype=float)
+    try:
+        arr = np.asarray(a, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of numbers of shape ({n},) (diagonal) or "
+                         f"({n}, {n}), or a scipy sparse matrix, got {a!r}") from None
     if arr.ndim == 1:
         if arr.shape != (n,):
             raise ValueError(f"{name} given as a diagonal must have shape ({n},), got {arr.shape}")

@@ -12,12 +12,11 @@ as restated in the project's algorithm notes.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import checks
 from .evaluation import Evaluator, State
 from .linalg import Factorization, SingularMatrixError, combine
 
@@ -107,11 +106,8 @@ class Newmark(Scheme):
     name = "newmark"
 
     def __init__(self, gamma: float = 0.5, beta: float = 0.25):
-        gamma, beta = float(gamma), float(beta)
-        if not (math.isfinite(gamma) and 0.0 < gamma <= 1.0):
-            raise ValueError(f"Newmark gamma must be in (0, 1], got {gamma}")
-        if not (math.isfinite(beta) and 0.0 < beta <= 0.5):
-            raise ValueError(f"Newmark beta must be in (0, 1/2], got {beta}")
+        gamma = checks.real("Newmark gamma", gamma, low=0.0, high=1.0, high_closed=True)
+        beta = checks.real("Newmark beta", beta, low=0.0, high=0.5, high_closed=True)
         self.gamma, self.beta = gamma, beta
         self.order = 2 if gamma == 0.5 else 1
 
@@ -138,9 +134,7 @@ class Bathe(Scheme):
     order = 2
 
     def __init__(self, gamma: float = 0.5):
-        gamma = float(gamma)
-        if not (math.isfinite(gamma) and 0.0 < gamma < 1.0):
-            raise ValueError(f"Bathe gamma must be in (0, 1), got {gamma}")
+        gamma = checks.real("Bathe gamma", gamma, low=0.0, high=1.0)
         self.gamma = gamma
         self.stage_fractions = (gamma, 1.0)
 

@@ -19,6 +19,8 @@ from typing import Callable, Mapping
 import numpy as np
 import scipy.sparse as sp
 
+from . import checks
+
 __all__ = [
     "SecondOrderSystem",
     "System",
@@ -127,7 +129,8 @@ class System(SecondOrderSystem):
         Mass matrix; 1-D means diagonal.
     internal_force : callable ``f(u) -> (N,)``
     stiffness : callable ``K(u) -> (N, N)``
-    stiffness_derivative : callable ``T(u, w) -> (N, N)``
+    stiffness_derivative : callable ``T(u, w) -> (N, N)`` or None
+        Needed by HFDI only; with ``None`` the integrator refuses HFDI up front.
     damping : array_like or sparse, optional
     load : callable ``p(t) -> (N,)``, optional
     load_rate : callable ``p'(t) -> (N,)``, optional
@@ -137,6 +140,13 @@ class System(SecondOrderSystem):
         Zero when omitted.
     name : str, optional
     u_scale : float, optional
+
+    Raises
+    ------
+    ValueError
+        For arguments of the wrong kind or shape. Whether the mass is positive
+        definite, the damping semi-definite and the functions return the
+        right shapes is checked when an integrator is built on the model.
     """
 
     def __init__(self, mass, internal_force, stiffness, stiffness_derivative, *,
@@ -144,9 +154,21 @@ class System(SecondOrderSystem):
                  quantities=None, initial_displacement=None,
                  initial_velocity=None, name="system", u_scale=1.0,
                  observation_time=None, paper_targets=None):
-        self.mass = mass if sp.issparse(mass) else np.asarray(mass, dtype=float)
-        self.n_dof = self.mass.shape[0]
-        self.damping = damping
+        self.mass = checks.square_matrix("System mass", mass)
+        self.n_dof = n = self.mass.shape[0]
+        self.damping = None if damping is None else \
+            _matching_matrix("System damping", damping, n)
+        for what, value, signature in (
+                ("internal_force", internal_force, "f(u) -> (N,)"),
+                ("stiffness", stiffness, "K(u) -> (N, N)")):
+            if not callable(value):
+                raise ValueError(f"System {what} must be a callable {signature}, got {value!r}")
+        for what, value, signature in (
+                ("stiffness_derivative", stiffness_derivative, "T(u, w) -> (N, N)"),
+                ("load", load, "p(t) -> (N,)"), ("load_rate", load_rate, "p'(t) -> (N,)"),
+                ("potential_energy", potential_energy, "V(u) -> float"),
+                ("quantities", quantities, "(t, u, v) -> dict")):
+            checks.callable_or_none(f"System {what}", value, signature)
         self._f = internal_force
         self._k = stiffness
         self._t = stiffness_derivative
@@ -154,13 +176,14 @@ class System(SecondOrderSystem):
         self.load_rate = load_rate
         self._v = potential_energy
         self._q = quantities
-        n = self.n_dof
-        self.initial_displacement = (np.zeros(n) if initial_displacement is None
-                                     else np.asarray(initial_displacement, float))
-        self.initial_velocity = (np.zeros(n) if initial_velocity is None
-                                 else np.asarray(initial_velocity, float))
+        self.initial_displacement = (np.zeros(n) if initial_displacement is None else
+                                     checks.finite_array("System initial_displacement",
+                                                         initial_displacement, (n,)))
+        self.initial_velocity = (np.zeros(n) if initial_velocity is None else
+                                 checks.finite_array("System initial_velocity",
+                                                     initial_velocity, (n,)))
         self.name = name
-        self.u_scale = u_scale
+        self.u_scale = checks.positive("System u_scale", u_scale)
         self.observation_time = observation_time
         self.paper_targets = paper_targets or {}
 
@@ -171,6 +194,9 @@ class System(SecondOrderSystem):
         return self._k(u)
 
     def stiffness_derivative(self, u, w):
+        if self._t is None:
+            raise NotImplementedError("System(stiffness_derivative=None) has no "
+                                      "T(u, w) = d(K(u) w)/du; Newmark and Bathe do without")
         return self._t(u, w)
 
     def load(self, t):
@@ -193,27 +219,35 @@ class LinearSystem(SecondOrderSystem):
     damping : array_like or sparse, optional
     load, load_rate : callable, optional
     initial_displacement, initial_velocity : array_like (N,), optional
+
+    Raises
+    ------
+    ValueError
+        For arguments of the wrong kind or shape (see :class:`System`).
     """
 
     name = "linear"
 
     def __init__(self, mass, stiffness, damping=None, load=None, load_rate=None,
                  initial_displacement=None, initial_velocity=None):
-        self.mass = mass if sp.issparse(mass) else np.asarray(mass, dtype=float)
-        self.n_dof = self.mass.shape[0]
-        if sp.issparse(stiffness):
-            self._K = sp.csr_matrix(stiffness, dtype=float)
+        self.mass = checks.square_matrix("LinearSystem mass", mass)
+        self.n_dof = n = self.mass.shape[0]
+        k = _matching_matrix("LinearSystem stiffness", stiffness, n)
+        if sp.issparse(k):
+            self._K = sp.csr_matrix(k, dtype=float)
         else:
-            k = np.asarray(stiffness, dtype=float)
             self._K = np.diag(k) if k.ndim == 1 else k
-        self.damping = damping
-        self._p = load
-        self.load_rate = load_rate
-        n = self.n_dof
-        self.initial_displacement = (np.zeros(n) if initial_displacement is None
-                                     else np.asarray(initial_displacement, float))
-        self.initial_velocity = (np.zeros(n) if initial_velocity is None
-                                 else np.asarray(initial_velocity, float))
+        self.damping = None if damping is None else \
+            _matching_matrix("LinearSystem damping", damping, n)
+        self._p = checks.callable_or_none("LinearSystem load", load, "p(t) -> (N,)")
+        self.load_rate = checks.callable_or_none("LinearSystem load_rate", load_rate,
+                                                 "p'(t) -> (N,)")
+        self.initial_displacement = (np.zeros(n) if initial_displacement is None else
+                                     checks.finite_array("LinearSystem initial_displacement",
+                                                         initial_displacement, (n,)))
+        self.initial_velocity = (np.zeros(n) if initial_velocity is None else
+                                 checks.finite_array("LinearSystem initial_velocity",
+                                                     initial_velocity, (n,)))
 
     def internal_force(self, u):
         return self._K @ u
@@ -230,6 +264,15 @@ class LinearSystem(SecondOrderSystem):
 
     def potential_energy(self, u):
         return 0.5 * float(u @ (self._K @ u))
+
+
+def _matching_matrix(name, value, n):
+    """A matrix of the model checked to be (n,) (a diagonal) or (n, n)."""
+    a = checks.square_matrix(name, value)
+    if a.shape[0] != n:
+        raise ValueError(f"{name} must have shape ({n},) (diagonal) or ({n}, {n}) to match "
+                         f"the mass, got shape {a.shape}")
+    return a
 
 
 # -- finite-difference check ------------------------------------------------

@@ -35,8 +35,21 @@ def _lookup(name):
 
 
 def get(name: str, **params):
-    """A model by name, with its parameters as keyword arguments."""
-    return _lookup(name)(**params)
+    """A model by name, with its parameters as keyword arguments.
+
+    Raises
+    ------
+    ValueError
+        For an unknown model name or parameter (listing the allowed ones), or
+        a parameter value the model refuses.
+    """
+    cls = _lookup(name)
+    allowed = describe(name)
+    unknown = sorted(set(params) - set(allowed))
+    if unknown:
+        raise ValueError(f"model {name!r} has no parameter(s) {', '.join(unknown)}; "
+                         f"its parameters are: {', '.join(allowed)}")
+    return cls(**params)
 
 
 def describe(name: str) -> dict:

@@ -162,8 +162,12 @@ class Articulated(SecondOrderSystem):
         self.initial_velocity = (np.zeros(6) if v0 is None else
                                  checks.finite_array("articulated v0", v0, (6,)))
         self._pair = PairPotential(3, 2, [0, 1], [1, 2])
-        if not np.all(self._pair.geometry(self.initial_displacement)[1] > 0):
-            raise ValueError("articulated positions: neighbouring masses must not coincide")
+        lengths = self._pair.geometry(self.initial_displacement)[1]
+        if not np.all(lengths > 0):
+            k = int(np.flatnonzero(~(lengths > 0))[0])
+            raise ValueError(f"articulated positions: neighbouring masses must not coincide "
+                             f"(link lengths > 0), got masses {k + 1} and {k + 2} both at "
+                             f"{tuple(x0[k].tolist())}")
         self.u_scale = self.h
         self._positions_given = positions is not None
 

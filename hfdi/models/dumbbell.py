@@ -52,7 +52,8 @@ class Dumbbell(SecondOrderSystem):
         self.initial_displacement = checks.finite_array("dumbbell u0", u0, (4,))
         self.initial_velocity = checks.finite_array("dumbbell v0", v0, (4,))
         if np.hypot(*(self.initial_displacement[2:] - self.initial_displacement[:2])) == 0:
-            raise ValueError("dumbbell u0 must place the two masses apart")
+            raise ValueError(f"dumbbell u0 must place the two masses apart (the bond length "
+                             f"must be > 0), got {tuple(self.initial_displacement.tolist())}")
         self.rest_length = self.sigma * math.sqrt(5.0 / 3.0)
         self.u_scale = self.rest_length
         self._pair = PairPotential(2, 2, [0], [1])

@@ -109,7 +109,10 @@ class Tetrahedra(SecondOrderSystem):
         self._pair = PairPotential(4, 3, PAIRS_I, PAIRS_J)
         self.rest_length = self._pair.geometry(self.initial_displacement)[1]
         if not np.all(self.rest_length > 0):
-            raise ValueError("tetrahedra positions must be four distinct points")
+            k = int(np.flatnonzero(~(self.rest_length > 0))[0])
+            raise ValueError(f"tetrahedra positions must be four distinct points (every rest "
+                             f"length > 0), got particles {PAIRS_I[k] + 1} and {PAIRS_J[k] + 1} "
+                             f"both at {tuple(x0[PAIRS_I[k]].tolist())}")
         self.spring_constant = np.array([self.k_stiff] + [self.k_soft] * 5)
         self._positions_given = positions is not None
 

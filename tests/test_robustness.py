@@ -1,0 +1,659 @@
+"""Robustness: every mistake in the input gets a ValueError that names the
+parameter, the value and what is allowed; every solver fault ends the run with
+a failed status, a message that says at which time and what happened, and the
+last good state.
+
+The cases are tables (``INPUT_CASES``, ``FAULT_CASES``) so that the same cases
+fill the tables of ``docs/robustness.md``: ``python tests/test_robustness.py
+--write`` runs them all and writes the messages they actually get there.
+"""
+import math
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+import scipy.sparse as sparse
+
+import hfdi
+from hfdi.checks import symmetric_definite
+
+sys.path.insert(0, str(pathlib.Path(__file__).parent))
+from problems import coupled_duffing  # noqa: E402
+
+DUMBBELL = hfdi.models.dumbbell()
+DUFFING = coupled_duffing()
+DOCS = pathlib.Path(__file__).parent.parent / "docs" / "robustness.md"
+
+
+def duffing(**overrides):
+    """The coupled Duffing oscillator of ``problems`` with some functions replaced."""
+    b = DUFFING
+    args = dict(mass=b.mass, internal_force=b.internal_force, stiffness=b.stiffness,
+                stiffness_derivative=b.stiffness_derivative, damping=b.damping,
+                potential_energy=b.potential_energy,
+                initial_displacement=b.initial_displacement,
+                initial_velocity=b.initial_velocity, name="duffing")
+    args.update(overrides)
+    return hfdi.System(**args)
+
+
+def linear(mass, damping=None, stiffness=None):
+    n = np.shape(mass)[0]
+    k = np.eye(n) if stiffness is None else stiffness
+    return hfdi.LinearSystem(mass=mass, stiffness=k, damping=damping,
+                             initial_displacement=np.ones(n))
+
+
+def chain_matrix(n, diagonal, off):
+    """A sparse symmetric tridiagonal (n, n) matrix, kept sparse (n >= 128)."""
+    return sparse.diags([np.full(n - 1, off), np.full(n, diagonal), np.full(n - 1, off)],
+                        [-1, 0, 1], format="csr")
+
+
+def run(system, scheme="newmark", t_end=1.0, **kwargs):
+    """``integrate`` with a fixed step of 0.1 unless told otherwise."""
+    if "target_iterations" not in kwargs:
+        kwargs.setdefault("step", 0.1)
+    return hfdi.integrate(system, scheme, t_end, **kwargs)
+
+
+def advanced(t):
+    """A fixed-step integrator of the Duffing oscillator advanced to ``t``."""
+    itg = hfdi.Integrator(DUFFING, "newmark", step=0.1)
+    assert itg.advance(t)
+    return itg
+
+
+class Unfinished(hfdi.SecondOrderSystem):
+    """A subclass that has not written its methods yet."""
+
+    name = "unfinished"
+    n_dof = 2
+    mass = np.ones(2)
+
+
+class WithInitial(hfdi.SecondOrderSystem):
+    """A subclass whose default initial velocity has the wrong length."""
+
+    name = "with_initial"
+    n_dof = 2
+    mass = np.ones(2)
+    initial_velocity = np.zeros(3)
+
+    def internal_force(self, u):
+        return u
+
+    def stiffness(self, u):
+        return np.eye(2)
+
+
+# -- bad input ------------------------------------------------------------------------------
+# (id, where, what is wrong, call, exception, fragments of the message). The fragments
+# are plain text that must all appear: the parameter, the value, what is allowed.
+INPUT_CASES = [
+    # integrate / Integrator arguments
+    ("u0-shape", "integrate", "u0 of the wrong shape",
+     lambda: run(DUMBBELL, u0=[1.0, 2.0]), ValueError, ["u0", "shape (4,)", "got shape (2,)"]),
+    ("u0-not-numbers", "integrate", "u0 not numbers",
+     lambda: run(DUMBBELL, u0="ab"), ValueError, ["u0", "4 finite numbers", "'ab'"]),
+    ("v0-default-shape", "Integrator", "the model's initial_velocity of the wrong shape",
+     lambda: hfdi.Integrator(WithInitial(), "newmark", step=0.1), ValueError,
+     ["v0 (from system.initial_velocity)", "shape (2,)", "got shape (3,)"]),
+    ("u0-nan", "integrate", "u0 not finite",
+     lambda: run(DUMBBELL, u0=[0.0, np.nan, 1.0, 0.0]), ValueError,
+     ["u0 must be finite", "entry 1 is nan"]),
+    ("v0-inf", "integrate", "v0 not finite",
+     lambda: run(DUMBBELL, v0=[0.0, 0.0, -np.inf, 0.0]), ValueError,
+     ["v0 must be finite", "entry 2 is -inf"]),
+    ("t0-nan", "integrate", "t0 not finite",
+     lambda: run(DUMBBELL, t0=math.nan), ValueError, ["t0", "finite number", "nan"]),
+    ("t_end-equal", "integrate", "t_end = t0",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 0.0, step=0.1), ValueError,
+     ["t_end", "> t0 = 0.0", "got 0.0"]),
+    ("t_end-before", "integrate", "t_end < t0",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, t0=2.0, step=0.1), ValueError,
+     ["t_end", "> t0 = 2.0", "got 1.0"]),
+    ("t_end-inf", "integrate", "t_end infinite",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", math.inf, step=0.1), ValueError,
+     ["t_end must be finite", "got inf"]),
+    ("t_end-text", "integrate", "t_end not a number",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", "soon", step=0.1), ValueError,
+     ["t_end must be a number", "'soon'"]),
+    ("target-below-1", "integrate", "target_iterations < 1",
+     lambda: run(DUMBBELL, target_iterations=0.5), ValueError,
+     ["target_iterations", ">= 1", "got 0.5"]),
+    ("target-nan", "integrate", "target_iterations not finite",
+     lambda: run(DUMBBELL, target_iterations=math.nan), ValueError,
+     ["target_iterations", ">= 1 and finite", "got nan"]),
+    ("target-inf", "integrate", "target_iterations infinite",
+     lambda: run(DUMBBELL, target_iterations=math.inf), ValueError,
+     ["target_iterations", ">= 1 and finite", "got inf"]),
+    ("tol-zero", "integrate", "tol = 0",
+     lambda: run(DUMBBELL, tol=0.0), ValueError, ["tol", "(0, 1)", "got 0.0"]),
+    ("tol-one", "integrate", "tol = 1",
+     lambda: run(DUMBBELL, tol=1.0), ValueError, ["tol", "(0, 1)", "got 1.0"]),
+    ("tol-nan", "integrate", "tol not finite",
+     lambda: run(DUMBBELL, tol=math.nan), ValueError, ["tol", "(0, 1)", "got nan"]),
+    ("step-zero", "integrate", "step = 0",
+     lambda: run(DUMBBELL, step=0.0), ValueError, ["step", "> 0", "got 0.0"]),
+    ("step-negative", "integrate", "step < 0",
+     lambda: run(DUMBBELL, step=-0.1), ValueError, ["step", "> 0", "got -0.1"]),
+    ("step-nan", "integrate", "step not finite",
+     lambda: run(DUMBBELL, step=math.nan), ValueError, ["step", "finite number > 0", "got nan"]),
+    ("step-too-small", "integrate", "step so small that max_steps cannot reach t_end",
+     lambda: run(DUMBBELL, step=1e-3, max_steps=100), ValueError,
+     ["step = 0.001", "1000 steps", "max_steps = 100", "step >= 0.01"]),
+    ("step-and-target", "integrate", "both step and target_iterations",
+     lambda: run(DUMBBELL, step=0.1, target_iterations=3.0), ValueError,
+     ["exactly one of target_iterations", "target_iterations=3.0", "step=0.1"]),
+    ("neither", "integrate", "neither step nor target_iterations",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0), ValueError,
+     ["exactly one of target_iterations", "target_iterations=None", "step=None"]),
+    ("scheme-name", "integrate", "unknown scheme name",
+     lambda: run(DUMBBELL, "euler"), ValueError,
+     ["scheme", "['bathe', 'hfdi', 'newmark']", "'euler'"]),
+    ("option-name", "integrate", "unknown option",
+     lambda: run(DUMBBELL, max_step_size=0.1), ValueError,
+     ["unknown option(s) max_step_size", "allowed:", "max_step"]),
+    ("min-above-max", "integrate", "min_step >= max_step",
+     lambda: run(DUMBBELL, min_step=0.5, max_step=0.1), ValueError,
+     ["min_step", "< max_step = 0.1", "got 0.5"]),
+    ("first-step", "integrate", "first_step <= 0",
+     lambda: run(DUMBBELL, target_iterations=3.0, first_step=-1.0), ValueError,
+     ["first_step", "> 0", "got -1.0"]),
+    ("max-iterations", "integrate", "max_iterations < 1",
+     lambda: run(DUMBBELL, max_iterations=0), ValueError,
+     ["max_iterations", "integer >= 1", "got 0"]),
+    ("max-halvings", "integrate", "max_halvings < 0",
+     lambda: run(DUMBBELL, max_halvings=-1), ValueError,
+     ["max_halvings", "integer >= 0", "got -1"]),
+    ("energy-limit", "integrate", "energy_limit <= 0",
+     lambda: run(DUMBBELL, energy_limit=0.0), ValueError, ["energy_limit", "> 0", "got 0.0"]),
+    ("extra-load", "Integrator", "extra_load not callable",
+     lambda: hfdi.Integrator(DUMBBELL, "hfdi", step=0.1, extra_load=[1.0]), ValueError,
+     ["extra_load", "callable t -> (N,)", "[1.0]"]),
+    ("advance-back", "Integrator.advance", "t_stop before the current time",
+     lambda: advanced(0.5).advance(0.2), ValueError, ["t_stop", ">= t = 0.5", "got 0.2"]),
+    ("advance-beyond", "Integrator.advance", "t_stop beyond t_bound",
+     lambda: hfdi.Integrator(DUMBBELL, "hfdi", step=0.1, t_bound=1.0).advance(2.0), ValueError,
+     ["t_stop", "<= t_bound = 1.0", "got 2.0"]),
+    ("t_eval-unsorted", "integrate", "t_eval not increasing",
+     lambda: run(DUMBBELL, t_eval=[0.5, 0.2]), ValueError,
+     ["t_eval must be strictly increasing", "t_eval[0] = 0.5", "t_eval[1] = 0.2"]),
+    ("t_eval-outside", "integrate", "t_eval outside [t0, t_end]",
+     lambda: run(DUMBBELL, t_eval=[0.5, 2.0]), ValueError,
+     ["t_eval must lie in [t0, t_end] = [0.0, 1.0]", "got [0.5, 2.0]"]),
+    ("t_eval-nan", "integrate", "t_eval not finite",
+     lambda: run(DUMBBELL, t_eval=[0.5, np.nan]), ValueError,
+     ["t_eval must be finite", "t_eval[1] = nan"]),
+    # mass and damping
+    ("mass-negative", "model", "diagonal mass with a negative entry",
+     lambda: run(linear([1.0, -2.0])), ValueError,
+     ["system.mass", "symmetric positive definite", "[1] is -2.0", "> 0"]),
+    ("mass-zero", "model", "diagonal mass with a zero entry",
+     lambda: run(linear([1.0, 0.0])), ValueError,
+     ["system.mass", "symmetric positive definite", "[1] is 0.0", "> 0"]),
+    ("mass-nan", "model", "mass with a NaN entry",
+     lambda: run(linear([[1.0, np.nan], [np.nan, 1.0]])), ValueError,
+     ["mass", "finite entries", "nan"]),
+    ("mass-asymmetric", "model", "dense mass not symmetric",
+     lambda: run(linear([[2.0, 0.5], [0.1, 2.0]])), ValueError,
+     ["system.mass", "not symmetric", "[0, 1] is 0.5", "[1, 0] is 0.1"]),
+    ("mass-indefinite", "model", "dense mass symmetric, positive diagonal, indefinite",
+     lambda: run(linear([[1.0, 2.0], [2.0, 1.0]])), ValueError,
+     ["system.mass", "symmetric positive definite", "Cholesky", "smallest eigenvalue -1"]),
+    ("mass-sparse-indefinite", "model", "sparse mass (150 DOFs), positive diagonal, indefinite",
+     lambda: run(linear(chain_matrix(150, 1.0, 2.0), stiffness=sparse.identity(150))),
+     ValueError, ["system.mass", "symmetric positive definite", "LDLᵀ", "non-positive pivot"]),
+    ("mass-sparse-asymmetric", "model", "sparse mass (150 DOFs) not symmetric",
+     lambda: run(linear(chain_matrix(150, 2.0, 0.1) + sparse.eye(150, k=5) * 0.3,
+                        stiffness=sparse.identity(150))),
+     ValueError, ["system.mass", "not symmetric", "is 0.3", "is 0.0"]),
+    ("mass-shape", "model", "mass (3, 2)",
+     lambda: linear(np.ones((3, 2))), ValueError,
+     ["LinearSystem mass", "(N,) (diagonal) or (N, N)", "got shape (3, 2)"]),
+    ("damping-negative", "model", "negative diagonal damping",
+     lambda: run(linear([1.0, 1.0], damping=[0.1, -0.1])), ValueError,
+     ["system.damping", "positive semi-definite", "negative damping", "[1] is -0.1", ">= 0"]),
+    ("damping-indefinite", "model", "dense damping with non-negative diagonal, indefinite",
+     lambda: run(linear([1.0, 1.0], damping=[[0.1, 0.5], [0.5, 0.1]])), ValueError,
+     ["system.damping", "positive semi-definite", "Cholesky", "smallest eigenvalue -0.4"]),
+    ("damping-asymmetric", "model", "dense damping not symmetric (e.g. gyroscopic)",
+     lambda: run(linear([1.0, 1.0], damping=[[0.0, 1.0], [-1.0, 0.0]])), ValueError,
+     ["system.damping", "not symmetric", "[0, 1] is 1.0", "[1, 0] is -1.0"]),
+    ("damping-sparse-negative", "model", "sparse damping (150 DOFs) with negative eigenvalues",
+     lambda: run(linear(np.ones(150), damping=chain_matrix(150, 0.1, -0.2),
+                        stiffness=sparse.identity(150))),
+     ValueError, ["system.damping", "positive semi-definite", "LDLᵀ", "negative eigenvalues"]),
+    ("damping-shape", "model", "damping of the wrong size",
+     lambda: linear([1.0, 1.0], damping=np.eye(3)), ValueError,
+     ["LinearSystem damping", "(2,) (diagonal) or (2, 2)", "got shape (3, 3)"]),
+    # user model functions, checked when the integrator is built
+    ("not-a-model", "integrate", "system not a hfdi.SecondOrderSystem",
+     lambda: run(object()), TypeError, ["system must be a hfdi.SecondOrderSystem", "object"]),
+    ("f-missing", "Integrator", "a subclass without internal_force",
+     lambda: hfdi.Integrator(Unfinished(), "newmark", step=0.1), hfdi.ModelError,
+     ["model 'unfinished'", "needs internal_force", "NotImplementedError"]),
+    ("f-shape", "Integrator", "internal_force returns the wrong shape",
+     lambda: hfdi.Integrator(duffing(internal_force=lambda u: np.zeros(3)), "newmark",
+                             step=0.1), hfdi.ModelError,
+     ["internal_force returned shape (3,)", "expected (2,)", "initial state"]),
+    ("K-shape", "Integrator", "stiffness returns the wrong shape",
+     lambda: hfdi.Integrator(duffing(stiffness=lambda u: np.eye(3)), "newmark", step=0.1),
+     hfdi.ModelError, ["stiffness returned shape (3, 3)", "expected (2, 2)", "initial state"]),
+    ("K-sparse-shape", "Integrator", "stiffness returns a sparse matrix of the wrong shape",
+     lambda: hfdi.Integrator(duffing(stiffness=lambda u: sparse.identity(3)), "newmark",
+                             step=0.1),
+     hfdi.ModelError, ["stiffness returned shape (3, 3)", "expected (2, 2)", "initial state"]),
+    ("T-shape", "Integrator", "stiffness_derivative returns the wrong shape (HFDI)",
+     lambda: hfdi.Integrator(duffing(stiffness_derivative=lambda u, w: np.eye(2)[0]), "hfdi",
+                             step=0.1),
+     hfdi.ModelError, ["stiffness_derivative returned shape (2,)", "expected (2, 2)",
+                       "initial state"]),
+    ("T-missing", "Integrator", "no stiffness_derivative with HFDI",
+     lambda: hfdi.Integrator(duffing(stiffness_derivative=None), "hfdi", step=0.1),
+     hfdi.ModelError, ["scheme 'hfdi' needs stiffness_derivative",
+                       "raised NotImplementedError"]),
+    ("f-nan", "Integrator", "internal_force is NaN at u0",
+     lambda: hfdi.Integrator(duffing(internal_force=lambda u: np.full(2, np.nan)), "newmark",
+                             step=0.1),
+     hfdi.ModelError, ["internal_force is not finite", "nan at [0]", "initial state"]),
+    ("f-raises", "Integrator", "internal_force raises at u0",
+     lambda: hfdi.Integrator(duffing(internal_force=lambda u: u[5]), "newmark", step=0.1),
+     hfdi.ModelError, ["internal_force raised IndexError", "initial state"]),
+    ("V-shape", "Integrator", "potential_energy returns a vector",
+     lambda: hfdi.Integrator(duffing(potential_energy=lambda u: u), "newmark", step=0.1),
+     hfdi.ModelError, ["potential_energy returned ndarray of shape (2,)", "expected a float"]),
+    ("p-shape", "Integrator", "load returns the wrong shape at t0",
+     lambda: hfdi.Integrator(duffing(load=lambda t: np.zeros(3)), "newmark", step=0.1),
+     hfdi.ModelError, ["load returned shape (3,)", "expected (2,)", "t0 = 0"]),
+    ("p-raises", "Integrator", "load raises at t0",
+     lambda: hfdi.Integrator(duffing(load=lambda t: {}["table"]), "newmark", step=0.1),
+     hfdi.ModelError, ["load raised KeyError", "'table'", "t0 = 0"]),
+    ("p-nan", "Integrator", "load is NaN at t0",
+     lambda: hfdi.Integrator(duffing(load=lambda t: np.array([np.nan, 0.0])), "newmark",
+                             step=0.1),
+     hfdi.ModelError, ["load is not finite", "nan at [0]", "t = 0"]),
+    ("rate-missing", "Integrator", "HFDI(load_rate='exact') without a load rate",
+     lambda: hfdi.Integrator(DUFFING, hfdi.HFDI(load_rate="exact"), step=0.1), ValueError,
+     ["HFDI(load_rate='exact')", "no load_rate", "HFDI(load_rate='auto')"]),
+    ("System-f", "System", "internal_force not callable",
+     lambda: duffing(internal_force=np.zeros(2)), ValueError,
+     ["System internal_force", "callable f(u) -> (N,)", "array([0., 0.])"]),
+    ("System-u0", "System", "initial_displacement of the wrong shape",
+     lambda: duffing(initial_displacement=[0.0]), ValueError,
+     ["System initial_displacement", "shape (2,)", "got shape (1,)"]),
+    ("System-mass", "System", "mass a scalar",
+     lambda: duffing(mass=1.0), ValueError, ["System mass", "(N,) (diagonal) or (N, N)",
+                                            "got shape ()"]),
+    ("LinearSystem-K", "LinearSystem", "stiffness of the wrong size",
+     lambda: hfdi.LinearSystem([1.0, 1.0], np.eye(3)), ValueError,
+     ["LinearSystem stiffness", "(2,) (diagonal) or (2, 2)", "got shape (3, 3)"]),
+    # schemes
+    ("newmark-beta", "scheme", "Newmark beta = 0",
+     lambda: hfdi.Newmark(beta=0.0), ValueError, ["Newmark beta", "> 0 and <= 0.5", "got 0.0"]),
+    ("newmark-gamma", "scheme", "Newmark gamma not a number",
+     lambda: hfdi.Newmark(gamma="half"), ValueError,
+     ["Newmark gamma", "> 0 and <= 1", "'half'"]),
+    ("bathe-gamma", "scheme", "Bathe gamma = 1",
+     lambda: hfdi.Bathe(gamma=1.0), ValueError, ["Bathe gamma", "> 0 and < 1", "got 1.0"]),
+    ("hfdi-rate", "scheme", "HFDI load_rate unknown",
+     lambda: hfdi.HFDI(load_rate="spline"), ValueError,
+     ["HFDI load_rate", "'auto', 'exact' or 'difference'", "'spline'"]),
+    # the models
+    ("model-name", "models.get", "unknown model name",
+     lambda: hfdi.models.get("pendulum"), ValueError,
+     ["unknown model 'pendulum'", "articulated, dumbbell, tetrahedra, toss_rule"]),
+    ("dumbbell-A", "dumbbell", "negative bond strength A",
+     lambda: hfdi.models.get("dumbbell", A=-1e6), ValueError,
+     ["dumbbell A", "> 0", "-1000000.0"]),
+    ("dumbbell-sigma", "dumbbell", "zero length sigma",
+     lambda: hfdi.models.get("dumbbell", sigma=0.0), ValueError, ["dumbbell sigma", "> 0", "0.0"]),
+    ("dumbbell-apart", "dumbbell", "both masses at one point (zero bond length)",
+     lambda: hfdi.models.get("dumbbell", u0=(0.0, 0.0, 0.0, 0.0)), ValueError,
+     ["dumbbell u0", "apart", "(0.0, 0.0, 0.0, 0.0)"]),
+    ("dumbbell-n_elements", "dumbbell", "n_elements (not a parameter of the model)",
+     lambda: hfdi.models.get("dumbbell", n_elements=0), ValueError,
+     ["no parameter(s) n_elements", "A, sigma, masses, u0, v0"]),
+    ("tetrahedra-k", "tetrahedra", "negative spring constant",
+     lambda: hfdi.models.get("tetrahedra", k_stiff=-1.0), ValueError,
+     ["tetrahedra k_stiff", "> 0", "-1.0"]),
+    ("tetrahedra-length", "tetrahedra", "two particles at one point (zero rest length)",
+     lambda: hfdi.models.get("tetrahedra", positions=[(0, 0, 0), (0, 0, 0), (0, 1, 0),
+                                                       (0, 0, 1)]), ValueError,
+     ["tetrahedra positions", "distinct", "particles 1 and 2", "(0.0, 0.0, 0.0)"]),
+    ("tetrahedra-n_elements", "tetrahedra", "n_elements (not a parameter of the model)",
+     lambda: hfdi.models.get("tetrahedra", n_elements=0), ValueError,
+     ["no parameter(s) n_elements", "k_stiff"]),
+    ("articulated-k", "articulated", "negative link stiffness k_e",
+     lambda: hfdi.models.get("articulated", k_e=-1e7), ValueError,
+     ["articulated k_e", "> 0", "-10000000.0"]),
+    ("articulated-kf", "articulated", "negative hinge stiffness k_f",
+     lambda: hfdi.models.get("articulated", k_f=-1.0), ValueError,
+     ["articulated k_f", ">= 0", "-1.0"]),
+    ("articulated-h", "articulated", "zero link length h",
+     lambda: hfdi.models.get("articulated", h=0.0), ValueError, ["articulated h", "> 0", "0.0"]),
+    ("articulated-n_elements", "articulated", "n_elements (not a parameter of the model)",
+     lambda: hfdi.models.get("articulated", n_elements=0), ValueError,
+     ["no parameter(s) n_elements", "k_e"]),
+    ("toss-E", "toss_rule", "negative Young's modulus",
+     lambda: hfdi.models.get("toss_rule", E=-210e9), ValueError,
+     ["toss rule E", "> 0", "-210000000000.0"]),
+    ("toss-length", "toss_rule", "zero length",
+     lambda: hfdi.models.get("toss_rule", length=0.0), ValueError,
+     ["toss rule length", "> 0", "0.0"]),
+    ("toss-n_elements", "toss_rule", "n_elements = 0",
+     lambda: hfdi.models.get("toss_rule", n_elements=0), ValueError,
+     ["toss rule n_elements", "integer >= 1", "got 0"]),
+    ("toss-n_elements-float", "toss_rule", "n_elements = 2.5",
+     lambda: hfdi.models.get("toss_rule", n_elements=2.5), ValueError,
+     ["toss rule n_elements", "integer >= 1", "got 2.5"]),
+    ("toss-nu", "toss_rule", "Poisson's ratio 0.5",
+     lambda: hfdi.models.get("toss_rule", nu=0.5), ValueError,
+     ["toss rule nu", "> -1 and < 0.5", "0.5"]),
+]
+
+
+@pytest.mark.parametrize("case", INPUT_CASES, ids=[c[0] for c in INPUT_CASES])
+def test_bad_input_is_named(case):
+    _, _, _, call, exc_type, fragments = case
+    with pytest.raises(exc_type) as info:
+        call()
+    message = str(info.value)
+    for fragment in fragments:
+        assert fragment in message, f"{fragment!r} not in {message!r}"
+
+
+def test_model_errors_are_value_errors():
+    """One ``except ValueError`` catches every mistake in the input, the model's too."""
+    assert issubclass(hfdi.ModelError, ValueError)
+
+
+def test_model_functions_are_checked_before_any_step():
+    calls = []
+
+    def stiffness(u):
+        calls.append(1)
+        return np.eye(3)
+
+    with pytest.raises(hfdi.ModelError, match=r"stiffness returned shape"):
+        hfdi.Integrator(duffing(stiffness=stiffness), "newmark", step=0.1)
+    assert len(calls) == 1
+
+
+@pytest.mark.parametrize("damping", [
+    np.zeros(2), np.zeros((2, 2)), [[1.0, -1.0], [-1.0, 1.0]],          # semi-definite
+    sparse.csr_matrix([[1.0, -1.0], [-1.0, 1.0]]),
+])
+def test_semi_definite_damping_is_accepted(damping):
+    assert run(linear([1.0, 2.0], damping=damping)).success
+
+
+def test_sparse_semi_definite_damping_and_consistent_mass_are_accepted():
+    n = 150
+    mass = chain_matrix(n, 4.0, 1.0)                   # consistent mass: SPD
+    laplacian = chain_matrix(n, 2.0, -1.0).tolil()
+    laplacian[0, 0] = laplacian[-1, -1] = 1.0          # singular: constants in its kernel
+    system = hfdi.LinearSystem(mass=mass, stiffness=chain_matrix(n, 2.0, -1.0),
+                               damping=0.01 * laplacian.tocsr(),
+                               initial_displacement=np.linspace(0, 1, n))
+    assert hfdi.integrate(system, "hfdi", 0.2, step=0.1).success
+
+
+def test_newmark_and_bathe_need_no_stiffness_derivative():
+    for scheme in ("newmark", "bathe"):
+        assert run(duffing(stiffness_derivative=None), scheme).success
+
+
+def test_symmetric_definite_agrees_with_the_eigenvalues():
+    """The cheap checks (Cholesky, sparse LDLᵀ) decide as the eigenvalues do."""
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        n = int(rng.integers(2, 25))
+        b = rng.standard_normal((n, n))
+        a = b + b.T + rng.uniform(-1.0, 1.0) * n * np.eye(n)
+        lowest = np.linalg.eigvalsh(a)[0]
+        for form in (a, sparse.csr_matrix(a)):
+            try:
+                symmetric_definite("a", form)
+                accepted = True
+            except ValueError:
+                accepted = False
+            assert accepted == (lowest > 0)
+
+
+# -- solver faults ---------------------------------------------------------------------------
+def nan_beyond_zero(u):
+    """NaN once the first mass swings through zero (near t ≈ 1.34)."""
+    return np.full(2, np.nan) if u[0] < 0 else DUFFING.internal_force(u)
+
+
+def raise_beyond_zero(u):
+    if u[0] < 0:
+        raise RuntimeError("spring table ends at u1 = 0")
+    return DUFFING.internal_force(u)
+
+
+def type_error_beyond_zero(u):
+    if u[0] < 0:
+        return None + DUFFING.internal_force(u)          # a bug on one branch of the model
+    return DUFFING.internal_force(u)
+
+
+def shape_beyond_zero(u):
+    return np.zeros(3) if u[0] < 0 else DUFFING.internal_force(u)
+
+
+def nan_stiffness_beyond_zero(u):
+    return np.full((2, 2), np.nan) if u[0] < 0 else DUFFING.stiffness(u)
+
+
+def energy_raises_beyond_zero(u):
+    if u[0] < 0:
+        raise ValueError("V is tabulated for u1 >= 0 only")
+    return DUFFING.potential_energy(u)
+
+
+def load_raises_after(t):
+    if t > 0.5:
+        raise RuntimeError("load table ends at 0.5 s")
+    return np.zeros(2)
+
+
+def load_nan_after(t):
+    return np.array([np.nan, 0.0]) if t > 0.5 else np.zeros(2)
+
+
+def singular(k=-16.0, n=1):
+    """``M = I``, ``K = k I``: with Newmark's ``h = 0.5`` the tangent
+    ``M/(βh²) + K = 16 I + K`` is exactly zero for ``k = −16``."""
+    if n == 1:
+        return hfdi.LinearSystem(mass=[1.0], stiffness=[[k]], initial_displacement=[1.0])
+    return hfdi.LinearSystem(mass=np.ones(n), stiffness=k * sparse.identity(n, format="csr"),
+                             initial_displacement=np.ones(n))
+
+
+S = hfdi.Status
+# (id, what happens, call, statuses, fragments of the message after "t = <time>: ",
+#  latest time the run may reach)
+FAULT_CASES = [
+    ("diverge-fixed", "Newton diverges at every step (max_iterations=1, fixed step)",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 2.0, step=0.01, max_iterations=1),
+     {S.NEWTON_FAILED}, ["fixed step 0.01", "to t = 0.01", "no convergence in N_max = 1"], 0.0),
+    ("diverge-adaptive", "Newton diverges at every step (max_iterations=1, adaptive)",
+     lambda: hfdi.integrate(DUMBBELL, "newmark", 2.0, target_iterations=3.0, max_iterations=1,
+                            min_step=1e-3),
+     {S.FIRST_STEP_FAILED, S.STEP_BELOW_MINIMUM}, ["no convergence in N_max = 1"], 2.0),
+    ("min-step-too-large", "min_step too large for the problem",
+     lambda: hfdi.integrate(DUMBBELL, "newmark", 2.0, target_iterations=3.0, min_step=0.02),
+     {S.STEP_BELOW_MINIMUM}, ["below min_step = 0.02", "after the attempt with h = 0.02",
+                              "no convergence in N_max = 6"], 2.0),
+    ("first-step", "no first step converges in first_step_trials",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 2.0, target_iterations=3.0, first_step=0.5,
+                            first_step_trials=3, max_iterations=1),
+     {S.FIRST_STEP_FAILED}, ["no first step converged in 3 trials", "down to h = 0.125",
+                             "no convergence in N_max = 1"], 0.0),
+    ("f-nan", "internal_force returns NaN beyond some state",
+     lambda: hfdi.integrate(duffing(internal_force=nan_beyond_zero), "hfdi", 5.0,
+                            target_iterations=3.0),
+     {S.STEP_BELOW_MINIMUM}, ["below min_step", "internal_force is not finite", "nan at [0]",
+                              "at u = [-"], 1.4),
+    ("f-nan-halvings", "internal_force returns NaN beyond some state, max_halvings=4",
+     lambda: hfdi.integrate(duffing(internal_force=nan_beyond_zero), "bathe", 5.0,
+                            target_iterations=3.0, max_halvings=4),
+     {S.HALVINGS_EXHAUSTED}, ["after 4 halvings", "internal_force is not finite"], 1.4),
+    ("K-nan", "stiffness returns NaN beyond some state",
+     lambda: hfdi.integrate(duffing(stiffness=nan_stiffness_beyond_zero), "newmark", 5.0,
+                            target_iterations=3.0),
+     {S.STEP_BELOW_MINIMUM}, ["stiffness is not finite", "nan at [0, 0]"], 1.4),
+    ("f-raises", "internal_force raises beyond some state",
+     lambda: hfdi.integrate(duffing(internal_force=raise_beyond_zero), "bathe", 5.0,
+                            target_iterations=3.0),
+     {S.STEP_BELOW_MINIMUM}, ["model raised RuntimeError: spring table ends at u1 = 0"], 1.4),
+    ("f-type-error", "internal_force raises TypeError beyond some state",
+     lambda: hfdi.integrate(duffing(internal_force=type_error_beyond_zero), "newmark", 5.0,
+                            target_iterations=3.0),
+     {S.STEP_BELOW_MINIMUM}, ["model raised TypeError: unsupported operand"], 1.4),
+    ("f-shape", "internal_force returns the wrong shape beyond some state",
+     lambda: hfdi.integrate(duffing(internal_force=shape_beyond_zero), "hfdi", 5.0,
+                            target_iterations=3.0),
+     {S.MODEL_ERROR}, ["internal_force returned shape (3,), expected (2,)"], 1.4),
+    ("V-raises", "potential_energy raises beyond some state",
+     lambda: hfdi.integrate(duffing(potential_energy=energy_raises_beyond_zero), "hfdi", 5.0,
+                            target_iterations=3.0),
+     {S.MODEL_ERROR}, ["potential_energy failed at the end of the step to t = ",
+                       "ValueError: V is tabulated for u1 >= 0 only"], 1.4),
+    ("singular-newmark", "exactly singular tangent (Newmark, fixed step)",
+     lambda: hfdi.integrate(singular(), "newmark", 1.0, step=0.5),
+     {S.NEWTON_FAILED}, ["fixed step 0.5", "tangent is singular"], 0.0),
+    ("singular-bathe", "exactly singular tangent (Bathe's first sub-step)",
+     lambda: hfdi.integrate(singular(-64.0), "bathe", 1.0, step=0.5),
+     {S.NEWTON_FAILED}, ["tangent is singular", "(sub-step 1)"], 0.0),
+    ("singular-sparse", "exactly singular sparse tangent (150 DOFs)",
+     lambda: hfdi.integrate(singular(n=150), "newmark", 1.0, step=0.5),
+     {S.NEWTON_FAILED}, ["tangent is singular"], 0.0),
+    ("max-steps", "max_steps reached",
+     lambda: hfdi.integrate(DUMBBELL, "newmark", 2.0, target_iterations=3.0, max_steps=10),
+     {S.MAX_STEPS}, ["max_steps = 10 reached", "before t = 2"], 2.0),
+    ("load-raises", "load raises after t = 0.5",
+     lambda: hfdi.integrate(duffing(load=load_raises_after), "newmark", 1.0,
+                            target_iterations=3.0),
+     {S.STEP_BELOW_MINIMUM}, ["model raised RuntimeError: load table ends at 0.5 s"], 0.5),
+    ("load-nan", "load is NaN after t = 0.5 (fixed step)",
+     lambda: hfdi.integrate(duffing(load=load_nan_after), "hfdi", 1.0, step=0.01),
+     {S.NEWTON_FAILED}, ["load is not finite", "at t = 0.5"], 0.5),
+    ("energy-growth", "energy grows (Newmark γ < 1/2) beyond energy_limit",
+     lambda: hfdi.integrate(hfdi.LinearSystem(mass=[1.0], stiffness=[[100.0]],
+                                              initial_displacement=[1.0]),
+                            hfdi.Newmark(gamma=0.3, beta=0.25), 20.0, step=0.05,
+                            energy_limit=0.5),
+     {S.ENERGY_GROWTH}, ["spurious energy", "exceeds 0.5 x energy scale"], 20.0),
+]
+
+
+@pytest.mark.parametrize("case", FAULT_CASES, ids=[c[0] for c in FAULT_CASES])
+def test_fault_stops_cleanly_with_the_last_good_state(case):
+    _, _, call, statuses, fragments, t_latest = case
+    result = call()
+    assert result.status in statuses, result.message
+    assert not result.success
+    # the message starts with the time of the last good state, which the result ends at
+    prefix = f"t = {result.t[-1]:.10g}: "
+    assert result.message.startswith(prefix), result.message
+    for fragment in fragments:
+        assert fragment in result.message, f"{fragment!r} not in {result.message!r}"
+    assert result.t[-1] <= t_latest
+    for name in ("u", "v", "a"):
+        assert np.all(np.isfinite(getattr(result, name))), name
+    assert len(result.t) == len(result.u) == result.stats.accepted + 1
+    assert result.stats.steps <= 10_000      # stopped by a guard, not by exhaustion
+
+
+def test_stopped_integrator_keeps_its_state_and_stays_stopped():
+    itg = hfdi.Integrator(duffing(internal_force=nan_beyond_zero), "hfdi", target_iterations=3.0)
+    assert not itg.advance(5.0)
+    state, steps, message = itg.state, itg.statistics.steps, itg.message
+    assert itg.state.t == itg.t < 1.4
+    assert message.startswith(f"t = {itg.t:.10g}: ")
+    # further calls neither move nor loop
+    assert not itg.step()
+    assert not itg.advance(5.0)
+    assert itg.state is state and itg.statistics.steps == steps and itg.message == message
+    assert np.all(np.isfinite(state.u)) and np.all(np.isfinite(state.a))
+
+
+def test_wrong_shape_mid_run_keeps_the_run_of_integrate():
+    """Raised, a mid-run ModelError would discard the whole solution of integrate."""
+    result = hfdi.integrate(duffing(internal_force=shape_beyond_zero), "hfdi", 5.0,
+                            target_iterations=3.0)
+    assert result.status == S.MODEL_ERROR
+    assert result.t[-1] > 1.0 and result.u[-1][0] >= 0
+    assert result.stats.rejected <= 1           # not retried: no step size cures it
+
+
+def test_step_below_the_resolution_of_time_stops():
+    """With min_step far below the spacing of floating-point times, halvings end at it."""
+    result = hfdi.integrate(duffing(internal_force=nan_beyond_zero), "newmark", 5.0,
+                            target_iterations=3.0, min_step=1e-300, max_halvings=2000)
+    assert not result.success
+    assert result.stats.steps < 5000
+    assert np.all(np.isfinite(result.u))
+
+
+def test_docs_table_covers_every_case():
+    text = DOCS.read_text(encoding="utf-8")
+    for case in INPUT_CASES + FAULT_CASES:
+        assert f"`{case[0]}`" in text, f"docs/robustness.md has no row for {case[0]}"
+
+
+# -- the tables of docs/robustness.md ---------------------------------------------------------
+def _cell(text):
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def input_table():
+    lines = ["| case | where | mistake | exception: message |", "|---|---|---|---|"]
+    for case_id, where, what, call, _, _ in INPUT_CASES:
+        try:
+            call()
+            answer = "**accepted**"
+        except Exception as exc:          # the table shows whatever happens
+            answer = f"`{type(exc).__name__}`: {exc}"
+        lines.append(f"| `{case_id}` | {where} | {_cell(what)} | {_cell(answer)} |")
+    return "\n".join(lines)
+
+
+def fault_table():
+    lines = ["| case | fault | status | message | last state |", "|---|---|---|---|---|"]
+    for case_id, what, call, _, _, _ in FAULT_CASES:
+        result = call()
+        last = (f"t = {result.t[-1]:.6g}, finite: "
+                f"{'yes' if np.all(np.isfinite(result.u[-1])) else 'NO'}")
+        lines.append(f"| `{case_id}` | {_cell(what)} | `{result.status.name}` | "
+                     f"{_cell(result.message)} | {last} |")
+    return "\n".join(lines)
+
+
+def write_tables(path=DOCS):
+    """Replace the generated tables of ``docs/robustness.md`` (between their markers)."""
+    text = path.read_text(encoding="utf-8")
+    for name, table in (("input", input_table()), ("fault", fault_table())):
+        begin, end = f"<!-- BEGIN {name} table -->", f"<!-- END {name} table -->"
+        head, rest = text.split(begin)
+        _, tail = rest.split(end)
+        text = f"{head}{begin}\n{table}\n{end}{tail}"
+    path.write_text(text, encoding="utf-8")
+
+
+if __name__ == "__main__":
+    # python tests/test_robustness.py          prints the tables
+    # python tests/test_robustness.py --write  updates them in docs/robustness.md
+    import warnings
+    warnings.simplefilter("ignore")
+    if "--write" in sys.argv[1:]:
+        write_tables()
+    else:
+        print(input_table())
+        print()
+        print(fault_table())
