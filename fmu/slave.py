@@ -46,15 +46,36 @@ module's source in it once more: the generated module calls
 :func:`hold_namespace` at top level, which adds one unowned reference per
 execution.
 
+Its ``fmi2SetString`` converts each value with strict UTF-8 decoding and,
+when one is not UTF-8, looks up and calls ``set_string`` with that list item
+empty (``NULL``) and the ``UnicodeDecodeError`` still pending. CPython's
+attribute lookup fails with the pending exception unless the attribute is
+found in the instance's own ``__dict__`` (the exception would then reach the
+C++ layer past :meth:`HfdiSlave._reject`), so each instance holds its
+``set_string`` there; the method takes a pending exception over
+(:func:`_take_pending_exception`; the lookup may also have cleared it) and
+rejects a list with an empty item without reading it.
+
+At process exit the library releases its interpreter-state holder (a static
+``std::shared_ptr``) twice: once by the static destructor, once more from its
+unload hook, which corrupts the heap of the host. When the host is a Python
+process, :func:`_release_library_at_exit` lets the library release it from a
+Python ``atexit`` hook first, which leaves the two later releases nothing to
+do.
+
 Hence: ``do_step`` never raises (a failure is logged and answered with
 ``fmi2Discard``, the FMU back at the step's start, the time pythonfmu reports
-as ``fmi2LastSuccessfulTime``); invalid parameters are rejected by ``fmi2ExitInitializationMode``
-with ``fmi2Fatal`` and a log message naming the parameter; a corrupt or foreign
-FMU state is rejected by ``fmi2SetFMUstate`` the same way; so is a call with
-an invalid value reference.
+as ``fmi2LastSuccessfulTime``); invalid parameters are rejected by
+``fmi2ExitInitializationMode`` with ``fmi2Fatal`` and a log message naming the
+parameter; a corrupt or foreign FMU state is rejected by ``fmi2SetFMUstate``
+the same way; so is a call with an invalid value reference or a string that
+is not UTF-8. One ``doStep`` takes at most ``max_internal_steps`` internal
+steps and each of them at most ``2 * target_iterations`` (at most 200) Newton
+corrections per attempt, so that no call runs unbounded.
 """
 from __future__ import annotations
 
+import atexit
 import ctypes
 import importlib.util
 import math
@@ -63,6 +84,7 @@ import os
 import pickle
 import re
 import sys
+import threading
 from xml.etree.ElementTree import Element, SubElement
 
 import numpy as np
@@ -76,10 +98,18 @@ __all__ = ["HfdiSlave", "FmuError", "load_bundle", "hold_namespace"]
 _MAGIC = b"hfdi-fmu-state/1\n"
 
 _SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "tolerance": 1e-8,
-                    "initial_step": 0.0, "max_step": 0.0}
+                    "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000}
+#: Largest target_iterations: Newton may run 2 N-bar corrections per attempt
+#: and 31 attempts per step, each unbounded in time when it cannot converge.
+_MAX_TARGET_ITERATIONS = 100.0
+#: hfdi's per-run step limit, lifted: the FMU bounds each doStep instead.
+_UNLIMITED_STEPS = 2 ** 62
 _RESERVED = frozenset(_SOLVER_DEFAULTS) | {"u", "v", "a", "F", "W", "dE", "internal_steps",
                                            "newton_iterations", "time"}
 _INT32_MAX = 2 ** 31 - 1
+#: The slave's life cycle, as its log messages name it.
+_PHASES = {"instantiated": "instantiated", "initialization": "in initialization mode",
+           "stepping": "initialized", "terminated": "terminated"}
 
 #: SI exponents of the units the metadata tables use (FMI 2.0 BaseUnit).
 _BASE_UNITS = {
@@ -117,8 +147,80 @@ def hold_namespace(namespace: dict) -> None:
     _add_reference(namespace)
 
 
+#: ``PyErr_Occurred`` through ctypes' Python-API calling convention, which
+#: raises the exception pending after the call.
+_PENDING = ctypes.PYFUNCTYPE(ctypes.c_void_p)(("PyErr_Occurred", ctypes.pythonapi))
+
+
+def _take_pending_exception() -> None:
+    """Raise the exception the caller of this Python frame left pending, if any.
+
+    pythonfmu's ``fmi2SetString`` calls the slave with a ``UnicodeDecodeError``
+    still set when a value is not UTF-8 (see the module docstring). It must be
+    taken over before anything else runs: left pending, it makes the next
+    C-level error check misfire and the call end in an exception that does not
+    pass through :meth:`HfdiSlave._reject`.
+    """
+    _PENDING()
+
+
+_LIST_ITEM = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.py_object, ctypes.c_ssize_t)(
+    ("PyList_GetItem", ctypes.pythonapi))
+
+
+def _has_empty_item(values) -> bool:
+    """Whether the list ``values`` has a ``NULL`` item, which Python code must not read."""
+    return type(values) is list and any(_LIST_ITEM(values, i) is None
+                                        for i in range(len(values)))
+
+
+#: Library path -> its ``finalizePythonInterpreter``, for :func:`_release_at_exit`.
+_LIBRARIES = {}
+
+
+def _release_library_at_exit(resources, model_identifier: str) -> None:
+    """Have the FMU's shared library release its interpreter state before the
+    process exits (see the module docstring).
+
+    Only on Linux, where the double release was observed, and only when the
+    library is already loaded (``RTLD_NOLOAD``); anything unexpected leaves
+    the library alone.
+    """
+    if not sys.platform.startswith("linux") or not resources:
+        return
+    path = os.path.join(os.path.dirname(os.path.normpath(str(resources))), "binaries",
+                        "linux64", model_identifier + ".so")
+    if path in _LIBRARIES:
+        return
+    try:
+        library = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)
+        release = library.finalizePythonInterpreter
+    except (OSError, AttributeError):
+        return
+    release.restype, release.argtypes = None, []
+    if not _LIBRARIES:
+        atexit.register(_release_at_exit)
+    _LIBRARIES[path] = release
+
+
+def _release_at_exit() -> None:
+    # A process that is not Python runs the interpreter pythonfmu started on a
+    # thread of its own, and finalizes it from the library's release itself:
+    # releasing again from there would re-enter it. The process's main thread
+    # has the process id as thread id.
+    if threading.get_native_id() != os.getpid():
+        return
+    for release in _LIBRARIES.values():
+        release()
+
+
 class FmuError(Exception):
     """A request the FMU refuses (reported to the master as ``fmi2Fatal``)."""
+
+
+class _BudgetExhausted(Exception):
+    """Stops ``Integrator.advance`` (from its callback) when one ``doStep`` has
+    taken ``max_internal_steps`` internal steps without reaching its end."""
 
 
 class _InvalidState:
@@ -235,6 +337,8 @@ class HfdiSlave(Fmi2Slave):
         n = self._n = int(model.n_dof)
 
         self.modelName = "hfdi_" + re.sub(r"\W", "_", name)
+        _release_library_at_exit(self.resources, self.modelName)
+        self.set_string = self.set_string     # see the module docstring
         self.description = (
             f"hfdi model {name!r} ({n} DOFs): M u'' + C u' + f(u) = p(t) + F integrated by "
             "the adaptive Newmark / Bathe / HFDI predictor-corrector with the "
@@ -308,7 +412,7 @@ class HfdiSlave(Fmi2Slave):
             setter=self._param_setter("scheme", str), **fixed))
         solver = [
             ("target_iterations", "1", "target Newton iterations per (sub-)step N-bar "
-                                       "(paper Eq. 39), >= 1"),
+                                       "(paper Eq. 39), in [1, 100]"),
             ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in (0, 1); "
                                "the master's tolerance is not used"),
             ("initial_step", "s", "first trial step size; 0: automatic (1/omega_max)"),
@@ -318,6 +422,11 @@ class HfdiSlave(Fmi2Slave):
             self.register_variable(_Real(key, unit=unit, description=text,
                                          getter=(lambda k=key: self._params[k]),
                                          setter=self._param_setter(key, float), **fixed))
+        self.register_variable(Integer(
+            "max_internal_steps", description="internal steps (diverged attempts included) "
+            "one doStep may take, >= 1; a communication step needing more is discarded",
+            getter=lambda: self._params["max_internal_steps"],
+            setter=self._param_setter("max_internal_steps", int), **fixed))
         for key, default in self._defaults.items():
             fmu_name = f"model.{key}" if key in _RESERVED else key
             unit, text = (list(pmeta.get(key, [])) + [None, None])[:2]
@@ -339,13 +448,13 @@ class HfdiSlave(Fmi2Slave):
             self.register_variable(var)
 
     def _param_setter(self, key, convert, model=False):
-        store = self._mparams if model else self._params
-
         def setter(value):
             if self._phase not in ("instantiated", "initialization"):
                 self.log(f"parameter {key} is fixed after initialization; the value {value!r} "
                          "is ignored", Fmi2Status.warning)
                 return
+            # looked up now: fmi2SetFMUstate replaces the dictionaries
+            store = self._mparams if model else self._params
             store[key] = convert(value)
             self._cache = None
         return setter
@@ -363,6 +472,10 @@ class HfdiSlave(Fmi2Slave):
     def _input_setter(self, i):
         def setter(value):
             self._F_input[i] = float(value)
+            if self._itg is None:
+                # before initialization the outputs show the initial state, whose
+                # acceleration depends on the inputs; later they change in doStep only
+                self._cache = None
         return setter
 
     def _register_outputs(self):
@@ -433,20 +546,39 @@ class HfdiSlave(Fmi2Slave):
 
     # -- life cycle -----------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        # pythonfmu calls this from fmi2EnterInitializationMode, which
+        # enter_initialization_mode refuses out of its place in the life cycle
+        if self._phase != "instantiated":
+            return
         try:
             if start_time is not None and math.isfinite(float(start_time)):
                 self._start_time = float(start_time)
+            elif start_time is not None:
+                self.log(f"fmi2SetupExperiment: start time {start_time!r} is not finite; "
+                         f"t0 = {self._start_time!r} is kept", Fmi2Status.warning)
             self._stop_time = None if stop_time is None else float(stop_time)
         except Exception as exc:  # keep exceptions away from pythonfmu's C++ layer
             self.log(f"setup_experiment({start_time!r}, {stop_time!r}) ignored: {exc!r}",
                      Fmi2Status.warning)
 
     def enter_initialization_mode(self):
+        if self._phase != "instantiated":
+            # status fmi2OK: pythonfmu has no other for a call that does not raise
+            self.log(f"fmi2EnterInitializationMode ignored: the FMU is "
+                     f"{_PHASES[self._phase]}; it enters initialization mode once, after "
+                     "fmi2Instantiate or fmi2Reset",
+                     Fmi2Status.error)
+            return
         self._phase = "initialization"
 
     def exit_initialization_mode(self):
+        if self._phase not in ("instantiated", "initialization"):
+            # starting again from t0 would silently discard the simulation so far
+            self.log(f"fmi2ExitInitializationMode ignored: the FMU is {_PHASES[self._phase]}",
+                     Fmi2Status.error)
+            return
         try:
-            bad = [f"F[{i + 1}] = {x!r}" for i, x in enumerate(self._F_input)
+            bad = [f"F[{i + 1}] = {float(x)!r}" for i, x in enumerate(self._F_input)
                    if not math.isfinite(x)]
             if bad:
                 raise FmuError(f"input {', '.join(bad)} is not finite")
@@ -483,9 +615,9 @@ class HfdiSlave(Fmi2Slave):
             errors.append(f"parameter scheme = {scheme!r} must be one of "
                           f"{', '.join(sorted(hfdi.SCHEMES))}")
         target = params["target_iterations"]
-        if not (_finite_number(target) and target >= 1.0):
+        if not (_finite_number(target) and 1.0 <= target <= _MAX_TARGET_ITERATIONS):
             errors.append(f"parameter target_iterations = {target!r} must be a finite "
-                          "number >= 1")
+                          f"number in [1, {_MAX_TARGET_ITERATIONS:g}]")
         tol = params["tolerance"]
         if not (_finite_number(tol) and 0.0 < tol < 1.0):
             errors.append(f"parameter tolerance = {tol!r} must lie in (0, 1)")
@@ -494,6 +626,9 @@ class HfdiSlave(Fmi2Slave):
             if not (_finite_number(value) and value >= 0.0):
                 errors.append(f"parameter {name} = {value!r} must be a finite number >= 0 "
                               f"(0: {zero})")
+        budget = params["max_internal_steps"]
+        if isinstance(budget, bool) or not isinstance(budget, numbers.Integral) or budget < 1:
+            errors.append(f"parameter max_internal_steps = {budget!r} must be an integer >= 1")
         changed = {k: v for k, v in mparams.items() if v != self._defaults.get(k)}
         model = None
         try:
@@ -514,12 +649,13 @@ class HfdiSlave(Fmi2Slave):
                                   t0=float(start_time),
                                   first_step=float(params["initial_step"]) or None,
                                   max_step=float(params["max_step"]) or None,
-                                  extra_load=self._extra_load)
+                                  max_steps=_UNLIMITED_STEPS, extra_load=self._extra_load)
         except Exception as exc:
+            model_part = "".join(f", {k} = {v!r}" for k, v in changed.items())
             raise FmuError(f"the integrator rejected the parameters (scheme = {scheme!r}, "
                            f"target_iterations = {target!r}, tolerance = {tol!r}, "
                            f"initial_step = {params['initial_step']!r}, "
-                           f"max_step = {params['max_step']!r}): {exc}") from None
+                           f"max_step = {params['max_step']!r}{model_part}): {exc}") from None
         return model, itg
 
     def _structure_problem(self, model):
@@ -556,14 +692,19 @@ class HfdiSlave(Fmi2Slave):
             if itg is None:
                 return self._discard(f"doStep({t}, {h}) before a successful "
                                      "exitInitializationMode")
-            if not (math.isfinite(h) and h > 0.0 and math.isfinite(t)):
+            if self._phase == "terminated":
+                return self._discard(f"doStep({t}, {h}) after fmi2Terminate")
+            if not math.isfinite(t):
+                return self._discard(f"doStep({t}, {h}): the current communication point "
+                                     "must be finite")
+            if not (math.isfinite(h) and h > 0.0):
                 return self._discard(f"doStep({t}, {h}): the step size must be positive "
                                      "and finite")
             here = itg.t
             if abs(t - here) > max(64.0 * math.ulp(max(abs(t), abs(here))), 1e-10 * h):
                 return self._discard(f"doStep({t}, {h}) but the FMU is at t = {here!r}; "
                                      "restore an FMU state to go back")
-            bad = [f"F[{i + 1}] = {x!r}" for i, x in enumerate(self._F_input)
+            bad = [f"F[{i + 1}] = {float(x)!r}" for i, x in enumerate(self._F_input)
                    if not math.isfinite(x)]
             if bad:
                 return self._discard(f"doStep({t}, {h}): input {', '.join(bad)} is not finite")
@@ -571,13 +712,26 @@ class HfdiSlave(Fmi2Slave):
             if not t_end > here:
                 return self._discard(f"doStep({t}, {h}): the step is below the time "
                                      "resolution at t")
+            if not math.isfinite(t_end):
+                return self._discard(f"doStep({t}, {h}): the end time overflows")
+            budget = int(self._itg_key[0]["max_internal_steps"])
+            first = itg.statistics.steps
+
+            def count(integrator):
+                if integrator.t < t_end and integrator.statistics.steps - first >= budget:
+                    raise _BudgetExhausted
             snapshot = (itg.get_state(), self._F_applied.copy())
             self._apply_inputs()
-            ok = itg.advance(t_end)
+            try:
+                ok = itg.advance(t_end, callback=count)
+                reason = "" if ok else f"{itg.status.name}: {itg.message}"
+            except _BudgetExhausted:
+                ok = False
+                reason = (f"max_internal_steps = {budget} internal steps reached at "
+                          f"t = {itg.t!r}")
             self._cache = None
             if ok:
                 return True
-            reason = f"{itg.status.name}: {itg.message}"
             self._rollback(snapshot)
             return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
                                  f"t = {t!r}: retry with a shorter communication step or "
@@ -667,53 +821,69 @@ class HfdiSlave(Fmi2Slave):
         return cache["z"]
 
     # -- getters and setters: no unguarded exception into the C++ layer --------------
+    def _names(self, vrs) -> str:
+        """The variables ``vrs`` refer to, for messages (unknown references as numbers)."""
+        try:
+            return ", ".join(self.vars[vr].name if vr in self.vars else f"#{vr}" for vr in vrs)
+        except Exception:  # a message must not raise past _reject
+            return repr(vrs)
+
     def get_real(self, vrs):
         try:
             return super().get_real(vrs)
         except Exception as exc:
-            self._reject(f"fmi2GetReal({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2GetReal({self._names(vrs)}): {exc!r}")
 
     def get_integer(self, vrs):
         try:
             return super().get_integer(vrs)
         except Exception as exc:
-            self._reject(f"fmi2GetInteger({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2GetInteger({self._names(vrs)}): {exc!r}")
 
     def get_boolean(self, vrs):
         try:
             return super().get_boolean(vrs)
         except Exception as exc:
-            self._reject(f"fmi2GetBoolean({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2GetBoolean({self._names(vrs)}): {exc!r}")
 
     def get_string(self, vrs):
         try:
             return super().get_string(vrs)
         except Exception as exc:
-            self._reject(f"fmi2GetString({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2GetString({self._names(vrs)}): {exc!r}")
 
     def set_real(self, vrs, values):
         try:
             super().set_real(vrs, values)
         except Exception as exc:
-            self._reject(f"fmi2SetReal({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2SetReal({self._names(vrs)}): {exc!r}")
 
     def set_integer(self, vrs, values):
         try:
             super().set_integer(vrs, values)
         except Exception as exc:
-            self._reject(f"fmi2SetInteger({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2SetInteger({self._names(vrs)}): {exc!r}")
 
     def set_boolean(self, vrs, values):
         try:
             super().set_boolean(vrs, values)
         except Exception as exc:
-            self._reject(f"fmi2SetBoolean({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2SetBoolean({self._names(vrs)}): {exc!r}")
 
     def set_string(self, vrs, values):
+        # __init__ binds this method in the instance's __dict__: see the module docstring
+        try:
+            _take_pending_exception()
+            undecodable = _has_empty_item(values)
+        except Exception:
+            undecodable = True
+        if undecodable:
+            self._reject(f"fmi2SetString({self._names(vrs)}): a value is not UTF-8 text; "
+                         "no value was set")
         try:
             super().set_string(vrs, values)
         except Exception as exc:
-            self._reject(f"fmi2SetString({list(vrs)}): {exc!r}")
+            self._reject(f"fmi2SetString({self._names(vrs)}): {exc!r}")
 
     # -- FMU state ------------------------------------------------------------------------
     def _get_fmu_state(self):
@@ -731,6 +901,8 @@ class HfdiSlave(Fmi2Slave):
             self._reject(f"fmi2GetFMUstate failed: {exc!r}")
 
     def _set_fmu_state(self, state):
+        # everything is read and checked before anything changes: a state that
+        # is refused leaves the FMU as it was
         try:
             if isinstance(state, _InvalidState):
                 raise FmuError(state.reason)
@@ -738,21 +910,34 @@ class HfdiSlave(Fmi2Slave):
                     or state.get("bundle") != self.bundle:
                 raise FmuError(f"the state was not made by this FMU (model {self.model_name!r}, "
                                f"build {self.bundle})")
-            itg, key = self._itg, self._itg_key
-            if state["integrator"] is None:
-                itg = key = None
-            else:
+            params, mparams = dict(state["params"]), dict(state["mparams"])
+            start_time, stop_time = state["start_time"], state["stop_time"]
+            inputs = np.array(state["inputs"], dtype=float)
+            applied = np.array(state["applied"], dtype=float)
+            phase = state["phase"]
+            if phase not in _PHASES or inputs.shape != (self._n,) \
+                    or applied.shape != (self._n,):
+                raise FmuError("the state is malformed")
+            itg = key = None
+            if state["integrator"] is not None:
                 key = state["built"]
-                if self._itg is None or self._itg_key != key:
-                    _, itg = self._make_integrator(key[0], key[1], key[2])
+                if self._itg is not None and self._itg_key == key:
+                    itg = self._itg
+                else:
+                    # The integrator checks its initial state, made with the inputs
+                    # _extra_load returns; set_state replaces that state, so it is
+                    # made without inputs, which the model was valid with.
+                    current, self._F_applied = self._F_applied, np.zeros(self._n)
+                    try:
+                        itg = self._make_integrator(key[0], key[1], key[2])[1]
+                    finally:
+                        self._F_applied = current
                 itg.set_state(state["integrator"])
             self._itg, self._itg_key = itg, key
-            self._params = dict(state["params"])
-            self._mparams = dict(state["mparams"])
-            self._start_time, self._stop_time = state["start_time"], state["stop_time"]
-            self._F_input = np.array(state["inputs"], dtype=float)
-            self._F_applied = np.array(state["applied"], dtype=float)
-            self._phase = state["phase"]
+            self._params, self._mparams = params, mparams
+            self._start_time, self._stop_time = start_time, stop_time
+            self._F_input, self._F_applied = inputs, applied
+            self._phase = phase
             self._cache = None
         except Exception as exc:
             self._reject(f"fmi2SetFMUstate: cannot restore the state: {exc}")
