@@ -7,9 +7,95 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
+import tempfile
+import zipfile
+from pathlib import Path
 
 __all__ = ["main", "build_parser"]
+
+
+class _Parser(argparse.ArgumentParser):
+    """Reports bad arguments in one line (no usage block), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
+
+
+class _Refused(Exception):
+    """An argument that parsed but cannot be used (one line on stderr, status 2)."""
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+def _output_file(text):
+    """A file written at the end of the command: checked before the work starts."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must be a file name, got ''")
+    path = Path(text).expanduser()
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a directory")
+    if not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{str(path.parent)!r} " + ("is not a directory"
+                                         if path.parent.exists() else "does not exist"))
+    try:
+        # a file made and removed: os.access says yes to root, and to read-only mounts
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not writable") from None
+    if path.exists() and not os.access(path, os.W_OK):
+        raise argparse.ArgumentTypeError(f"{text!r} is not writable")
+    return str(path)
+
+
+def _out_dir(text) -> str:
+    """The ``--out`` directory, created and tried with a file."""
+    if not text.strip():
+        raise _Refused("--out must name a directory, got ''")
+    path = Path(text).expanduser()
+    if path.exists() and not path.is_dir():
+        raise _Refused(f"--out {text!r} exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):   # os.access says yes to root
+            pass
+    except OSError as exc:
+        raise _Refused(f"--out {text!r} is not a writable directory: "
+                       f"{exc.strerror or exc}") from None
+    return str(path)
+
+
+def _dumbbell_fmu(text) -> str:
+    """An existing FMU of the dumbbell: the example master couples two of them
+    and reads their variables by the dumbbell's names, so another model's FMU
+    would run and print nonsense."""
+    import xml.etree.ElementTree as ElementTree
+    path = Path(text).expanduser()
+    if not path.is_file():
+        raise _Refused(f"FMU {text!r} does not exist or is not a file")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            description = ElementTree.fromstring(archive.read("modelDescription.xml"))
+    except KeyError:
+        raise _Refused(f"{text!r} is not an FMU: no modelDescription.xml in the archive") \
+            from None
+    except (OSError, zipfile.BadZipFile, ElementTree.ParseError) as exc:
+        raise _Refused(f"{text!r} is not an FMU: {exc}") from None
+    name = description.get("modelName")
+    if name != "hfdi_dumbbell":
+        raise _Refused(f"master couples two dumbbell FMUs (hfdi_dumbbell); {text!r} is "
+                       f"the FMU of {name!r}")
+    return str(path)
 
 
 def _positive(text):
@@ -33,7 +119,7 @@ def _non_negative(text):
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hfdi-fmu", description="FMI 2.0 co-simulation FMUs of hfdi's models.")
     sub = parser.add_subparsers(dest="command", required=True)
     build = sub.add_parser("build", help="build the FMU of a problem, or of all of them")
@@ -59,8 +145,8 @@ def build_parser():
                                          "advance, communication step ≈ 10 internal steps")
     bench.add_argument("problem", nargs="?", default="dumbbell")
     bench.add_argument("--scheme", choices=("newmark", "bathe", "hfdi"), default="hfdi")
-    bench.add_argument("--repeats", type=int, default=5)
-    bench.add_argument("--json", metavar="FILE")
+    bench.add_argument("--repeats", type=_positive_int, default=5)
+    bench.add_argument("--json", metavar="FILE", type=_output_file)
     return parser
 
 
@@ -69,12 +155,18 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from .build import BuildError, build, build_all, problems
 
+    def check_problem(name, also=""):
+        # before --out is created and before anything is imported or built
+        if name not in problems():
+            raise BuildError(f"unknown problem {name!r}; available: {', '.join(problems())}"
+                             + also)
+
     try:
         if args.command == "list":
             print("\n".join(problems()))
         elif args.command == "build" and args.problem == "all":
             failed = 0
-            for name, result in build_all(args.out).items():
+            for name, result in build_all(_out_dir(args.out)).items():
                 if isinstance(result, BuildError):
                     failed += 1
                     print(f"hfdi-fmu: error: {result}", file=sys.stderr)
@@ -82,21 +174,28 @@ def main(argv=None) -> int:
                     print(result)
             return 1 if failed else 0
         elif args.command == "build":
-            print(build(args.problem, args.out))
+            check_problem(args.problem, " (or 'all')")
+            print(build(args.problem, _out_dir(args.out)))
         elif args.command == "bench":
-            if args.problem not in problems():
-                raise BuildError(f"unknown problem {args.problem!r}; available: "
-                                 f"{', '.join(problems())}")
+            check_problem(args.problem)
             from .bench import main as bench_main
-            return bench_main(args.problem, args.scheme, max(1, args.repeats), args.json)
+            return bench_main(args.problem, args.scheme, args.repeats, args.json)
         elif args.command == "demo":
+            check_problem(args.problem)
             from .demo import run_demo
-            return run_demo(args.problem, args.out, args.scheme)
+            return run_demo(args.problem, _out_dir(args.out), args.scheme)
         elif args.command == "master":
+            fmu = None if args.fmu is None else _dumbbell_fmu(args.fmu)
             from .master import run_example
-            return run_example(args.fmu, args.t_end, args.step, args.stiffness, args.damping,
+            return run_example(fmu, args.t_end, args.step, args.stiffness, args.damping,
                                args.scheme)
-    except BuildError as exc:
+    except (BuildError, _Refused) as exc:
         print(f"hfdi-fmu: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"hfdi-fmu: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("hfdi-fmu: interrupted", file=sys.stderr)
+        return 130
     return 0

@@ -4,7 +4,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
+import tempfile
 from pathlib import Path
 
 import hfdi
@@ -33,14 +35,44 @@ def _schemes(text):
     return names
 
 
+#: Largest target iteration count accepted. The corrector of a step may take
+#: ``2 N̄`` corrections and the first step is bracketed with up to 40 trials, so
+#: the cost grows with ``N̄``: 1e4 takes seconds on the dumbbell and 1e300 never
+#: ends. The paper's targets are 3 to 5.
+MAX_TARGET = 100.0
+
+
 def _targets(text):
     try:
         values = [float(s) for s in text.split(",") if s.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"targets must be numbers, got {text!r}") from None
-    if not values or any(not (v >= 1.0) or v != v or v == float("inf") for v in values):
-        raise argparse.ArgumentTypeError(f"targets must be finite numbers >= 1, got {text!r}")
+    if not values or any(not (1.0 <= v <= MAX_TARGET) for v in values):
+        raise argparse.ArgumentTypeError(f"targets must be numbers in [1, {MAX_TARGET:g}], "
+                                         f"got {text!r}")
     return values
+
+
+def _output_file(text):
+    """A file the command will write at the end: checked now, not after the runs."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must be a file name, got ''")
+    path = Path(text).expanduser()
+    parent = path.parent
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a directory")
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{str(parent)!r} " + ("is not a directory"
+                                         if parent.exists() else "does not exist"))
+    try:
+        # a file made and removed: os.access says yes to root, and to read-only mounts
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not writable") from None
+    if path.exists() and not os.access(path, os.W_OK):
+        raise argparse.ArgumentTypeError(f"{text!r} is not writable")
+    return str(path)
 
 
 def _positive(text):
@@ -99,8 +131,10 @@ def build_parser():
     table.add_argument("--targets", type=_targets, default=None,
                        help="target iteration counts (per sub-step for Bathe)")
     table.add_argument("--t-end", type=_positive, default=None, help="observation time T_o")
-    table.add_argument("--json", metavar="FILE", help="write the runs as JSON records")
-    table.add_argument("--csv", metavar="FILE", help="write the runs as CSV")
+    table.add_argument("--json", metavar="FILE", type=_output_file,
+                       help="write the runs as JSON records")
+    table.add_argument("--csv", metavar="FILE", type=_output_file,
+                       help="write the runs as CSV")
     table.add_argument("--no-eps", action="store_true",
                        help="skip the IDA reference and the error norms")
     sub.add_parser("models", help="list the models, their parameters, T_o and the paper's targets")
@@ -139,9 +173,8 @@ def _models(args):
 
 
 def _table(args):
-    if args.problem not in hfdi.models.available():
-        raise _Exit(f"unknown problem {args.problem!r}; available: "
-                    f"{', '.join(hfdi.models.available())}")
+    _check_problem(args.problem)
+    _check_runs([args.problem], args.schemes, args.targets, args.t_end)
 
     def progress(record):
         print(f"  {record.scheme:8s} N̄={record.target:<4} steps={record.steps:<6d} "
@@ -166,6 +199,10 @@ def _table(args):
 
 def _out_dir(text) -> Path:
     """The ``--out`` directory, created; a clear error when it cannot be."""
+    if not text.strip():
+        # Path("") is the current directory: an empty --out (an unset shell
+        # variable) would scatter the outputs there.
+        raise _Exit("--out must name a directory, got ''")
     path = Path(text).expanduser()
     if path.exists() and not path.is_dir():
         raise _Exit(f"--out {text!r} exists and is not a directory")
@@ -173,9 +210,34 @@ def _out_dir(text) -> Path:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise _Exit(f"cannot create --out {text!r}: {exc.strerror or exc}") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise _Exit(f"--out {text!r} is not writable")
+    # Try a file: os.access says yes to root, and to read-only mounts.
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError:
+        raise _Exit(f"--out {text!r} is not writable") from None
     return path
+
+
+#: The temporary files of ``write_atomic`` (``.<name>.<random>.tmp``).
+_STALE_TEMP = re.compile(r"\..+\.[A-Za-z0-9_]{8}\.tmp")
+
+
+def _remove_stale_temporaries(out: Path, subdirs=()) -> None:
+    """Delete what a killed call of ``all`` left half-written in ``out``.
+
+    Outputs are written through a temporary file and ``os.replace``; SIGINT
+    removes the temporary file, but SIGKILL (or a crash of the machine) can
+    leave one behind.
+    """
+    for directory in (out, *(out / d for d in subdirs)):
+        if directory.is_dir():
+            for path in directory.iterdir():
+                if _STALE_TEMP.fullmatch(path.name) and path.is_file():
+                    try:
+                        path.unlink()
+                    except OSError:
+                        pass
 
 
 def _check_problem(name):
@@ -184,9 +246,25 @@ def _check_problem(name):
                     f"{', '.join(hfdi.models.available())}")
 
 
+def _check_runs(problems, schemes, targets, t_end):
+    """Let the library refuse the run settings (say a --t-end below its
+    smallest step) before the reference and the runs take their time."""
+    for name in problems:
+        model = hfdi.models.get(name)
+        for scheme in schemes:
+            for target in targets or model.paper_targets.get(scheme) or [3.0]:
+                try:
+                    hfdi.Integrator(model, scheme, target_iterations=target,
+                                    t_bound=t_end or model.observation_time)
+                except ValueError as exc:
+                    raise _Exit(f"cannot run {name} to t = {t_end or model.observation_time:g} "
+                                f"({scheme}, N̄ = {target:g}): {exc}") from None
+
+
 def _figures(args):
     from .figures import Progress, ProblemRuns, write_figures
     _check_problem(args.problem)
+    _check_runs([args.problem], args.schemes, args.targets, args.t_end)
     out = _out_dir(args.out)
     progress = Progress()
     ctx = ProblemRuns(args.problem, args.schemes, args.targets, args.t_end, args.long_t_end,
@@ -212,9 +290,11 @@ def _stability(args):
 
 def _all(args):
     from .figures import Progress
-    from .report import SettingsMismatch, run_all
+    from .report import FIGURE_DIR, SettingsMismatch, run_all
     from .stability import DEFAULT_RATIOS
+    _check_runs(args.problems or hfdi.models.available(), args.schemes, args.targets, args.t_end)
     out = _out_dir(args.out)
+    _remove_stale_temporaries(out, [FIGURE_DIR])
     progress = Progress()
     try:
         report = run_all(out, args.problems, args.schemes, args.targets, args.t_end,
@@ -245,6 +325,11 @@ def main(argv=None):
         return 2
     except IDAError as exc:
         print(f"hfdi-validate: error: reference solution failed: {exc}", file=sys.stderr)
+        return 1
+    except (OSError, ValueError) as exc:
+        # A file that cannot be written, or arguments the library refuses
+        # (say --t-end below its smallest step): one line, no traceback.
+        print(f"hfdi-validate: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("hfdi-validate: interrupted; outputs written so far are kept (a rerun of "
