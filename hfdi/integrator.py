@@ -179,8 +179,9 @@ class Integrator:
         First trial step. Default: ``1/ω`` with ``ω`` a Gershgorin bound of the
         highest frequency of ``(K(u0), M)``, capped by ``max_step``.
     min_step, max_step : float, optional
-        Guards on the step size. Defaults: ``1e-12·max(1, |t_bound|)`` and
-        ``t_bound − t0`` (or no limit without ``t_bound``).
+        Guards on the step size. Defaults: the smaller of
+        ``1e-12·max(1, |t_bound|)`` and ``1e-6·max_step``, and ``t_bound − t0``
+        (or no limit without ``t_bound``).
     max_halvings : int
         Consecutive halvings allowed after diverged attempts.
     max_steps : int
@@ -245,8 +246,11 @@ class Integrator:
         span = None if self.t_bound is None else self.t_bound - self.t0
         self.max_step = _optional_positive("max_step", max_step) \
             or (span if span is not None else math.inf)
-        self.min_step = _optional_positive("min_step", min_step) \
-            or 1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0))
+        # the default floor sits well above the resolution of the time axis and,
+        # for a very short run, well below its length
+        self.min_step = _optional_positive("min_step", min_step) or min(
+            1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0)),
+            1e-6 * self.max_step)
         if self.min_step >= self.max_step:
             raise ValueError(f"min_step must be < max_step = {self.max_step}, got {self.min_step}")
         self.max_halvings = checks.integer("max_halvings", max_halvings, 0)
@@ -257,11 +261,14 @@ class Integrator:
         self.adaptive = target_iterations is not None
         if self.adaptive:
             try:
+                # above 100 the corrector's N_max = 2 N̄ no longer bounds the work of
+                # a diverging attempt in any useful way
                 target = checks.real("target_iterations", target_iterations, low=1.0,
-                                     low_closed=True)
+                                     low_closed=True, high=100.0, high_closed=True)
             except ValueError:
-                raise ValueError(f"target_iterations must be >= 1 and finite (Newton "
-                                 f"corrections per step), got {target_iterations!r}") from None
+                raise ValueError(f"target_iterations must be a finite number in [1, 100] "
+                                 f"(Newton corrections per step), got "
+                                 f"{target_iterations!r}") from None
             self.controller = IterationCountController(target * self.scheme.n_stages,
                                                        self.min_step, self.max_step)
             default_max = max(1, int(math.floor(2.0 * target)))

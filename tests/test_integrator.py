@@ -281,7 +281,7 @@ def test_energy_balance_includes_the_external_work():
 @pytest.mark.parametrize("kwargs, match", [
     (dict(), "exactly one of target_iterations"),
     (dict(target_iterations=3.0, step=0.1), "exactly one of target_iterations"),
-    (dict(target_iterations=0.5), "target_iterations must be >= 1"),
+    (dict(target_iterations=0.5), r"target_iterations must be a finite number in \[1, 100\]"),
     (dict(target_iterations=math.nan), "target_iterations"),
     (dict(step=-0.1), "step must be a finite number > 0, got -0.1"),
     (dict(step=0.1, tol=1.5), r"tol must be in \(0, 1\)"),
@@ -350,3 +350,8 @@ def test_load_changed_recomputes_the_current_load_and_acceleration():
     np.testing.assert_allclose(after.p, before.p + force)
     expected = (after.p - system.internal_force(after.u) - system.damping @ after.v) / system.mass
     np.testing.assert_allclose(after.a, expected, rtol=1e-12)
+
+
+def test_a_very_short_run_gets_a_minimum_step_below_its_length():
+    result = hfdi.integrate(DUMBBELL, "hfdi", 1e-13, target_iterations=3.0)
+    assert result.success and result.t[-1] == 1e-13

@@ -15,12 +15,10 @@ resumed one would take as done.
 """
 from __future__ import annotations
 
-import contextlib
 import io
 import math
 import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +36,7 @@ import scipy.sparse as sp  # noqa: E402
 import hfdi  # noqa: E402
 
 from .reference import cached_reference, default_atol  # noqa: E402
+from .atomic import write_atomic  # noqa: E402
 from .tables import (SCHEME_ORDER, RunRecord, make_record, problem_reference,  # noqa: E402
                      run_experiment)
 
@@ -134,35 +133,6 @@ class Progress:
         """Write one line."""
         if self.enabled:
             print(f"[{self.elapsed:7.1f} s] {text}", file=self.stream or sys.stderr, flush=True)
-
-
-def write_atomic(path, data) -> Path:
-    """Write ``data`` (str or bytes) to ``path`` through a temporary file and ``os.replace``.
-
-    Parameters
-    ----------
-    path : str or Path
-    data : str or bytes
-        A str is written as UTF-8.
-
-    Returns
-    -------
-    Path
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if isinstance(data, str):
-        data = data.encode("utf-8")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def save_figure(fig, path) -> Path:

@@ -55,7 +55,6 @@ import io
 import json
 import math
 import os
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -66,6 +65,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import hfdi
+
+from .atomic import atomic_file
 
 __all__ = [
     "Reference",
@@ -839,18 +840,8 @@ def _load(path, key):
 
 def _save(path: Path, key: str, ref: Reference):
     """Write atomically: a killed run leaves the old file or none, never half of one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, key=np.array(key), **ref._arrays())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with atomic_file(path) as fh:
+        np.savez(fh, key=np.array(key), **ref._arrays())
 
 
 def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1e-12,
