@@ -179,9 +179,8 @@ class Integrator:
         First trial step. Default: ``1/ω`` with ``ω`` a Gershgorin bound of the
         highest frequency of ``(K(u0), M)``, capped by ``max_step``.
     min_step, max_step : float, optional
-        Guards on the step size. Defaults: the smaller of
-        ``1e-12·max(1, |t_bound|)`` and ``1e-6·max_step``, and ``t_bound − t0``
-        (or no limit without ``t_bound``).
+        Guards on the step size. Defaults: ``1e-12·max(1, |t_bound|)`` and
+        ``t_bound − t0`` (or no limit without ``t_bound``).
     max_halvings : int
         Consecutive halvings allowed after diverged attempts.
     max_steps : int
@@ -246,13 +245,13 @@ class Integrator:
         span = None if self.t_bound is None else self.t_bound - self.t0
         self.max_step = _optional_positive("max_step", max_step) \
             or (span if span is not None else math.inf)
-        # the default floor sits well above the resolution of the time axis and,
-        # for a very short run, well below its length
-        self.min_step = _optional_positive("min_step", min_step) or min(
-            1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0)),
-            1e-6 * self.max_step)
+        self.min_step = _optional_positive("min_step", min_step) \
+            or 1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0))
         if self.min_step >= self.max_step:
-            raise ValueError(f"min_step must be < max_step = {self.max_step}, got {self.min_step}")
+            default = " (the default; give min_step for so short a run)" if min_step is None \
+                else ""
+            raise ValueError(f"min_step must be < max_step = {self.max_step}, got "
+                             f"{self.min_step}{default}")
         self.max_halvings = checks.integer("max_halvings", max_halvings, 0)
         self.max_steps = checks.integer("max_steps", max_steps, 1)
         self.first_step_trials = checks.integer("first_step_trials", first_step_trials, 1)

@@ -352,6 +352,9 @@ def test_load_changed_recomputes_the_current_load_and_acceleration():
     np.testing.assert_allclose(after.a, expected, rtol=1e-12)
 
 
-def test_a_very_short_run_gets_a_minimum_step_below_its_length():
-    result = hfdi.integrate(DUMBBELL, "hfdi", 1e-13, target_iterations=3.0)
+def test_a_run_shorter_than_the_default_minimum_step_says_what_to_do():
+    with pytest.raises(ValueError, match=r"min_step must be < max_step = 1e-13, got 1e-12 "
+                                         r"\(the default; give min_step"):
+        hfdi.integrate(DUMBBELL, "hfdi", 1e-13, target_iterations=3.0)
+    result = hfdi.integrate(DUMBBELL, "hfdi", 1e-13, target_iterations=3.0, min_step=1e-18)
     assert result.success and result.t[-1] == 1e-13
