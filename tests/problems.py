@@ -1,4 +1,6 @@
 """Small test problems shared by the tests."""
+from pathlib import Path
+
 import numpy as np
 
 import hfdi
@@ -48,3 +50,18 @@ def reference_solution(system, t_end, rtol=1e-13):
                     np.concatenate([system.initial_displacement, system.initial_velocity]),
                     method="DOP853", rtol=rtol, atol=rtol)
     return sol.y[:n, -1], sol.y[n:, -1]
+
+
+ROBUSTNESS_DOC = Path(__file__).resolve().parents[1] / "docs" / "robustness.md"
+
+
+def write_doc_table(name, table, path=ROBUSTNESS_DOC):
+    """Replace the generated table ``name`` of ``docs/robustness.md``, the text
+    between its ``<!-- BEGIN name table -->`` and ``<!-- END name table -->``
+    markers; returns the path."""
+    text = path.read_text(encoding="utf-8")
+    begin, end = f"<!-- BEGIN {name} table -->", f"<!-- END {name} table -->"
+    head, rest = text.split(begin)
+    _, tail = rest.split(end)
+    path.write_text(f"{head}{begin}\n{table}\n{end}{tail}", encoding="utf-8")
+    return path

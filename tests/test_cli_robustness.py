@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from problems import write_doc_table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -438,29 +439,12 @@ def cli_table(base: Path) -> str:
     return "\n".join(lines)
 
 
-def write_table(table: str) -> Path:
-    """Put ``table`` between the CLI markers of ``docs/robustness.md`` (or
-    into ``docs/robustness-cli.md`` when that file does not exist)."""
-    path = ROOT / "docs" / "robustness.md"
-    begin, end = "<!-- BEGIN cli table -->", "<!-- END cli table -->"
-    if not path.exists():
-        path = ROOT / "docs" / "robustness-cli.md"
-        path.write_text(f"# Robustness of the command lines\n\n{begin}\n{table}\n{end}\n",
-                        encoding="utf-8")
-        return path
-    text = path.read_text(encoding="utf-8")
-    head, rest = text.split(begin)
-    _, tail = rest.split(end)
-    path.write_text(f"{head}{begin}\n{table}\n{end}{tail}", encoding="utf-8")
-    return path
-
-
 if __name__ == "__main__":
     # python tests/test_cli_robustness.py          prints the table
     # python tests/test_cli_robustness.py --write  updates it in docs/robustness.md
     with tempfile.TemporaryDirectory() as tmp:
         generated = cli_table(Path(tmp))
     if "--write" in sys.argv[1:]:
-        print(write_table(generated))
+        print(write_doc_table('cli', generated))
     else:
         print(generated)

@@ -64,6 +64,7 @@ from hypothesis.stateful import (RuleBasedStateMachine, initialize, precondition
 import hfdi  # noqa: E402
 from fmu.build import build  # noqa: E402
 from fmu.master import Unit  # noqa: E402
+from problems import write_doc_table  # noqa: E402
 
 STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 FMI_STATUS = {"OK": "fmi2OK", "WARNING": "fmi2Warning", "DISCARD": "fmi2Discard",
@@ -689,23 +690,6 @@ def fmu_table(fmu) -> str:
     return "\n".join(lines)
 
 
-def write_table(table: str) -> Path:
-    """Put ``table`` between the FMU markers of ``docs/robustness.md`` (or into
-    ``docs/robustness-fmu.md`` when that file does not exist)."""
-    path = ROOT / "docs" / "robustness.md"
-    begin, end = "<!-- BEGIN fmu table -->", "<!-- END fmu table -->"
-    if not path.exists():
-        path = ROOT / "docs" / "robustness-fmu.md"
-        path.write_text(f"# Robustness of the FMU\n\n{begin}\n{table}\n{end}\n",
-                        encoding="utf-8")
-        return path
-    text = path.read_text(encoding="utf-8")
-    head, rest = text.split(begin)
-    _, tail = rest.split(end)
-    path.write_text(f"{head}{begin}\n{table}\n{end}{tail}", encoding="utf-8")
-    return path
-
-
 def test_process_survives_to_a_clean_exit(dumbbell_fmu):
     # pythonfmu 0.7 corrupts the heap at exit unless the slave's atexit hook
     # runs first (fmu/slave.py); an instance left unfreed and one refused with
@@ -744,6 +728,6 @@ if __name__ == "__main__":
         built = build("dumbbell", tmp)
         generated = fmu_table((built, extract(str(built), unzipdir=str(Path(tmp) / "x"))))
     if "--write" in sys.argv[1:]:
-        print(write_table(generated))
+        print(write_doc_table('fmu', generated))
     else:
         print(generated)

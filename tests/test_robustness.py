@@ -19,7 +19,7 @@ import hfdi
 from hfdi.checks import symmetric_definite
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
-from problems import coupled_duffing  # noqa: E402
+from problems import write_doc_table, coupled_duffing  # noqa: E402
 
 DUMBBELL = hfdi.models.dumbbell()
 DUFFING = coupled_duffing()
@@ -638,15 +638,10 @@ def fault_table():
     return "\n".join(lines)
 
 
-def write_tables(path=DOCS):
-    """Replace the generated tables of ``docs/robustness.md`` (between their markers)."""
-    text = path.read_text(encoding="utf-8")
-    for name, table in (("input", input_table()), ("fault", fault_table())):
-        begin, end = f"<!-- BEGIN {name} table -->", f"<!-- END {name} table -->"
-        head, rest = text.split(begin)
-        _, tail = rest.split(end)
-        text = f"{head}{begin}\n{table}\n{end}{tail}"
-    path.write_text(text, encoding="utf-8")
+def write_tables():
+    """Replace the generated tables of ``docs/robustness.md``."""
+    write_doc_table("input", input_table())
+    write_doc_table("fault", fault_table())
 
 
 if __name__ == "__main__":
