@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import checks
-from .linalg import Factorization, combine, matvec, normalise_matrix, solve
+from .linalg import Factorization, matvec, normalise_matrix, solve
 from .system import SecondOrderSystem
 
 __all__ = ["State", "Evaluator", "ModelError", "NonFiniteError", "DENSE_BELOW"]
@@ -236,9 +236,6 @@ class Evaluator:
         return 0.5 * float(v @ matvec(self.mass, v))
 
     # -- linear algebra -------------------------------------------------------
-    def combine(self, *terms):
-        return combine(*terms)
-
     def solve(self, a, b):
         self.nlu += 1
         return solve(a, b)

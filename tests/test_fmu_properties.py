@@ -667,8 +667,6 @@ def test_documented_answers(dumbbell_fmu, case, what, make, status, text):
 
 def test_docs_table_covers_every_case():
     docs = ROOT / "docs" / "robustness.md"
-    if not docs.exists():
-        docs = ROOT / "docs" / "robustness-fmu.md"
     text = docs.read_text(encoding="utf-8")
     for case in DOCUMENTED:
         assert f"| `{case[0]}` |" in text, f"{docs.name} has no row for {case[0]}"
