@@ -1,6 +1,7 @@
 """Predictor (paper Eqs. 36–37) and Newton corrector (Eqs. 35 and 38)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -9,6 +10,10 @@ from .evaluation import Evaluator, ModelError, NonFiniteError, State
 from .linalg import SingularMatrixError
 
 __all__ = ["predict", "newton", "solve_step", "StepOutcome"]
+
+_isfinite = math.isfinite
+_isfinite_array = np.isfinite
+_sqrt = math.sqrt
 
 
 def predict(current: State, previous: State | None, s: float):
@@ -39,18 +44,23 @@ def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: 
     Converged when ``‖Δu‖ ≤ tol · max(‖u‖, floor)`` (Eq. 38 with an absolute
     floor). Returns ``(u, corrections, converged, message)``.
     """
+    residual_and_jacobian = problem.residual_and_jacobian
+    solve = ev.solve
     for k in range(1, max_iterations + 1):
-        residual, tangent = problem.residual_and_jacobian(u)
-        if not np.all(np.isfinite(residual)):
+        residual, tangent = residual_and_jacobian(u)
+        if not _isfinite_array(residual).all():
             return u, k - 1, False, "residual is not finite"
         try:
-            du = ev.solve(tangent, -residual)
+            du = solve(tangent, -residual)
         except SingularMatrixError as exc:
             return u, k - 1, False, f"tangent is singular ({exc})"
-        if not np.all(np.isfinite(du)):
+        # ‖Δu‖² as np.linalg.norm forms it; NaN or infinity in Δu makes it
+        # non-finite (an overflow too, hence the entry-wise test only then)
+        du2 = du.dot(du)
+        if not _isfinite(du2) and not _isfinite_array(du).all():
             return u, k, False, "Newton correction is not finite"
         u = u + du
-        if np.linalg.norm(du) <= tol * max(np.linalg.norm(u), floor):
+        if _sqrt(du2) <= tol * max(_sqrt(u.dot(u)), floor):
             return u, k, True, ""
     return u, max_iterations, False, f"no convergence in N_max = {max_iterations} corrections"
 
@@ -108,8 +118,8 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
                 stage = f" (sub-step {index + 1})" if scheme.n_stages > 1 else ""
                 return StepOutcome(None, iterations, message + stage)
             end = problem.finish(u)
-            if not (np.all(np.isfinite(end.u)) and np.all(np.isfinite(end.v))
-                    and np.all(np.isfinite(end.a))):
+            if not (_isfinite_array(end.u).all() and _isfinite_array(end.v).all()
+                    and _isfinite_array(end.a).all()):
                 return StepOutcome(None, iterations, "end-of-step state is not finite")
             done.append(end)
     except ModelError:

@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import checks
-from .linalg import Factorization, matvec, normalise_matrix, solve
+from .linalg import Factorization, normalise_matrix, solve
 from .system import SecondOrderSystem
 
 __all__ = ["State", "Evaluator", "ModelError", "NonFiniteError", "DENSE_BELOW"]
@@ -44,6 +44,23 @@ def brief(x) -> str:
     if x.size > 8:
         parts[3:3] = [f"... ({x.size} entries) ..."]
     return "[" + ", ".join(parts) + "]"
+
+
+_ndarray = np.ndarray
+_float64 = np.dtype(np.float64)
+_isfinite_array = np.isfinite
+
+
+def _at_u(u) -> str:
+    return f"u = {brief(u)}"
+
+
+def _at_u_w(u, w) -> str:
+    return f"u = {brief(u)}, w = {brief(w)}"
+
+
+def _at_t(t) -> str:
+    return f"t = {t:.10g}"
 
 
 def _first_bad(values) -> str:
@@ -128,12 +145,21 @@ class Evaluator:
         self.mass_is_diagonal = self.mass.ndim == 1
         self.damping_is_diagonal = self.damping is None or (
             isinstance(self.damping, np.ndarray) and self.damping.ndim == 1)
+        self._vector_shape = (n,)
+        self._matrix_shape = (n, n)
 
     # -- counted model calls --------------------------------------------------
     # Every value is checked for its shape (a wrong one is a mistake in the
     # model: ModelError) and for being finite (NaN at some trial state is a
-    # failed attempt that a shorter step may avoid: NonFiniteError).
-    def _vector(self, value, what, where):
+    # failed attempt that a shorter step may avoid: NonFiniteError). The
+    # common case, a float ndarray of the right shape with finite entries,
+    # is recognised with a few attribute tests and one ufunc; anything else
+    # goes through the full conversion and its messages. ``where`` is a
+    # function of ``args`` that places a failure, called only on failure.
+    def _vector(self, value, what, where, *args):
+        if (type(value) is _ndarray and value.shape == self._vector_shape
+                and value.dtype == _float64 and _isfinite_array(value).all()):
+            return value
         try:
             arr = np.asarray(value, dtype=float)
         except (TypeError, ValueError):
@@ -142,16 +168,20 @@ class Evaluator:
         if arr.shape != (self.n,):
             raise ModelError(f"{what} returned shape {arr.shape}, expected ({self.n},)")
         if not np.isfinite(arr).all():
-            raise NonFiniteError(f"{what} is not finite ({_first_bad(arr)}) at {where()}")
+            raise NonFiniteError(f"{what} is not finite ({_first_bad(arr)}) at {where(*args)}")
         return arr
 
-    def _matrix(self, value, what, where):
+    def _matrix(self, value, what, where, *args):
+        if (type(value) is _ndarray and value.shape == self._matrix_shape
+                and value.dtype == _float64 and _isfinite_array(value).all()):
+            return value
         n = self.n
         if sp.issparse(value):
             if value.shape != (n, n):
                 raise ModelError(f"{what} returned shape {value.shape}, expected ({n}, {n})")
-            if not np.isfinite(value.data).all():
-                raise NonFiniteError(f"{what} is not finite ({_first_bad(value)}) at {where()}")
+            if not _isfinite_array(value.data).all():
+                raise NonFiniteError(f"{what} is not finite ({_first_bad(value)}) at "
+                                     f"{where(*args)}")
             return value.toarray() if n < DENSE_BELOW else value
         try:
             arr = np.asarray(value, dtype=float)
@@ -161,28 +191,26 @@ class Evaluator:
         if arr.shape != (n, n):
             raise ModelError(f"{what} returned shape {arr.shape}, expected ({n}, {n})")
         if not np.isfinite(arr).all():
-            raise NonFiniteError(f"{what} is not finite ({_first_bad(arr)}) at {where()}")
+            raise NonFiniteError(f"{what} is not finite ({_first_bad(arr)}) at {where(*args)}")
         return arr
 
     def force(self, u):
         self.nfev += 1
-        return self._vector(self.system.internal_force(u), "internal_force",
-                            lambda: f"u = {brief(u)}")
+        return self._vector(self.system.internal_force(u), "internal_force", _at_u, u)
 
     def stiffness(self, u):
         self.njev += 1
-        return self._matrix(self.system.stiffness(u), "stiffness",
-                            lambda: f"u = {brief(u)}")
+        return self._matrix(self.system.stiffness(u), "stiffness", _at_u, u)
 
     def stiffness_derivative(self, u, w):
         self.ntev += 1
         return self._matrix(self.system.stiffness_derivative(u, w), "stiffness_derivative",
-                            lambda: f"u = {brief(u)}, w = {brief(w)}")
+                            _at_u_w, u, w)
 
     def load(self, t):
-        p = self._vector(self.system.load(t), "load", lambda: f"t = {t:.10g}")
+        p = self._vector(self.system.load(t), "load", _at_t, t)
         if self.extra_load is not None:
-            p = p + self._vector(self.extra_load(t), "extra_load", lambda: f"t = {t:.10g}")
+            p = p + self._vector(self.extra_load(t), "extra_load", _at_t, t)
         return p
 
     @property
@@ -190,7 +218,7 @@ class Evaluator:
         return self.system.load_rate is not None and self.extra_load is None
 
     def load_rate(self, t):
-        return self._vector(self.system.load_rate(t), "load_rate", lambda: f"t = {t:.10g}")
+        return self._vector(self.system.load_rate(t), "load_rate", _at_t, t)
 
     def potential_energy(self, u):
         """``V(u)`` as a float; NaN (the model's "unknown") passes unchecked."""
@@ -208,10 +236,12 @@ class Evaluator:
 
     # -- mass and damping -----------------------------------------------------
     def mass_times(self, x):
-        return matvec(self.mass, x)
+        return self.mass * x if self.mass_is_diagonal else self.mass @ x
 
     def damping_times(self, x):
-        return matvec(self.damping, x)
+        if self.damping is None:
+            return np.zeros_like(x)
+        return self.damping * x if self.damping_is_diagonal else self.damping @ x
 
     def mass_solve(self, b):
         if self._mass_factor is None:
@@ -233,7 +263,7 @@ class Evaluator:
         return State(t, u, v, self.acceleration(t, u, v, f, p), f, p)
 
     def kinetic_energy(self, v):
-        return 0.5 * float(v @ matvec(self.mass, v))
+        return 0.5 * float(v @ self.mass_times(v))
 
     # -- linear algebra -------------------------------------------------------
     def solve(self, a, b):

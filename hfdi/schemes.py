@@ -17,10 +17,18 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import checks
-from .evaluation import Evaluator, State
-from .linalg import Factorization, SingularMatrixError, combine
+from .evaluation import DENSE_BELOW, Evaluator, State
+from .linalg import (BANDED_MAX_WIDTH, Factorization, SingularMatrixError,
+                     add_diagonal, all_finite, banded_from_sparse, combine, solve_band)
+
 
 __all__ = ["Scheme", "Newmark", "Bathe", "HFDI", "get_scheme", "SCHEMES"]
+
+#: Spread ``max(b)/min(b)`` of a diagonal HFDI ``B`` above which a sparse
+#: tangent is solved as the block system rather than as ``S B⁻¹ S + R``
+#: (about 1/sqrt(machine epsilon)). The toss rule's lumped masses spread by
+#: ``12/h_e²``, past this from about 1500 elements on.
+BLOCK_SPREAD = 1e8
 
 
 class Scheme:
@@ -62,14 +70,24 @@ class _InertiaStage:
     ``R(u) = c_a M u + c_v C u + f(u) − (p + ...)`` with tangent
     ``c_a M + c_v C + K(u)``. Newmark (Eq. 5) and both Bathe sub-steps
     (Eqs. 9 and 10) are of this form.
+
+    With a diagonal ``M`` and a diagonal or no ``C``, ``c_a M + c_v C`` is
+    formed once per stage; each iteration then adds it to the diagonal of a
+    copy of ``K`` (dense), or hands ``K`` and it to the banded solver
+    (sparse, see :class:`_ShiftedTangent`).
     """
 
-    __slots__ = ("ev", "t", "ca", "cv", "a0", "v0", "p", "rhs")
+    __slots__ = ("ev", "t", "ca", "cv", "a0", "v0", "p", "rhs", "shift")
 
     def __init__(self, ev: Evaluator, t, ca, cv, a0, v0):
         self.ev, self.t, self.ca, self.cv, self.a0, self.v0 = ev, t, ca, cv, a0, v0
         self.p = ev.load(t)
-        self.rhs = self.p - ev.mass_times(a0) - ev.damping_times(v0)
+        self.rhs = self.p - ev.mass_times(a0)
+        if ev.damping is not None:
+            self.rhs = self.rhs - ev.damping_times(v0)
+        # the diagonal part of the tangent, summed as combine() sums it
+        self.shift = (combine((ca, ev.mass), (cv, ev.damping))
+                      if ev.mass_is_diagonal and ev.damping_is_diagonal else None)
 
     def residual_and_jacobian(self, u):
         ev = self.ev
@@ -77,11 +95,50 @@ class _InertiaStage:
         residual = self.ca * ev.mass_times(u) + f - self.rhs
         if ev.damping is not None:
             residual += self.cv * ev.damping_times(u)
-        tangent = combine((self.ca, ev.mass), (self.cv, ev.damping), (1.0, ev.stiffness(u)))
+        K = ev.stiffness(u)
+        shift = self.shift
+        if shift is None:
+            tangent = combine((self.ca, ev.mass), (self.cv, ev.damping), (1.0, K))
+        elif isinstance(K, np.ndarray):
+            tangent = add_diagonal(K * 1.0, shift)       # a new array: K may be the model's
+        else:
+            tangent = _ShiftedTangent(K, shift)
         return residual, tangent
 
     def finish(self, u):
         return State(self.t, u, self.cv * u + self.v0, self.ca * u + self.a0, None, self.p)
+
+
+class _ShiftedTangent:
+    """``K + diag(d)`` for a sparse ``K``, solved without forming the sum in CSR.
+
+    The band of ``K`` goes into LAPACK band storage (see
+    :func:`~hfdi.linalg.banded_from_sparse`) and ``d`` onto its main diagonal:
+    one banded LU per solve, linear in the size. A band wider than
+    :data:`~hfdi.linalg.BANDED_MAX_WIDTH` falls back to SuperLU on the CSR sum.
+    """
+
+    __slots__ = ("K", "d")
+
+    def __init__(self, K, d):
+        self.K, self.d = K, d
+
+    @property
+    def shape(self):
+        return self.K.shape
+
+    def tocsr(self):
+        return combine((1.0, self.K), (1.0, self.d))
+
+    def solve(self, b):
+        band = banded_from_sparse(self.K, extra_lower=True)
+        if band is None:
+            return Factorization(self.tocsr()).solve(b)
+        ab, lower, upper = band
+        ab[lower + upper] += self.d
+        if not all_finite(ab):
+            raise SingularMatrixError("matrix has non-finite entries")
+        return solve_band(ab, lower, upper, b)
 
 
 def _newmark_stage(ev, start: State, t, h, gamma, beta):
@@ -173,6 +230,105 @@ class _BlockTangent:
         return lu.solve(np.concatenate([np.zeros(self.n), b]))[self.n:]
 
 
+def _common_band(a, other):
+    """The band of the sparse ``a`` in LAPACK storage (no spare rows), widened to
+    hold the band of ``other`` too: ``(ab, lower, upper)``."""
+    ab, lower, upper = banded_from_sparse(a, max_width=2 * a.shape[0])
+    _, lo, up = banded_from_sparse(other, max_width=0, bandwidths_only=True)
+    if lo > lower or up > upper:
+        wide = np.zeros((max(lo, lower) + max(up, upper) + 1, ab.shape[1]))
+        top = max(up, upper) - upper
+        wide[top:top + ab.shape[0]] = ab
+        ab, lower, upper = wide, max(lo, lower), max(up, upper)
+    return ab, lower, upper
+
+
+class _InterleavedBlockTangent:
+    """HFDI tangent ``S B⁻¹ S + R`` for a diagonal ``B`` and sparse ``K``, ``T``,
+    solved as the equivalent block system in banded form.
+
+    ``S = M − c K`` and ``R = C + c₂ K − c T`` (``M``, ``C`` diagonal,
+    ``c = h²/6``, ``c₂ = 2h/3``). With ``ŷ = B^{1/2} y`` the system
+    ``[[B, −S], [S, R]] [y; Δu] = [0; b]`` becomes
+    ``[[I, −B^{-1/2} S], [S B^{-1/2}, R]] [ŷ; Δu] = [0; b]``, whose Schur
+    complement is the tangent. Its entries go straight from the CSR arrays of
+    ``K`` and ``T`` into LAPACK band storage with the unknowns interleaved,
+    ``(ŷ₀, Δu₀, ŷ₁, Δu₁, …)``: ``2 l + 1`` diagonals below and ``2 u + 1``
+    above for a tangent band ``(l, u)``. One banded LU with partial pivoting
+    (``gbsv``) of size ``2n`` per solve: linear in ``n``, no sparse matrix
+    product, and, unlike ``S B⁻¹ S + R`` formed explicitly, well conditioned
+    when ``B`` has tiny entries (the lumped rotary inertia of the toss rule
+    at 6000 elements is ~6e-10 of its translational mass): pivoting may then
+    take an ``S`` entry instead of a huge ``S B⁻¹ S`` one. A band wider than
+    :data:`~hfdi.linalg.BANDED_MAX_WIDTH` goes to SuperLU as
+    :class:`_BlockTangent`.
+    """
+
+    __slots__ = ("n", "b", "M", "C", "K", "T", "c", "c2")
+
+    def __init__(self, b, M, C, K, T, c, c2):
+        self.n = b.shape[0]
+        self.b, self.M, self.C, self.K, self.T, self.c, self.c2 = b, M, C, K, T, c, c2
+
+    @property
+    def shape(self):
+        return (self.n, self.n)
+
+    def band(self):
+        """``(ab, kl, ku)``: the block matrix in ``gbsv`` storage (``kl`` spare rows on top).
+
+        ``K`` and ``T`` go to band storage first (one scatter of their
+        entries each); every diagonal of the block matrix is then a strided
+        slice of a diagonal of ``K`` or ``T``, so the interleaved array is
+        filled by contiguous vector operations, O(n (l + u)).
+        """
+        n = self.n
+        K, lower, upper = _common_band(self.K, self.T)
+        T = _common_band(self.T, self.K)[0]
+        kl, ku = 2 * lower + 1, 2 * upper + 1
+        ab = np.zeros((2 * kl + ku + 1, 2 * n))
+        centre = kl + ku                    # row of the main diagonal: a[r, s] at ab[centre + r − s, s]
+        c, c2 = self.c, self.c2
+        scale = 1.0 / np.sqrt(self.b)       # B^{-1/2}
+        padded = np.zeros(n + lower + upper)
+        padded[upper:upper + n] = scale     # scale[j + o] at padded[upper + o + j]
+        for o in range(-upper, lower + 1):  # o = i − j; K[i, j] at K[upper + o, j]
+            k, t = K[upper + o], T[upper + o]
+            kd = c * k
+            # (2i, 2j + 1): −(B^{-1/2} S)_ij = b_i^{-1/2} c K_ij   (− M_ii below)
+            ab[centre + 2 * o - 1, 1::2] = kd * padded[upper + o:upper + o + n]
+            # (2i + 1, 2j): (S B^{-1/2})_ij = −c K_ij b_j^{-1/2}   (+ M_ii below)
+            ab[centre + 2 * o + 1, 0::2] = -kd * scale
+            # (2i + 1, 2j + 1): R_ij = c₂ K_ij − c T_ij   (+ C_ii below)
+            ab[centre + 2 * o, 1::2] = c2 * k + (-c) * t
+        ab[centre - 1, 1::2] -= self.M * scale
+        ab[centre + 1, 0::2] += self.M * scale
+        diagonal = ab[centre]
+        diagonal[0::2] = 1.0                # (2i, 2i): B^{-1/2} B B^{-1/2} = I
+        if self.C is not None:
+            diagonal[1::2] += self.C
+        return ab, kl, ku
+
+    def solve(self, rhs):
+        widths = [banded_from_sparse(a, bandwidths_only=True)[1:] for a in (self.K, self.T)]
+        if max(lo for lo, _ in widths) + max(up for _, up in widths) > BANDED_MAX_WIDTH:
+            S = combine((1.0, self.M), (-self.c, self.K))
+            R = combine((1.0, self.C), (self.c2, self.K), (-self.c, self.T))
+            return _BlockTangent(sp.diags(self.b, format="csr"), S, R).solve(rhs)
+        ab, kl, ku = self.band()
+        if not all_finite(ab):
+            raise SingularMatrixError("matrix has non-finite entries")
+        z = np.zeros(2 * self.n)
+        z[1::2] = rhs
+        return solve_band(ab, kl, ku, z)[1::2]
+
+    def toarray(self):
+        """The tangent ``S B⁻¹ S + R`` as a dense array (for checks; O(n²) memory)."""
+        S = combine((1.0, self.M), (-self.c, self.K)).toarray()
+        R = combine((1.0, self.C), (self.c2, self.K), (-self.c, self.T)).toarray()
+        return S @ (S / self.b[:, None]) + R
+
+
 class _HFDIStage:
     """The HFDI step residual ``F(u)`` of Eq. 21 and its exact tangent.
 
@@ -183,11 +339,14 @@ class _HFDIStage:
     ``S = M − h²/6 K``.
     """
 
-    __slots__ = ("ev", "t", "h", "p", "pt", "B", "B_factor", "b_diag", "q0", "F0")
+    __slots__ = ("ev", "t", "h", "p", "pt", "B", "B_factor", "b_diag", "q0", "F0",
+                 "c", "c2", "b_column", "block_band")
 
     def __init__(self, ev: Evaluator, start: State, t, use_exact_rate: bool):
         self.ev, self.t = ev, t
         h = self.h = t - start.t
+        self.c = h * h / 6.0
+        self.c2 = 2.0 * h / 3.0
         self.p = ev.load(t)
         # g_t at t_{n+1} needs p'(t_{n+1}); the paper takes the difference quotient (Section 4)
         self.pt = ev.load_rate(t) if use_exact_rate else (self.p - start.p) / h
@@ -198,34 +357,44 @@ class _HFDIStage:
         if self.b_diag is None:
             ev.nlu += 1
         self.B_factor = Factorization(self.B)
+        self.b_column = None if self.b_diag is None else self.b_diag[:, None]
+        # A sparse tangent with a diagonal B whose entries spread over more
+        # than BLOCK_SPREAD is solved in the block form (see
+        # _InterleavedBlockTangent): there S B⁻¹ S is dominated by the
+        # smallest entries of B and its sum with R loses too many digits.
+        b = self.b_diag
+        self.block_band = (b is not None and ev.n >= DENSE_BELOW and b.size > 0
+                           and float(b.max()) > BLOCK_SPREAD * float(b.min()))
         self.q0 = -ev.mass_times(start.u + (h / 3.0) * start.v)
         self.F0 = -ev.mass_times(start.v) - ev.damping_times(start.u) - (h / 3.0) * g_n
 
     def _velocity(self, u, g):
         """``v_D(u)`` of Eq. 19."""
-        h = self.h
-        return self.B_factor.solve(self.ev.mass_times(u) + self.q0 + (h * h / 6.0) * g)
+        rhs = self.ev.mass_times(u) + self.q0 + self.c * g
+        return rhs / self.b_diag if self.b_diag is not None else self.B_factor.solve(rhs)
 
     def residual_and_jacobian(self, u):
-        ev, h = self.ev, self.h
-        c = h * h / 6.0
+        ev, c = self.ev, self.c
         g = self.p - ev.force(u)
         K = ev.stiffness(u)
         vD = self._velocity(u, g)
         gt = self.pt - K @ vD
-        residual = ev.mass_times(vD) - (2.0 * h / 3.0) * g + c * gt + self.F0
+        residual = ev.mass_times(vD) - self.c2 * g + c * gt + self.F0
         if ev.damping is not None:
             residual += ev.damping_times(u)
+        if self.block_band and sp.issparse(K):
+            tangent = _InterleavedBlockTangent(self.b_diag, ev.mass, ev.damping, K,
+                                               ev.stiffness_derivative(u, vD), c, self.c2)
+            return residual, tangent
         S = combine((1.0, ev.mass), (-c, K))
-        R = combine((1.0, ev.damping), (2.0 * h / 3.0, K), (-c, ev.stiffness_derivative(u, vD)))
+        R = combine((1.0, ev.damping), (self.c2, K), (-c, ev.stiffness_derivative(u, vD)))
         if self.b_diag is not None:
-            b = self.b_diag
             if sp.issparse(S):
                 scaled = S.copy()
-                scaled.data /= b[scaled.indices]          # S B⁻¹, column scaling in place
+                scaled.data /= self.b_diag[scaled.indices]   # S B⁻¹, column scaling in place
                 tangent = scaled @ S + R
             else:
-                tangent = S @ (S / b[:, None]) + R
+                tangent = S @ (S / self.b_column) + R
         elif sp.issparse(self.B):
             if not sp.issparse(S):
                 S = sp.csr_matrix(S)

@@ -22,6 +22,7 @@ the load is ``P(t) = hat(t; 200, 0.025)``, a triangular pulse over
 """
 from __future__ import annotations
 
+import math
 
 import numpy as np
 
@@ -170,6 +171,8 @@ class Articulated(SecondOrderSystem):
                              f"{tuple(x0[k].tolist())}")
         self.u_scale = self.h
         self._positions_given = positions is not None
+        self._k_e_pairs = np.full(2, self.k_e)
+        self._zero_pairs = np.zeros(2)
 
     def parameters(self):
         params = {"k_e": self.k_e, "k_f": self.k_f, "h": self.h,
@@ -216,32 +219,56 @@ class Articulated(SecondOrderSystem):
         return np.einsum("k,kai,kab,kbj->ij", _SIGN, _B, third, _B)
 
     # -- mechanics ---------------------------------------------------------------
+    # The hinge terms in scalar arithmetic on the two links (the einsum forms
+    # above, _angle_*, state the same sums); the ±blocks of each link are
+    # scattered by the pair potential's constant scatter matrix, with the
+    # sign s_k of the link in Δα. The link geometry is computed once per call.
+    def _hinge(self, d):
+        """``Δα``, ``s_k ∇α(d_k)`` (2, 2) and the complex link vectors ``z_k``."""
+        (ax, ay), (bx, by) = d.tolist()
+        delta = -math.atan2(ax * by - ay * bx, ax * bx + ay * by)
+        za, zb = complex(ax, ay), complex(bx, by)
+        ga, gb = 1.0 / za, 1.0 / zb                                   # Im(e_a / z)
+        grads = np.array(((ga.imag, ga.real), (-gb.imag, -gb.real)))
+        return delta, grads, za, zb
+
+    @staticmethod
+    def _link_blocks(ca, cb):
+        """``s_k Im(c_k e_a e_b)`` (2, 2, 2) for complex ``c_k`` (s = +1, −1)."""
+        return np.array((((ca.imag, ca.real), (ca.real, -ca.imag)),
+                         ((-cb.imag, -cb.real), (-cb.real, cb.imag))))
+
     def internal_force(self, u):
         u = np.asarray(u, dtype=float)
-        r = self.link_lengths(u)
-        f = self._pair.force(u, self.k_e * (r - self.h))
-        return f + self.k_f * relative_angle(u) * self._angle_gradient(self._links(u))
+        geometry = self._pair.geometry(u)
+        f = self._pair.force(u, self.k_e * (geometry[1] - self.h), geometry)
+        delta, grads, _, _ = self._hinge(geometry[0])
+        return f + self.k_f * delta * self._pair.scatter_vectors(grads)
 
     def stiffness(self, u):
         u = np.asarray(u, dtype=float)
-        r = self.link_lengths(u)
-        K = self._pair.stiffness(u, self.k_e * (r - self.h), np.full(2, self.k_e))
-        z = self._links(u)
-        g = self._angle_gradient(z)
-        return K + self.k_f * (np.outer(g, g) + relative_angle(u) * self._angle_hessian(z))
+        geometry = self._pair.geometry(u)
+        K = self._pair.stiffness(u, self.k_e * (geometry[1] - self.h), self._k_e_pairs,
+                                 geometry)
+        delta, grads, za, zb = self._hinge(geometry[0])
+        g = self._pair.scatter_vectors(grads)
+        G = self._pair._scatter(self._link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2))
+        return K + self.k_f * (np.outer(g, g) + delta * G)
 
     def stiffness_derivative(self, u, w):
         u = np.asarray(u, dtype=float)
         w = np.asarray(w, dtype=float)
-        r = self.link_lengths(u)
-        T = self._pair.stiffness_derivative(u, w, self.k_e * (r - self.h),
-                                            np.full(2, self.k_e), np.zeros(2))
-        z = self._links(u)
-        g = self._angle_gradient(z)
-        G = self._angle_hessian(z)
+        geometry = self._pair.geometry(u)
+        T = self._pair.stiffness_derivative(u, w, self.k_e * (geometry[1] - self.h),
+                                            self._k_e_pairs, self._zero_pairs, geometry)
+        delta, grads, za, zb = self._hinge(geometry[0])
+        g = self._pair.scatter_vectors(grads)
+        G = self._pair._scatter(self._link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2))
+        (oax, oay), (obx, oby) = self._pair.relative(w).tolist()
+        D = self._pair._scatter(self._link_blocks(2.0 * complex(oax, oay) / za ** 3,
+                                                  2.0 * complex(obx, oby) / zb ** 3))
         Gw = G @ w
-        hinge = ((g @ w) * G + np.outer(g, Gw) + np.outer(Gw, g)
-                 + relative_angle(u) * self._angle_third(z, w))
+        hinge = (g @ w) * G + np.outer(g, Gw) + np.outer(Gw, g) + delta * D
         return T + self.k_f * hinge
 
     def potential_energy(self, u):

@@ -114,6 +114,9 @@ class Tetrahedra(SecondOrderSystem):
                              f"length > 0), got particles {PAIRS_I[k] + 1} and {PAIRS_J[k] + 1} "
                              f"both at {tuple(x0[PAIRS_I[k]].tolist())}")
         self.spring_constant = np.array([self.k_stiff] + [self.k_soft] * 5)
+        # constants of the derivatives of φ: r0³, k/3, −2k
+        self._constants = (self.rest_length ** 3, self.spring_constant / 3.0,
+                           -2.0 * self.spring_constant)
         self._positions_given = positions is not None
 
     def parameters(self):
@@ -140,26 +143,42 @@ class Tetrahedra(SecondOrderSystem):
             return k / 3.0 * (1.0 + 2.0 * q / r ** 2)
         return -2.0 * k * q / r ** 3
 
+    def _derivatives(self, r, orders):
+        """``φ'`` (``orders == 1``), ``φ''`` (2) and ``φ'''`` (3) per pair, the
+        expressions of :meth:`_phi` with ``q`` formed once and the constants
+        ``r0³``, ``k/3`` and ``−2k`` formed with the model."""
+        r03, k3, m2k = self._constants
+        q = r03 / r
+        out = [k3 * (r - q / r)]
+        if orders >= 2:
+            out.append(k3 * (1.0 + 2.0 * q / (r * r)))
+        if orders == 3:
+            out.append(m2k * q / (r * r * r))
+        return out
+
     def distances(self, u):
         """Pair distances ``r`` (6,) in the order 12, 13, 14, 23, 24, 34."""
         return self._pair.geometry(np.asarray(u, dtype=float))[1]
 
     # -- mechanics -----------------------------------------------------------
+    # the pair geometry is computed once per call and handed to the pair terms
     def internal_force(self, u):
         u = np.asarray(u, dtype=float)
-        r = self.distances(u)
-        return self._pair.force(u, self._phi(r, 1))
+        geometry = self._pair.geometry(u)
+        return self._pair.force(u, self._derivatives(geometry[1], 1)[0], geometry)
 
     def stiffness(self, u):
         u = np.asarray(u, dtype=float)
-        r = self.distances(u)
-        return self._pair.stiffness(u, self._phi(r, 1), self._phi(r, 2))
+        geometry = self._pair.geometry(u)
+        d1, d2 = self._derivatives(geometry[1], 2)
+        return self._pair.stiffness(u, d1, d2, geometry)
 
     def stiffness_derivative(self, u, w):
         u = np.asarray(u, dtype=float)
-        r = self.distances(u)
-        return self._pair.stiffness_derivative(u, np.asarray(w, dtype=float), self._phi(r, 1),
-                                               self._phi(r, 2), self._phi(r, 3))
+        geometry = self._pair.geometry(u)
+        d1, d2, d3 = self._derivatives(geometry[1], 3)
+        return self._pair.stiffness_derivative(u, np.asarray(w, dtype=float), d1, d2, d3,
+                                               geometry)
 
     def potential_energy(self, u):
         return float(self._phi(self.distances(u), 0).sum())
