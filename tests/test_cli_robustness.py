@@ -111,6 +111,14 @@ CASES = [
     V("table", "dumbbell", "--csv", "{DIR}", expect="is a directory"),
     V("table", "dumbbell", "--csv", "{RO}/runs.csv", expect="is not writable"),
     V("table", "dumbbell", "--bogus", expect="unrecognized arguments: --bogus"),
+    V("table", "dumbbell,pendulum", expect="unknown problem 'pendulum'"),
+    # -- --jobs and --dask (table and all share them). An unreachable scheduler
+    # is given up after 10 s; without the 'dask' extra every --dask says to
+    # install it: the line names --dask either way.
+    *[V("table", "dumbbell", "--jobs", j, expect="--jobs") for j in ("0", "-1", "x", "1.5")],
+    V("table", "dumbbell", "--dask", "", expect="--dask"),
+    V("table", "dumbbell", "--dask", "no-port", expect="--dask"),
+    V("table", "dumbbell", "--dask", "tcp://127.0.0.1:1", expect="--dask"),
     # -- figures
     V("figures", expect="required: problem, --out"),
     V("figures", "dumbbell", expect="required: --out"),
@@ -147,6 +155,8 @@ CASES = [
     V("all", "--out", "{FILE}", expect="exists and is not a directory"),
     V("all", "--out", "{RO}", expect="is not writable"),
     V("all", "--out", "", expect="--out must name a directory"),
+    V("all", "--out", "{DIR}/x", "--jobs", "0", expect="--jobs"),
+    V("all", "--out", "{DIR}/x", "--dask", "tcp://127.0.0.1:1", expect="--dask"),
     # -- hfdi-fmu
     F(expect="required: command"),
     F("frobnicate", expect="invalid choice: 'frobnicate'"),

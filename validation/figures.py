@@ -40,8 +40,8 @@ from .atomic import write_atomic  # noqa: E402
 from .tables import (SCHEME_ORDER, RunRecord, make_record, problem_reference,  # noqa: E402
                      run_experiment)
 
-__all__ = ["Progress", "write_atomic", "save_figure", "ProblemRuns", "FigureSpec",
-           "figure_specs", "write_figures", "eps_figure", "run_label", "scheme_title",
+__all__ = ["Progress", "write_atomic", "figure_png", "save_figure", "ProblemRuns",
+           "FigureSpec", "figure_specs", "write_figures", "eps_figure", "run_label", "scheme_title",
            "kinetic_energy", "SHOWN_RUNS", "PROBLEM_TITLES"]
 
 PROBLEM_TITLES = {"dumbbell": "Dumbbell", "tetrahedra": "Tetrahedra",
@@ -135,14 +135,19 @@ class Progress:
             print(f"[{self.elapsed:7.1f} s] {text}", file=self.stream or sys.stderr, flush=True)
 
 
-def save_figure(fig, path) -> Path:
-    """Render ``fig`` as PNG into ``path`` atomically and close it."""
+def figure_png(fig) -> bytes:
+    """``fig`` rendered as PNG (the bytes :func:`save_figure` writes); closes it."""
     try:
         buffer = io.BytesIO()
         fig.savefig(buffer, format="png", dpi=110)
     finally:
         plt.close(fig)
-    return write_atomic(path, buffer.getvalue())
+    return buffer.getvalue()
+
+
+def save_figure(fig, path) -> Path:
+    """Render ``fig`` as PNG into ``path`` atomically and close it."""
+    return write_atomic(path, figure_png(fig))
 
 
 # -- labels -------------------------------------------------------------------------

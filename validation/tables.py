@@ -1,21 +1,23 @@
 """Run the paper's experiments (its Tables 2–5) and format them beside its numbers."""
 from __future__ import annotations
 
+import json
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import asdict, dataclass, field
 
 import hfdi
 
 from .errors import error_norms
 from .paper import PAPER_TABLES
-from .reference import cached_reference
+from .reference import cached_reference, default_cache_dir
 
-__all__ = ["RunRecord", "run_experiment", "run_table", "make_record", "problem_reference",
-           "format_table",
+__all__ = ["RunRecord", "run_experiment", "run_table", "run_tables", "table_run",
+           "make_record", "problem_reference", "shared_reference", "format_table",
            "records_to_csv", "ENERGY_LIMIT"]
 
 SCHEME_ORDER = ("newmark", "bathe", "hfdi")
-
 #: A run is reported "div" when a guard of the integrator stops it (step below
 #: its minimum, halvings exhausted) or when its energy balance breaks down: the
 #: spurious energy Σ ΔE (Eq. 40) exceeds this fraction of the run's energy
@@ -72,6 +74,108 @@ def problem_reference(problem: str, t_end=None, params=None, rtol=1e-12, progres
     if progress is not None:
         progress(f"IDA reference of {problem} (rtol {rtol:g}; computed once, then cached)")
     return cached_reference(problem, params, t_end=t_end, rtol=rtol)
+
+
+#: References kept by :func:`shared_reference` in one process, most recently
+#: used last. A table sweep asks for one problem's reference run after run
+#: (the runs are in problem order), so a few are enough; each is read from the
+#: disk cache at most once per process and problem while it is kept.
+SHARED_REFERENCES = 4
+_shared: OrderedDict = OrderedDict()
+_shared_lock = threading.Lock()
+
+
+def shared_reference(problem: str, t_end=None, params=None, rtol=1e-12):
+    """:func:`problem_reference`, kept in memory in this process.
+
+    The unit of a parallel table sweep is one run (:func:`table_run`); its
+    worker gets the reference's settings, not the reference, and loads it from
+    the disk cache (filled by the parent before the sweep) the first time,
+    then finds it here. A worker whose cache lacks it (a Dask worker on
+    another machine) computes it: IDA is deterministic, so it is the same
+    reference. The key includes the cache directory. Thread-safe (a Dask
+    worker may run tasks in threads).
+    """
+    key = (problem, json.dumps(params or {}, sort_keys=True, default=repr),
+           None if t_end is None else float(t_end), float(rtol), str(default_cache_dir()))
+    with _shared_lock:
+        if key in _shared:
+            _shared.move_to_end(key)
+            return _shared[key]
+        reference = problem_reference(problem, t_end, params, rtol=rtol)
+        _shared[key] = reference
+        while len(_shared) > SHARED_REFERENCES:
+            _shared.popitem(last=False)
+        return reference
+
+
+def table_run(problem: str, scheme: str, target: float, t_end=None, params=None,
+              eps_rtol=1e-12) -> RunRecord:
+    """One run of a table and its record, with ``ε`` against the rtol
+    ``eps_rtol`` reference (:func:`shared_reference`; none when ``None``).
+
+    The unit of work of :func:`run_tables`: a module-level function of plain
+    arguments, so that it runs the same in a worker process.
+    """
+    model, result = run_experiment(problem, scheme, target, t_end, params)
+    reference = None if eps_rtol is None else shared_reference(problem, t_end, params, eps_rtol)
+    return make_record(problem, scheme, target, model, result, reference)
+
+
+def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
+               eps=True, runner=None, progress=None, say=None) -> dict:
+    """Every run of the tables of several problems, as :func:`run_table` makes them.
+
+    Parameters
+    ----------
+    problems : sequence of str
+    schemes, targets, t_end, params
+        As :func:`run_table` (``params`` for every problem).
+    eps : bool
+        Compute ``ε`` against the rtol 1e-12 reference.
+    runner : validation.parallel.Runner, optional
+        Where the runs go (default: one after the other in this process).
+        Each run is a task; the references are computed or loaded here first,
+        one after the other, so that the workers find them in the disk cache.
+    progress : callable, optional
+        ``progress(record)`` for each run, in the order of the runs.
+    say : callable, optional
+        ``say(text)`` for the references.
+
+    Returns
+    -------
+    dict
+        Problem name → list of :class:`RunRecord` (the order of
+        :func:`run_table`); identical whatever the runner, apart from the
+        measured ``cpu_time``.
+    """
+    from .parallel import Runner, single_threaded_blas
+    runner = runner or Runner()
+    problems = list(problems)
+    if eps:
+        for problem in problems:
+            if say is not None:
+                say(f"IDA reference of {problem} (rtol 1e-12; computed once, then cached)")
+            # BLAS on one thread, as where a worker without the cache computes it
+            with single_threaded_blas():
+                if runner.parallel:
+                    # fills the disk cache for the workers; not kept here
+                    problem_reference(problem, t_end, params)
+                else:
+                    shared_reference(problem, t_end, params)
+    tasks = []
+    for problem in problems:
+        model = hfdi.models.get(problem, **(params or {}))
+        for scheme in schemes:
+            for target in (targets or model.paper_targets[scheme]):
+                tasks.append((problem, scheme, float(target), t_end, params,
+                              1e-12 if eps else None))
+    records = runner.map(table_run, tasks,
+                         on_result=None if progress is None else lambda i, r: progress(r))
+    tables = {problem: [] for problem in problems}
+    for record in records:
+        tables[record.problem].append(record)
+    return tables
 
 
 def run_table(problem: str, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
