@@ -11,8 +11,10 @@ from pathlib import Path
 
 import hfdi
 
+from . import parallel
+from .bench import add_bench_parser, run_bench_command
 from .reference import IDAError
-from .tables import SCHEME_ORDER, format_table, problem_reference, records_to_csv, run_table
+from .tables import SCHEME_ORDER, format_table, records_to_csv, run_tables
 
 
 class _Exit(Exception):
@@ -125,8 +127,10 @@ def build_parser():
     parser = _Parser(prog="hfdi-validate",
                      description="Reproduce the paper's tables and figures.")
     sub = parser.add_subparsers(dest="command", required=True)
-    table = sub.add_parser("table", help="the paper's table for one problem")
-    table.add_argument("problem", help=f"one of {', '.join(hfdi.models.available())}")
+    table = sub.add_parser("table", help="the paper's table for one problem, or several "
+                                         "(comma-separated)")
+    table.add_argument("problem", help=f"one of {', '.join(hfdi.models.available())}, or "
+                                       "several, comma-separated")
     table.add_argument("--schemes", type=_schemes, default=list(SCHEME_ORDER))
     table.add_argument("--targets", type=_targets, default=None,
                        help="target iteration counts (per sub-step for Bathe)")
@@ -137,6 +141,7 @@ def build_parser():
                        help="write the runs as CSV")
     table.add_argument("--no-eps", action="store_true",
                        help="skip the IDA reference and the error norms")
+    parallel.add_options(table)
     sub.add_parser("models", help="list the models, their parameters, T_o and the paper's targets")
     figures = sub.add_parser("figures", help="the paper's figures of one problem as PNG files")
     figures.add_argument("problem", help=f"one of {', '.join(hfdi.models.available())}")
@@ -158,6 +163,8 @@ def build_parser():
                        help="Δt/T of the stability table")
     every.add_argument("--force", action="store_true",
                        help="redo outputs that already exist (default: skip them)")
+    parallel.add_options(every)
+    add_bench_parser(sub)
     return parser
 
 
@@ -173,23 +180,29 @@ def _models(args):
 
 
 def _table(args):
-    _check_problem(args.problem)
-    _check_runs([args.problem], args.schemes, args.targets, args.t_end)
+    problems = list(dict.fromkeys(s.strip() for s in args.problem.split(",") if s.strip()))
+    for name in problems or [args.problem]:
+        _check_problem(name)
+    _check_runs(problems, args.schemes, args.targets, args.t_end)
+    several = len(problems) > 1
 
     def progress(record):
-        print(f"  {record.scheme:8s} N̄={record.target:<4} steps={record.steps:<6d} "
+        where = f"{record.problem:11s} " if several else ""
+        print(f"  {where}{record.scheme:8s} N̄={record.target:<4} steps={record.steps:<6d} "
               f"{record.status}", file=sys.stderr, flush=True)
 
     def say(text):
         print(f"  {text}", file=sys.stderr, flush=True)
 
-    reference = None if args.no_eps else problem_reference(args.problem, args.t_end,
-                                                               progress=say)
-    records = run_table(args.problem, args.schemes, args.targets, args.t_end, progress=progress,
-                        reference=reference)
-    print(f"{args.problem}: computational characteristics "
-          f"(ours, with the paper's beneath)\n")
-    print(format_table(records))
+    with parallel.runner_from_args(args) as runner:
+        tables = run_tables(problems, args.schemes, args.targets, args.t_end,
+                            eps=not args.no_eps, runner=runner, progress=progress, say=say)
+    records = []
+    for problem in problems:
+        print(f"{problem}: computational characteristics "
+              f"(ours, with the paper's beneath)\n")
+        print(format_table(tables[problem]))
+        records += tables[problem]
     if args.json:
         with open(args.json, "w") as fh:
             json.dump([r.as_dict() for r in records], fh, indent=1)
@@ -293,15 +306,17 @@ def _all(args):
     from .report import FIGURE_DIR, SettingsMismatch, run_all
     from .stability import DEFAULT_RATIOS
     _check_runs(args.problems or hfdi.models.available(), args.schemes, args.targets, args.t_end)
-    out = _out_dir(args.out)
-    _remove_stale_temporaries(out, [FIGURE_DIR])
-    progress = Progress()
-    try:
-        report = run_all(out, args.problems, args.schemes, args.targets, args.t_end,
-                         args.long_t_end, args.ratios or list(DEFAULT_RATIOS), args.force,
-                         progress)
-    except SettingsMismatch as exc:
-        raise _Exit(str(exc)) from None
+    # --dask: the extra and the scheduler are checked before --out is made
+    with parallel.runner_from_args(args) as runner:
+        out = _out_dir(args.out)
+        _remove_stale_temporaries(out, [FIGURE_DIR])
+        progress = Progress()
+        try:
+            report = run_all(out, args.problems, args.schemes, args.targets, args.t_end,
+                             args.long_t_end, args.ratios or list(DEFAULT_RATIOS), args.force,
+                             progress, runner=runner)
+        except SettingsMismatch as exc:
+            raise _Exit(str(exc)) from None
     progress.say(f"done: {report}")
     print(report)
 
@@ -320,6 +335,8 @@ def main(argv=None):
             _stability(args)
         elif args.command == "all":
             _all(args)
+        elif args.command == "bench":
+            run_bench_command(args)
     except _Exit as exc:
         print(f"hfdi-validate: error: {exc}", file=sys.stderr)
         return 2
