@@ -39,6 +39,15 @@ differ from run to run. Two ways are offered:
   of a table, and the cache keeps it across sessions (about 11 MB for the
   dumbbell).
 
+Large models
+------------
+Both keep ``2 × 2N`` numbers per node time; :func:`ida_march` keeps only the
+last state and hands each one to a callback (``validation.scale`` uses it on
+the toss rule at 6000 elements). The band solver's analytic Jacobian goes
+through a full ``(2N, 2N)`` array of scikit-sundae; above ``BAND_LIMIT``
+unknowns the band solver takes SUNDIALS' own banded difference-quotient
+Jacobian instead (``band_jacobian``), which needs no such array.
+
 Failures
 --------
 IDA reports a failure through the status of its result, not by raising; it is
@@ -74,6 +83,7 @@ __all__ = [
     "NonFiniteResidualError",
     "ida_reference",
     "ida_dense_reference",
+    "ida_march",
     "cached_reference",
     "default_atol",
     "default_cache_dir",
@@ -94,8 +104,14 @@ MAX_NUM_STEPS = 1_000_000
 #: bookkeeping of a band or sparse one.
 DENSE_LIMIT = 100
 #: The band solver's Jacobian template is a full (2N, 2N) array in
-#: scikit-sundae, so the band solver is used only up to this size.
+#: scikit-sundae, so ``"auto"`` picks the band solver only up to this size, and
+#: an explicit ``"band"`` takes the analytic Jacobian only up to it; above it
+#: the band solver gets SUNDIALS' own banded difference-quotient Jacobian,
+#: which needs no such template (see :class:`_FirstOrderForm`).
 BAND_LIMIT = 2000
+
+#: Ways of forming the iteration matrix of the band solver.
+BAND_JACOBIANS = ("auto", "analytic", "internal")
 
 
 class IDAError(RuntimeError):
@@ -203,9 +219,20 @@ class _FirstOrderForm:
     node-interleaved ordering ``y = (u_1, v_1, u_2, v_2, ...)``, so that a
     tangent of half-bandwidth ``b`` gives an iteration matrix of bandwidths
     about ``2b + 1`` rather than ``N``.
+
+    The band solver's Jacobian (``band_jacobian``): scikit-sundae (1.2)
+    hands a user ``jacfn`` of the band solver a full ``(2N, 2N)`` array and
+    copies only its band into SUNDIALS' band matrix, so the analytic
+    Jacobian costs ``32 N²`` bytes (10 GB at 18 000 DOF). ``"internal"``
+    gives IDA no ``jacfn``: SUNDIALS then fills its band matrix by its own
+    banded difference quotients (``lband + uband + 1`` residual evaluations
+    per Jacobian) and scikit-sundae allocates no template at all. The
+    Jacobian only steers IDA's Newton iteration, so either gives the solution
+    to the tolerance. ``"auto"``: analytic up to ``BAND_LIMIT`` unknowns,
+    internal above.
     """
 
-    def __init__(self, model, linsolver="auto"):
+    def __init__(self, model, linsolver="auto", band_jacobian="auto"):
         n = int(model.n_dof)
         if n < 1:
             raise ValueError(f"model.n_dof must be >= 1, got {model.n_dof}")
@@ -239,6 +266,17 @@ class _FirstOrderForm:
                 else:
                     linsolver = "sparse"
         self.linsolver = linsolver
+        band_jacobian = str(band_jacobian).lower()
+        if band_jacobian not in BAND_JACOBIANS:
+            raise ValueError(f"band_jacobian must be 'auto', 'analytic' or 'internal', "
+                             f"got {band_jacobian!r}")
+        if linsolver != "band":
+            # the dense and sparse solvers always get the analytic Jacobian
+            self.jacobian_kind = "analytic"
+        elif band_jacobian == "auto":
+            self.jacobian_kind = "analytic" if self.n_eq <= BAND_LIMIT else "internal"
+        else:
+            self.jacobian_kind = band_jacobian
 
         if linsolver == "dense":
             self.su, self.sv = slice(0, n), slice(n, 2 * n)
@@ -259,7 +297,15 @@ class _FirstOrderForm:
         vals1 = np.concatenate([np.ones(n), vm])
 
         self.options = {"linsolver": linsolver}
-        if linsolver in ("dense", "band"):
+        if self.jacobian_kind == "internal":
+            # No (n_eq, n_eq) array anywhere: only the bandwidths, from the
+            # sparse pattern; IDA differences the residual within the band.
+            if pattern is None:
+                pattern = self._pattern(_stiffness_pattern(model, u0, n))
+            lband, uband = self._bands(pattern)
+            self.options.update(lband=int(lband), uband=int(uband))
+            self.jacobian = None
+        elif linsolver in ("dense", "band"):
             J0 = np.zeros((self.n_eq, self.n_eq))
             J1 = np.zeros((self.n_eq, self.n_eq))
             np.add.at(J0, (rows0, cols0), vals0)
@@ -648,12 +694,14 @@ def _run(solver, tspan, y0, yp0):
 def _stats(sol, wall, form, steps):
     return {"nfev": int(sol.nfev), "njev": int(sol.njev), "steps": steps,
             "wall_time": float(wall), "linsolver": form.linsolver,
+            "jacobian": form.jacobian_kind,
             "lband": form.options.get("lband"), "uband": form.options.get("uband"),
             "status": int(sol.status), "dropped_jacobian_entries": form.dropped_entries}
 
 
 def ida_reference(model, t_eval, *, rtol=1e-12, atol=None, t0=0.0,
-                  max_num_steps=MAX_NUM_STEPS, linsolver="auto") -> Reference:
+                  max_num_steps=MAX_NUM_STEPS, linsolver="auto",
+                  band_jacobian="auto") -> Reference:
     """IDA's solution of ``M u'' + C u' + f(u) = p(t)`` exactly at ``t_eval``.
 
     Integrates the first-order form ``y = (u, v)`` (module docstring) from the
@@ -678,6 +726,11 @@ def ida_reference(model, t_eval, *, rtol=1e-12, atol=None, t0=0.0,
     linsolver : {"auto", "dense", "band", "sparse"}
         ``"auto"``: dense up to ``DENSE_LIMIT`` unknowns, band when the
         interleaved iteration matrix is narrow, sparse (SuperLU_MT) otherwise.
+    band_jacobian : {"auto", "analytic", "internal"}
+        Iteration matrix of the band solver: the analytic one through
+        scikit-sundae's full ``(2N, 2N)`` template, or SUNDIALS' own banded
+        difference quotients, which need no such array; ``"auto"``: analytic
+        up to ``BAND_LIMIT`` unknowns. Ignored by the other solvers.
 
     Returns
     -------
@@ -700,7 +753,7 @@ def ida_reference(model, t_eval, *, rtol=1e-12, atol=None, t0=0.0,
         raise ValueError("t_eval must be strictly increasing")
     if t_eval[0] < t0:
         raise ValueError(f"t_eval must start at or after t0 = {t0}, got {t_eval[0]}")
-    form = _FirstOrderForm(model, linsolver)
+    form = _FirstOrderForm(model, linsolver, band_jacobian)
     span = float(t_eval[-1] - t0)
     rtol, atol_uv = _check_tolerances(model, rtol, atol, span, form)
     u0, v0, y0, yp0 = form.initial_state(t0)
@@ -727,7 +780,7 @@ def ida_reference(model, t_eval, *, rtol=1e-12, atol=None, t0=0.0,
 
 
 def ida_dense_reference(model, t_end, *, rtol=1e-12, atol=None, t0=0.0,
-                        linsolver="auto") -> Reference:
+                        linsolver="auto", band_jacobian="auto") -> Reference:
     """IDA's solution at every internal step over ``[t0, t_end]``, for interpolation.
 
     Same problem and options as :func:`ida_reference`; the result keeps IDA's
@@ -744,7 +797,7 @@ def ida_dense_reference(model, t_end, *, rtol=1e-12, atol=None, t0=0.0,
     t0, t_end = float(t0), float(t_end)
     if not (math.isfinite(t_end) and t_end > t0):
         raise ValueError(f"t_end must be finite and > t0 = {t0}, got {t_end!r}")
-    form = _FirstOrderForm(model, linsolver)
+    form = _FirstOrderForm(model, linsolver, band_jacobian)
     rtol, atol_uv = _check_tolerances(model, rtol, atol, t_end - t0, form)
     _, _, y0, yp0 = form.initial_state(t0)
     sol, wall, printed = _run(_solver(form, rtol, atol_uv, MAX_NUM_STEPS),
@@ -759,6 +812,103 @@ def ida_dense_reference(model, t_end, *, rtol=1e-12, atol=None, t0=0.0,
                      a=yp[:, form.sv].copy(), rtol=rtol, atol=atol_uv, dense=True,
                      stats=_stats(sol, wall, form, int(t.size - 1)),
                      message=str(sol.message), sundials_messages=printed)
+
+
+def ida_march(model, t_end, *, t_eval=None, callback=None, rtol=1e-12, atol=None, t0=0.0,
+              max_num_steps=MAX_NUM_STEPS, linsolver="auto", band_jacobian="auto",
+              wall_limit=None) -> Reference:
+    """IDA from ``t0`` to ``t_end`` one internal step at a time, keeping only the last state.
+
+    :func:`ida_dense_reference` keeps every internal step and
+    :func:`ida_reference` every output, ``2 × 2N`` numbers each; for a large
+    model over many steps that is gigabytes. Here each state is handed to
+    ``callback`` and dropped, so memory stays ``O(N)`` however long the run,
+    and the internal steps are counted (IDA's normal mode does not report
+    them).
+
+    Parameters
+    ----------
+    model : hfdi.SecondOrderSystem
+    t_end : float
+        End of the run, ``> t0``.
+    t_eval : array_like, optional
+        Increasing times in ``[t0, t_end]``: IDA's steps are made to land on
+        them (as ``tstop``, so the values there are IDA's own, not
+        interpolated) and ``callback`` is called there only. Landing shortens
+        at most one step per time, so it changes IDA's work little when IDA
+        takes many more steps than there are times. Without ``t_eval`` the
+        callback gets every internal step.
+    callback : callable ``callback(t, u, v)``, optional
+        Gets copies it may keep.
+    rtol, atol, t0, max_num_steps, linsolver, band_jacobian
+        As :func:`ida_reference`.
+    wall_limit : float, optional
+        Stop after this many seconds of wall-clock time and return the state
+        reached: ``stats["stopped"]`` is then ``"wall_limit"`` and the
+        returned ``t`` is before ``t_end``.
+
+    Returns
+    -------
+    Reference
+        The last state only (``t = [t_reached]``, ``dense=False``); ``stats``
+        as :func:`ida_reference` with ``steps`` (internal steps),
+        ``t_reached`` and ``stopped`` (``None`` or ``"wall_limit"``).
+
+    Raises
+    ------
+    IDAError, NonFiniteResidualError
+        As :func:`ida_reference`.
+    """
+    t0, t_end = float(t0), float(t_end)
+    if not (math.isfinite(t_end) and t_end > t0):
+        raise ValueError(f"t_end must be finite and > t0 = {t0}, got {t_end!r}")
+    if t_eval is not None:
+        t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))
+        if t_eval.ndim != 1 or not np.isfinite(t_eval).all() or np.any(np.diff(t_eval) <= 0):
+            raise ValueError("t_eval must be a strictly increasing 1-D array of finite times")
+        if t_eval.size and (t_eval[0] < t0 or t_eval[-1] > t_end):
+            raise ValueError(f"t_eval must lie in [t0, t_end] = [{t0}, {t_end}]")
+    if wall_limit is not None and not float(wall_limit) > 0:
+        raise ValueError(f"wall_limit must be > 0 seconds, got {wall_limit!r}")
+    form = _FirstOrderForm(model, linsolver, band_jacobian)
+    rtol, atol_uv = _check_tolerances(model, rtol, atol, t_end - t0, form)
+    _, _, y0, yp0 = form.initial_state(t0)
+    solver = _solver(form, rtol, atol_uv, max_num_steps)
+    stops = np.array([t_end]) if t_eval is None else \
+        np.unique(np.concatenate([t_eval[t_eval > t0], [t_end]]))
+    wanted = None if t_eval is None else set(t_eval.tolist())
+    buffer = io.StringIO()
+    steps, t, stopped = 0, t0, None
+    y, yp = y0, yp0
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(buffer):
+        sol = solver.init_step(t0, y0, yp0)
+        if not sol.success:
+            raise IDAError(sol.status, sol.message, buffer.getvalue(), t0)
+        if callback is not None and (wanted is None or t0 in wanted):
+            callback(t0, y0[form.su].copy(), y0[form.sv].copy())
+        for stop in stops:
+            while t < stop:
+                if wall_limit is not None and time.perf_counter() - start > wall_limit:
+                    stopped = "wall_limit"
+                    break
+                sol = solver.step(float(stop), method="onestep", tstop=float(stop))
+                if not sol.success:
+                    raise IDAError(sol.status, sol.message, buffer.getvalue(), t)
+                t = float(np.atleast_1d(sol.t)[-1])
+                y, yp = np.atleast_2d(sol.y)[-1], np.atleast_2d(sol.yp)[-1]
+                steps += 1
+                if callback is not None and (wanted is None or (t == stop and t in wanted)):
+                    callback(t, y[form.su].copy(), y[form.sv].copy())
+            if stopped:
+                break
+    wall = time.perf_counter() - start
+    stats = _stats(sol, wall, form, steps)
+    stats.update(t_reached=t, stopped=stopped)
+    return Reference(t=np.array([t]), u=y[form.su].copy()[None], v=y[form.sv].copy()[None],
+                     a=yp[form.sv].copy()[None], rtol=rtol, atol=atol_uv, dense=False,
+                     stats=stats, message=str(sol.message),
+                     sundials_messages=buffer.getvalue().strip())
 
 
 # -- cache ---------------------------------------------------------------------------
@@ -793,7 +943,8 @@ def _model_source_digest(model):
         return None
 
 
-def _cache_key(model_name, params, model, t0, t_end, t_eval, rtol, atol, linsolver):
+def _cache_key(model_name, params, model, t0, t_end, t_eval, rtol, atol, linsolver,
+               band_jacobian="auto"):
     try:
         from importlib.metadata import version
         sksundae_version = version("scikit-sundae")
@@ -818,6 +969,8 @@ def _cache_key(model_name, params, model, t0, t_end, t_eval, rtol, atol, linsolv
         "sksundae": sksundae_version,
         "model_source": _model_source_digest(model),
     }
+    if str(band_jacobian).lower() != "auto":
+        key["band_jacobian"] = str(band_jacobian).lower()
     return json.dumps(key, sort_keys=True, default=_json_default)
 
 
@@ -846,7 +999,7 @@ def _save(path: Path, key: str, ref: Reference):
 
 def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1e-12,
                      atol=None, t0=0.0, cache_dir=None, linsolver="auto",
-                     refresh=False) -> Reference:
+                     refresh=False, band_jacobian="auto") -> Reference:
     """The IDA reference of a registered model, computed once and kept on disk.
 
     Without ``t_eval`` the reference is dense (:func:`ida_dense_reference`)
@@ -881,6 +1034,9 @@ def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1
     linsolver : str
     refresh : bool
         Recompute and overwrite even if a valid entry exists.
+    band_jacobian : str
+        As :func:`ida_reference`; part of the key only when not ``"auto"``,
+        so that the keys of existing entries stay as they were.
 
     Returns
     -------
@@ -899,7 +1055,8 @@ def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1
         t_end = float(model.observation_time)
     else:
         t_end = float(t_end)
-    key = _cache_key(model_name, params, model, t0, t_end, t_eval, float(rtol), atol, linsolver)
+    key = _cache_key(model_name, params, model, t0, t_end, t_eval, float(rtol), atol, linsolver,
+                     band_jacobian)
     directory = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in str(model_name))
     path = directory / f"reference-{safe}-{_digest(key.encode())[:24]}.npz"
@@ -911,9 +1068,11 @@ def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1
             return ref
 
     if t_eval is None:
-        ref = ida_dense_reference(model, t_end, rtol=rtol, atol=atol, t0=t0, linsolver=linsolver)
+        ref = ida_dense_reference(model, t_end, rtol=rtol, atol=atol, t0=t0, linsolver=linsolver,
+                                  band_jacobian=band_jacobian)
     else:
-        ref = ida_reference(model, t_eval, rtol=rtol, atol=atol, t0=t0, linsolver=linsolver)
+        ref = ida_reference(model, t_eval, rtol=rtol, atol=atol, t0=t0, linsolver=linsolver,
+                            band_jacobian=band_jacobian)
     try:
         _save(path, key, ref)
         ref.cache_path = str(path)
