@@ -6,7 +6,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup clean fmu
+.PHONY: demo test setup clean fmu bench
 
 setup: $(STAMP)
 
@@ -22,6 +22,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest
+
+# work-precision against IDA, Radau and BDF, and the beam's scaling (docs/performance.md)
+bench: $(STAMP)
+	$(PY) -m validation bench --out docs/performance-data
+	$(PY) -m validation.scale --out docs/performance-data --no-full-run
 
 fmu: $(STAMP)
 	$(PY) -m fmu build all --out out/fmu
