@@ -40,6 +40,7 @@ gradients, Hessians and third derivatives used for ``f``, ``K`` and ``T``.
 """
 from __future__ import annotations
 
+import copy
 
 import numpy as np
 import scipy.sparse as sp
@@ -65,6 +66,15 @@ _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2), (3, 3))
 # _BB is the flattened 6×6 contribution of the c-th independent entry.
 _BB = np.array([(np.outer(_B[i], _B[j]) + (np.outer(_B[j], _B[i]) if i != j else 0.0)).ravel()
                 for i, j in _PAIRS])
+# The kernels compute the entries in this order instead: the pairs of
+# x = (u_ξ, v_ξ, α_o) with the α_o column last, so that the three entries fed
+# by ∇²k (its α_o row r = (r_p, r_q, r_α)) are the contiguous rows 3:6 in the
+# order of r, and the gradient products are ∇k[_I] ∇k[_J].
+_KERNEL_PAIRS = ((0, 0), (1, 1), (0, 1), (0, 2), (1, 2), (2, 2), (3, 3))
+_I = np.array([i for i, _ in _KERNEL_PAIRS[:6]])
+_J = np.array([j for _, j in _KERNEL_PAIRS[:6]])
+# _KERNEL_ROW[c]: row of the kernel layout holding the c-th entry of _PAIRS.
+_KERNEL_ROW = np.array([_KERNEL_PAIRS.index(pair) for pair in _PAIRS])
 
 
 class TossRule(SecondOrderSystem):
@@ -220,10 +230,28 @@ class TossRule(SecondOrderSystem):
         # K data: data[slot[e, m]] += h_e d_i d_j _BB[c, m] sym[c, e], (i, j) = _PAIRS[c]
         pair_scale = np.stack([h * d[:, i] * d[:, j] for i, j in _PAIRS], axis=1)
         c_idx, m_idx = np.nonzero(_BB)
-        self._tangent_map = sp.csr_matrix(
+        tangent_map = sp.csr_matrix(
             ((pair_scale[:, c_idx] * _BB[c_idx, m_idx]).ravel(),
              (slot[:, m_idx].ravel(), (c_idx[None, :] * n_el + e[:, None]).ravel())),
             shape=(self._nnz, len(_PAIRS) * n_el))
+        # The kernels lay the entries out in the order of _KERNEL_PAIRS: renumber
+        # the columns in place, keeping the stored order of every row (and so
+        # the order of the sums of the matrix-vector product).
+        cols = tangent_map.indices
+        tangent_map.indices = (_KERNEL_ROW[cols // n_el] * n_el + cols % n_el).astype(cols.dtype)
+        tangent_map.has_sorted_indices = False
+        self._tangent_map = tangent_map
+
+        # Rigidities of (ε, γ), broadcast over (2, rows, N_el) kernel arrays.
+        self._R2 = np.array([self.EA, self.GA])[:, None, None]
+
+        # Template of the result: sorted, canonical CSR with the fixed pattern.
+        # Each K or T is a shallow copy that gets its own data and index
+        # arrays, which skips the checks of the csr_matrix constructor.
+        template = sp.csr_matrix((np.zeros(self._nnz), self._csr_indices.copy(),
+                                  self._csr_indptr.copy()), shape=(n, n))
+        assert template.has_sorted_indices and template.has_canonical_format
+        self._csr_template = template
 
     # -- kinematics and element kernels ------------------------------------
     def _reduced(self, u):
@@ -234,12 +262,10 @@ class TossRule(SecondOrderSystem):
         """
         U = np.asarray(u, dtype=float)
         U = U.reshape(U.shape[:-1] + (self.n_elements + 1, 3))
-        inv_h = self._inv_h
-        p = (U[..., 1:, 0] - U[..., :-1, 0]) * inv_h
-        q = (U[..., 1:, 1] - U[..., :-1, 1]) * inv_h
+        # (u_j − u_i, v_j − v_i, α_j − α_i) / h_e in one go: columns p, q, χ
+        dh = (U[..., 1:, :] - U[..., :-1, :]) * self._inv_h[:, None]
         a = 0.5 * (U[..., 1:, 2] + U[..., :-1, 2])
-        chi = (U[..., 1:, 2] - U[..., :-1, 2]) * inv_h
-        return p, q, a, chi
+        return dh[..., 0], dh[..., 1], a, dh[..., 2]
 
     def _strains(self, p, q, a):
         """``ε``, ``γ`` (Eqs. 51–52) and ``cos β``, ``sin β`` with ``β = α_o + α̂``."""
@@ -256,30 +282,40 @@ class TossRule(SecondOrderSystem):
         Returns, for ``k = ε`` and ``k = γ``, a tuple ``(R, k, g, r, t)``:
         the rigidity, the strain (N_el,), the gradient ``g = ∂k/∂x``, the
         α_o-row ``r = ∂²k/∂x∂α_o`` of the Hessian and the third derivatives
-        ``t = ∂³k/∂x∂α_o²``, each a tuple of three (N_el,) arrays. Every other
-        second or third derivative is zero because ``k`` is linear in
+        ``t = ∂³k/∂x∂α_o²``, each a (3, N_el) array (rows ``p, q, α``). Every
+        other second or third derivative is zero because ``k`` is linear in
         ``u_ξ, v_ξ``. Since ``∂ε/∂α_o = γ`` and ``∂γ/∂α_o = −(1 + ε)``:
-        ``r_ε = g_γ``, ``r_γ = −g_ε``, ``t_ε = −g_ε``, ``t_γ = −g_γ``.
+        ``r_ε = g_γ``, ``r_γ = −g_ε``, ``t_ε = −g_ε``, ``t_γ = −g_γ``; all of
+        them are views of one (4, 3, N_el) array ``(g_ε, g_γ, −g_ε, −g_γ)``.
         """
         p, q, a, chi = self._reduced(u)
         eps, gam, cb, sb = self._strains(p, q, a)
-        g_eps = (cb, sb, gam)
-        g_gam = (-sb, cb, -(1.0 + eps))
-        neg_g_eps = (-cb, -sb, -gam)
-        neg_g_gam = (sb, -cb, 1.0 + eps)
-        return chi, ((self.EA, eps, g_eps, g_gam, neg_g_eps),
-                     (self.GA, gam, g_gam, neg_g_eps, neg_g_gam))
+        y = np.empty((4, 3) + eps.shape)
+        y[0, 0] = cb
+        y[0, 1] = sb
+        y[0, 2] = gam
+        np.negative(sb, out=y[1, 0])
+        y[1, 1] = cb
+        np.negative(1.0 + eps, out=y[1, 2])
+        np.negative(y[:2], out=y[2:])
+        return chi, ((self.EA, eps, y[0], y[1], y[2]),
+                     (self.GA, gam, y[1], y[2], y[3]))
 
     def _assemble(self, sym):
         """Global CSR matrix from reduced element matrices.
 
         ``sym`` (7, N_el) holds the entries of the reduced symmetric element
-        matrices ``∂²W/∂y²`` in the order of ``_PAIRS``.
+        matrices ``∂²W/∂y²`` in the order of ``_KERNEL_PAIRS``.
         """
         data = self._tangent_map @ sym.ravel()
-        # Fresh index arrays: a caller may sort or prune the matrix in place.
-        return sp.csr_matrix((data, self._csr_indices.copy(), self._csr_indptr.copy()),
-                             shape=(self.n_dof, self.n_dof))
+        # A shallow copy of the validated template (same shape, pattern and
+        # format flags) instead of the checking constructor; fresh data and
+        # index arrays, since a caller may sort, prune or scale it in place.
+        out = copy.copy(self._csr_template)
+        out.data = data
+        out.indices = self._csr_indices.copy()
+        out.indptr = self._csr_indptr.copy()
+        return out
 
     # -- mechanics ---------------------------------------------------------
     def element_strains(self, u):
@@ -322,16 +358,21 @@ class TossRule(SecondOrderSystem):
         In reduced coordinates ``Σ_k R_k (∇k ∇kᵀ + k ∇²k) + EJ e_χ e_χᵀ``
         over ``k ∈ {ε, γ}``.
         """
-        _, strains = self._strain_derivatives(u)
-        sym = np.zeros((len(_PAIRS), self.n_elements))
-        for R, k, g, r, _ in strains:
-            Rk = R * k
-            for col, (i, j) in enumerate(_PAIRS[:6]):
-                sym[col] += R * (g[i] * g[j])
-            # ∇²k is non-zero only in its α_o row and column
-            sym[2] += Rk * r[2]
-            sym[4] += Rk * r[0]
-            sym[5] += Rk * r[1]
+        _, ((R_e, k_e, g_e, r_e, _), (R_g, k_g, g_g, r_g, _)) = self._strain_derivatives(u)
+        # Both strains at once: leading axis (ε, γ); rows as in _KERNEL_PAIRS.
+        R = np.array((R_e, R_g), dtype=float)[:, None]
+        g, r = np.array((g_e, g_g)), np.array((r_e, r_g))
+        Rk = R * np.array((k_e, k_g))
+        P = R[:, None] * (g[:, _I] * g[:, _J])           # R ∇k ∇kᵀ
+        Q = Rk[:, None] * r                              # R k ∇²k, its α_o row
+        # ∇²k is non-zero only in its α_o row and column, rows 3:6; the sums
+        # in the order ε then γ, each gradient term before its ∇²k term.
+        sym = np.empty((len(_KERNEL_PAIRS), self.n_elements))
+        head, alpha = sym[:6], sym[3:6]
+        head[...] = P[0]
+        alpha += Q[0]
+        head += P[1]
+        alpha += Q[1]
         sym[6] = self.EJ
         return self._assemble(sym)
 
@@ -343,21 +384,34 @@ class TossRule(SecondOrderSystem):
         ``R_k (∇²k z ∇kᵀ + ∇k (∇²k z)ᵀ + (∇k·z) ∇²k + k ∇³k[z])``; the
         curvature term is quadratic, so it contributes nothing.
         """
-        _, strains = self._strain_derivatives(u)
+        _, ((R_e, k_e, g_e, r_e, t_e), (R_g, k_g, g_g, r_g, t_g)) = self._strain_derivatives(u)
         zp, zq, za, _ = self._reduced(w)
-        sym = np.zeros((len(_PAIRS), self.n_elements))
-        for R, k, g, r, t in strains:
-            # ∇²k z, with ∇²k = e_α rᵀ + r e_αᵀ − r_α e_α e_αᵀ
-            Hz = (r[0] * za, r[1] * za, r[0] * zp + r[1] * zq + r[2] * za)
-            gz = g[0] * zp + g[1] * zq + g[2] * za
-            for col, (i, j) in enumerate(_PAIRS[:6]):
-                sym[col] += R * (Hz[i] * g[j] + g[i] * Hz[j])
-            # (∇k·z) ∇²k + k ∇³k[z]; ∇³k[z] has the same α_o-only structure
-            # with row (t_p z_α, t_q z_α, t_p z_p + t_q z_q + t_α z_α)
-            Rgz, Rk = R * gz, R * k
-            sym[2] += Rgz * r[2] + Rk * (t[0] * zp + t[1] * zq + t[2] * za)
-            sym[4] += Rgz * r[0] + Rk * t[0] * za
-            sym[5] += Rgz * r[1] + Rk * t[1] * za
+        # Both strains at once: leading axis (ε, γ); rows as in _KERNEL_PAIRS.
+        R = np.array((R_e, R_g), dtype=float)[:, None]
+        y = np.array((g_e, g_g, r_e, r_g, t_e, t_g))
+        g, r, t = y[0:2], y[2:4], y[4:6]
+        # ∇k·z, r·z and t·z in one go
+        yz = y[:, 0] * zp + y[:, 1] * zq + y[:, 2] * za
+        # ∇²k z, with ∇²k = e_α rᵀ + r e_αᵀ − r_α e_α e_αᵀ: (r_p z_α, r_q z_α, r·z)
+        Hz = np.empty_like(g)
+        np.multiply(r[:, :2], za, out=Hz[:, :2])
+        Hz[:, 2] = yz[2:4]
+        P = R[:, None] * (Hz[:, _I] * g[:, _J] + g[:, _I] * Hz[:, _J])
+        # (∇k·z) ∇²k + k ∇³k[z]; ∇³k[z] has the same α_o-only structure
+        # with row (t_p z_α, t_q z_α, t·z)
+        Rgz, Rk = R * yz[0:2], R * np.array((k_e, k_g))
+        Q = Rgz[:, None] * r
+        S = np.empty_like(Q)
+        np.multiply(Rk[:, None] * t[:, :2], za, out=S[:, :2])
+        np.multiply(Rk, yz[4:6], out=S[:, 2])
+        Q += S
+        sym = np.empty((len(_KERNEL_PAIRS), self.n_elements))
+        head, alpha = sym[:6], sym[3:6]
+        head[...] = P[0]
+        alpha += Q[0]
+        head += P[1]
+        alpha += Q[1]
+        sym[6] = 0.0
         return self._assemble(sym)
 
     def load(self, t):
