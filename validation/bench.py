@@ -955,21 +955,10 @@ def _competitors(text):
     return list(dict.fromkeys(names))
 
 
-def _count(text):
-    import argparse
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
-
-
 def add_bench_parser(sub) -> None:
     """Register ``bench`` on the sub-parsers of ``hfdi-validate``."""
     from . import cli
-    from .parallel import add_options
+    from .parallel import add_options, positive_integer
     bench = sub.add_parser("bench", help="work–precision (ε_u against wall time) of our "
                                          "schemes, IDA, Radau and BDF, per problem")
     bench.add_argument("--problems", type=cli._problems, default=None,
@@ -987,10 +976,10 @@ def add_bench_parser(sub) -> None:
                        help="competitors' relative tolerances (default 1e-3,...,1e-10)")
     bench.add_argument("--t-end", type=cli._positive, default=None,
                        help="end time of the runs and of the reference (default: T_o)")
-    bench.add_argument("--repeats", type=_count, default=REPEATS,
+    bench.add_argument("--repeats", type=positive_integer, default=REPEATS,
                        help=f"runs under {REPEAT_BELOW:g} s are made this many times, the "
                             f"shortest kept (default {REPEATS})")
-    bench.add_argument("--max-nfev", type=_count, default=MAX_NFEV,
+    bench.add_argument("--max-nfev", type=positive_integer, default=MAX_NFEV,
                        help=f"work budget of a competitor run, in evaluations (default "
                             f"{MAX_NFEV}); tighter rtols are skipped after a run above "
                             f"half of it")

@@ -565,7 +565,8 @@ def _terminate(pool) -> None:
 
 # -- command-line options -------------------------------------------------------------------
 
-def _jobs(text):
+def positive_integer(text):
+    """argparse type: an integer >= 1."""
     try:
         value = int(text)
     except ValueError:
@@ -584,7 +585,7 @@ def _address(text):
 
 def add_options(parser) -> None:
     """Add ``--jobs N`` and ``--dask ADDRESS`` to a sub-command's parser."""
-    parser.add_argument("--jobs", type=_jobs, default=1, metavar="N",
+    parser.add_argument("--jobs", type=positive_integer, default=1, metavar="N",
                         help="worker processes on this machine (default 1: this process)")
     parser.add_argument("--dask", metavar="ADDRESS", type=_address, default=None,
                         help="run the tasks on an existing Dask distributed cluster "

@@ -367,14 +367,20 @@ class TossRule(SecondOrderSystem):
         Q = Rk[:, None] * r                              # R k ∇²k, its α_o row
         # ∇²k is non-zero only in its α_o row and column, rows 3:6; the sums
         # in the order ε then γ, each gradient term before its ∇²k term.
+        return self._assemble(self._kernel_sum(P, Q, self.EJ))
+
+    def _kernel_sum(self, P, Q, curvature):
+        """Independent entries of the reduced matrices (rows as in ``_KERNEL_PAIRS``):
+        ``P`` (gradient terms) and ``Q`` (its α_o row, ``∇²k`` terms) of ε then γ,
+        summed in that order, and the curvature entry."""
         sym = np.empty((len(_KERNEL_PAIRS), self.n_elements))
         head, alpha = sym[:6], sym[3:6]
         head[...] = P[0]
         alpha += Q[0]
         head += P[1]
         alpha += Q[1]
-        sym[6] = self.EJ
-        return self._assemble(sym)
+        sym[6] = curvature
+        return sym
 
     def stiffness_derivative(self, u, w):
         """``T(u)[w] = ∂(K(u) w)/∂u``, scipy CSR (N, N), same pattern as ``K``.
@@ -405,14 +411,7 @@ class TossRule(SecondOrderSystem):
         np.multiply(Rk[:, None] * t[:, :2], za, out=S[:, :2])
         np.multiply(Rk, yz[4:6], out=S[:, 2])
         Q += S
-        sym = np.empty((len(_KERNEL_PAIRS), self.n_elements))
-        head, alpha = sym[:6], sym[3:6]
-        head[...] = P[0]
-        alpha += Q[0]
-        head += P[1]
-        alpha += Q[1]
-        sym[6] = 0.0
-        return self._assemble(sym)
+        return self._assemble(self._kernel_sum(P, Q, 0.0))
 
     def load(self, t):
         """``p(t)``: force ``F(t)`` in +y and moment ``M(t)`` at the left end node (chosen)."""
