@@ -1,6 +1,5 @@
 """Finite-difference checks of f, K and T (and that the check can fail)."""
 import numpy as np
-import pytest
 
 import hfdi
 from problems import coupled_duffing

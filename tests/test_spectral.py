@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 import sympy as sp
 
-import hfdi
 from hfdi.spectral import amplification_matrix, spectral_properties
 
 TAUS = [0.01, 0.1, 0.5, 1.0, 2.0, 5.0, 10.0, 100.0, 1e4]
