@@ -1,0 +1,38 @@
+"""The cost split of validation.profile (no timing limits: only its bookkeeping)."""
+import json
+import math
+
+import pytest
+
+from validation.profile import main, profile_run
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_fractions_partition_the_run(scheme):
+    row = profile_run("dumbbell", scheme, 3.0, repeats=1, t_end=0.2)
+    f = row["fractions"]
+    assert math.isclose(sum(f.values()), 1.0)
+    assert all(0.0 <= v <= 1.0 for v in f.values())
+    # the model and the linear solves are both entered in every Newton iteration
+    assert f["model"] > 0.02 and f["linear_algebra"] > 0.01
+    assert row["newton_iterations"] >= row["steps"] > 0
+    assert row["ms_per_iteration"] > 0 and row["status"] == "SUCCESS"
+
+
+def test_a_costlier_model_takes_a_larger_share():
+    # the toss rule's beam kernels cost far more per call than the dumbbell's
+    # scalar arithmetic, with linear algebra of the same small size
+    light = profile_run("dumbbell", "newmark", 3.0, repeats=1, t_end=0.2)["fractions"]
+    heavy = profile_run("toss_rule", "newmark", 3.0, repeats=1, t_end=0.01)["fractions"]
+    assert heavy["model"] > light["model"] + 0.15
+
+
+def test_command_line_writes_json(tmp_path, capsys):
+    out = tmp_path / "p.json"
+    assert main(["--problems", "dumbbell", "--schemes", "hfdi", "--repeats", "1",
+                 "--t-end", "0.1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["problem"], r["scheme"]) for r in rows] == [("dumbbell", "hfdi")]
+    assert "ms/it" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["--problems", "nope"])
