@@ -289,7 +289,7 @@ class ProblemRuns:
         return self._references[key]
 
     def record(self, scheme: str, target: float, reference=None) -> RunRecord:
-        """The table record of one run, as :func:`validation.tables.run_table` makes it."""
+        """The table record of one run, as :func:`validation.tables.table_run` makes it."""
         return make_record(self.problem, scheme, target, self.model, self.run(scheme, target),
                            reference)
 
@@ -784,7 +784,7 @@ def figure_specs(ctx: ProblemRuns) -> list:
     return sorted(specs, key=lambda s: s.name)
 
 
-def write_figures(ctx: ProblemRuns, out, skip_existing=False) -> list:
+def write_figures(ctx: ProblemRuns, out, skip_existing=False, exists=None, write=None) -> list:
     """Write every figure of ``ctx``'s problem into the directory ``out``.
 
     Parameters
@@ -793,6 +793,13 @@ def write_figures(ctx: ProblemRuns, out, skip_existing=False) -> list:
     out : str or Path
     skip_existing : bool
         Leave a PNG that already exists alone (to resume an interrupted run).
+    exists : callable, optional
+        ``exists(path)``: whether a figure counts as existing (default
+        ``path.exists()``); lets a worker that cannot see ``out`` skip what
+        the caller found there.
+    write : callable, optional
+        ``write(path, png_bytes)``; default: written atomically into ``out``
+        (created).
 
     Returns
     -------
@@ -800,16 +807,19 @@ def write_figures(ctx: ProblemRuns, out, skip_existing=False) -> list:
         The status is ``"written"`` or ``"skipped"``.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if write is None:
+        out.mkdir(parents=True, exist_ok=True)
+        write = write_atomic
+    exists = exists or Path.exists
     done = []
     for spec in figure_specs(ctx):
         path = out / spec.name
-        if skip_existing and path.exists():
+        if skip_existing and exists(path):
             ctx.progress.say(f"figure {path}: exists, skipped")
             done.append((spec, path, "skipped"))
             continue
         start = time.perf_counter()
-        save_figure(spec.make(ctx), path)
+        write(path, figure_png(spec.make(ctx)))
         ctx.progress.say(f"figure {path} ({time.perf_counter() - start:.1f} s)")
         done.append((spec, path, "written"))
     return done

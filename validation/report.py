@@ -41,12 +41,11 @@ import numpy as np
 import hfdi
 
 from .errors import error_norms
-from .figures import (PROBLEM_TITLES, Progress, ProblemRuns, figure_png, figure_specs,
-                      scheme_title, write_atomic)
+from .figures import (PROBLEM_TITLES, Progress, ProblemRuns, figure_specs, scheme_title,
+                      write_atomic, write_figures)
 from .paper import PAPER_TABLES
 from .reference import IDAError
-from .stability import (DEFAULT_RATIOS, FIGURE_NAMES, accuracy_figure, format_stability_table,
-                        spectral_radius_figure, stability_rows)
+from .stability import DEFAULT_RATIOS, FIGURE_NAMES, format_stability_table, write_stability
 from .tables import SCHEME_ORDER, RunRecord
 
 __all__ = ["run_all", "reference_convergence", "build_report", "SettingsMismatch",
@@ -453,15 +452,10 @@ def _problem_outputs(problem, schemes, targets, t_end, long_t_end, out, existing
         write(table.name, json.dumps([r.as_dict() for r in records], indent=1))
         wrote = True
         progress.say(f"table {table}")
-    for spec in figure_specs(ctx):
-        path = out / FIGURE_DIR / spec.name
-        if spec.name in existing["figures"]:
-            progress.say(f"figure {path}: exists, skipped")
-            continue
-        start = time.perf_counter()
-        write(f"{FIGURE_DIR}/{spec.name}", figure_png(spec.make(ctx)))
-        wrote = True
-        progress.say(f"figure {path} ({time.perf_counter() - start:.1f} s)")
+    figures = write_figures(ctx, out / FIGURE_DIR, skip_existing=True,
+                            exists=lambda path: path.name in existing["figures"],
+                            write=lambda path, data: write(f"{FIGURE_DIR}/{path.name}", data))
+    wrote = wrote or any(status == "written" for _, _, status in figures)
     conv = out / f"{problem}_reference_convergence.json"
     if existing["convergence"]:
         progress.say(f"reference convergence {conv}: exists, skipped")
@@ -478,32 +472,16 @@ def _problem_outputs(problem, schemes, targets, t_end, long_t_end, out, existing
 
 
 def _stability_outputs(ratios, out, existing, write, progress) -> tuple:
-    """The stability figures and ``stability.json`` (as
-    :func:`validation.stability.write_stability` writes them); returns the
-    table's rows and whether anything was written."""
+    """The stability figures and ``stability.json``
+    (:func:`validation.stability.write_stability`, told what ``existing``
+    found); returns the table's rows and whether anything was written."""
     out = Path(out)
-    wrote = False
-    for key, make in (("radius", spectral_radius_figure), ("accuracy", accuracy_figure)):
-        name = FIGURE_NAMES[key]
-        path = out / FIGURE_DIR / name
-        if name in existing["figures"]:
-            progress.say(f"figure {path}: exists, skipped")
-            continue
-        start = time.perf_counter()
-        write(f"{FIGURE_DIR}/{name}", figure_png(make()))
-        wrote = True
-        progress.say(f"figure {path} ({time.perf_counter() - start:.1f} s)")
-    rows = existing["stability"]
-    json_path = out / "stability.json"
-    if rows is not None:
-        progress.say(f"stability table {json_path}: exists, skipped")
-    else:
-        rows = stability_rows(ratios)
-        write(json_path.name, json.dumps({"ratios": list(map(float, ratios)), "rows": rows},
-                                         indent=1))
-        wrote = True
-        progress.say(f"stability table {json_path}")
-    return rows, wrote
+    done = write_stability(out / FIGURE_DIR, ratios, skip_existing=True, progress=progress,
+                           json_path=out / "stability.json",
+                           exists=lambda path: path.name in existing["figures"],
+                           write=lambda path, data: write(str(path.relative_to(out)), data),
+                           rows=existing["stability"])
+    return done["rows"], bool(done["written"])
 
 
 def _all_task(kind, *args) -> dict:

@@ -12,7 +12,7 @@ import numpy as np
 
 from hfdi.spectral import spectral_properties
 
-from .figures import Progress, plt, save_figure, scheme_title, write_atomic
+from .figures import Progress, figure_png, plt, scheme_title, write_atomic
 from .tables import SCHEME_ORDER
 
 __all__ = ["DEFAULT_RATIOS", "FIGURE_NAMES", "stability_rows", "format_stability_table",
@@ -120,7 +120,7 @@ def accuracy_figure(schemes=SCHEME_ORDER):
 
 
 def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=None,
-                    json_path=None) -> dict:
+                    json_path=None, exists=None, write=None, rows=None) -> dict:
     """Write the two PNGs into ``out`` and return the table.
 
     Parameters
@@ -135,6 +135,16 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
     json_path : str or Path, optional
         Also write the table's rows there as JSON (read back, not recomputed,
         when it exists and ``skip_existing``).
+    exists : callable, optional
+        ``exists(path)``: whether an output counts as existing (default
+        ``path.exists()``).
+    write : callable, optional
+        ``write(path, data)``; default: written atomically (``out`` created).
+    rows : list of dict, optional
+        The table's rows as the caller already read them from ``json_path``
+        (with ``skip_existing``): neither recomputed nor written. ``exists``,
+        ``write`` and ``rows`` let a worker that cannot see ``out`` make what
+        its caller did not find there.
 
     Returns
     -------
@@ -145,27 +155,30 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
     """
     progress = progress or Progress(enabled=False)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if write is None:
+        out.mkdir(parents=True, exist_ok=True)
+        write = write_atomic
+    exists = exists or Path.exists
     figures, written = {}, []
     for key, make in (("radius", spectral_radius_figure), ("accuracy", accuracy_figure)):
         path = out / FIGURE_NAMES[key]
         figures[key] = path
-        if skip_existing and path.exists():
+        if skip_existing and exists(path):
             progress.say(f"figure {path}: exists, skipped")
             continue
         start = time.perf_counter()
-        save_figure(make(), path)
+        write(path, figure_png(make()))
         written.append(path)
         progress.say(f"figure {path} ({time.perf_counter() - start:.1f} s)")
-    rows = None
-    if json_path is not None and skip_existing and Path(json_path).exists():
-        rows = json.loads(Path(json_path).read_text())["rows"]
+    if json_path is not None and skip_existing and (rows is not None or exists(Path(json_path))):
+        if rows is None:
+            rows = json.loads(Path(json_path).read_text())["rows"]
         progress.say(f"stability table {json_path}: exists, skipped")
     if rows is None:
         rows = stability_rows(ratios)
         if json_path is not None:
-            write_atomic(json_path, json.dumps({"ratios": list(map(float, ratios)),
-                                                "rows": rows}, indent=1))
+            write(Path(json_path), json.dumps({"ratios": list(map(float, ratios)),
+                                               "rows": rows}, indent=1))
             written.append(Path(json_path))
             progress.say(f"stability table {json_path}")
     return {"rows": rows, "figures": figures, "table": format_stability_table(rows),
