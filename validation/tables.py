@@ -13,7 +13,7 @@ from .errors import error_norms
 from .paper import PAPER_TABLES
 from .reference import cached_reference, default_cache_dir
 
-__all__ = ["RunRecord", "run_experiment", "run_table", "run_tables", "table_run",
+__all__ = ["RunRecord", "run_experiment", "run_tables", "table_run",
            "make_record", "problem_reference", "shared_reference", "format_table",
            "records_to_csv", "ENERGY_LIMIT"]
 
@@ -124,13 +124,16 @@ def table_run(problem: str, scheme: str, target: float, t_end=None, params=None,
 
 def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
                eps=True, runner=None, progress=None, say=None) -> dict:
-    """Every run of the tables of several problems, as :func:`run_table` makes them.
+    """Every run of the paper's tables of several problems (their targets unless
+    ``targets``), each record with ``ε`` (Eq. 42) of every quantity of interest
+    of its model when ``eps``.
 
     Parameters
     ----------
     problems : sequence of str
     schemes, targets, t_end, params
-        As :func:`run_table` (``params`` for every problem).
+        Schemes, target iteration counts (every scheme), end time (default
+        ``T_o``) and model parameters (every problem).
     eps : bool
         Compute ``ε`` against the rtol 1e-12 reference.
     runner : validation.parallel.Runner, optional
@@ -145,8 +148,8 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
     Returns
     -------
     dict
-        Problem name → list of :class:`RunRecord` (the order of
-        :func:`run_table`); identical whatever the runner, apart from the
+        Problem name → list of :class:`RunRecord` (scheme by scheme, target
+        by target); identical whatever the runner, apart from the
         measured ``cpu_time``.
     """
     from .parallel import Runner, single_threaded_blas
@@ -176,24 +179,6 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
     for record in records:
         tables[record.problem].append(record)
     return tables
-
-
-def run_table(problem: str, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
-              progress=None, reference=None) -> list:
-    """Every run of the paper's table for ``problem`` (its targets unless ``targets``).
-
-    With a ``reference`` (see :func:`problem_reference`) each record carries
-    ``ε`` (Eq. 42) of every quantity of interest of the model.
-    """
-    records = []
-    model = hfdi.models.get(problem, **(params or {}))
-    for scheme in schemes:
-        for target in (targets or model.paper_targets[scheme]):
-            model, result = run_experiment(problem, scheme, target, t_end, params)
-            records.append(make_record(problem, scheme, target, model, result, reference))
-            if progress is not None:
-                progress(records[-1])
-    return records
 
 
 def _fmt(value, kind):
