@@ -39,7 +39,7 @@ def test_scale_json_and_png(tiny_scale):
     assert math.isfinite(fit["exponent"]) and fit["sizes"] == [2, 4, 8]
     # no size reaches the asymptotic range: reported as missing, not invented
     assert data["fits"]["time_per_iteration_s"]["asymptotic"]["exponent"] is None
-    for key in ("platform", "cpu", "cores", "numpy", "scipy", "blas_threads"):
+    for key in ("platform", "cpu", "cpu_count", "numpy", "scipy", "blas_threads"):
         assert key in data["machine"]
     png = (out / "scale.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"

@@ -435,7 +435,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     """
     say = progress or (lambda text: None)
     started = time.perf_counter()
-    load_start = _loadavg()
+    load_start = load_average()
     model = hfdi.models.get(problem)
     t_end = float(model.observation_time if t_end is None else t_end)
     if isinstance(targets, dict):
@@ -515,7 +515,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     out["goal_cpu"] = goal(records, cost="cpu")
     out["machine"] = machine_info()
     out["machine"]["loadavg_start"] = load_start
-    out["machine"]["loadavg_end"] = _loadavg()
+    out["machine"]["loadavg_end"] = load_average()
     out["bench_time"] = time.perf_counter() - started
     return _plain(out)
 
@@ -716,7 +716,8 @@ def goal(records, rtol=GOAL_RTOL, factor=GOAL_FACTOR, cost="wall") -> dict:
 
 # -- machine ----------------------------------------------------------------------------
 
-def _loadavg():
+def load_average():
+    """The 1, 5 and 15-minute load averages, rounded; ``None`` where unknown."""
     try:
         return [round(x, 2) for x in os.getloadavg()]
     except OSError:                                      # pragma: no cover - not on Linux

@@ -39,7 +39,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -237,30 +236,19 @@ def fit_exponent(n, y):
 
 
 def machine_info(threads=1):
-    """Platform, CPU model, cores, Python, numpy/scipy versions and BLAS threads."""
-    import scipy
-    cpu = platform.processor() or None
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    try:
-        load = os.getloadavg()
-    except OSError:
-        load = None
+    """:func:`validation.bench.machine_info` (platform, CPU, cores, versions,
+    thread variables), with the memory, the BLAS threads of the measurement
+    and the load average at its start."""
+    from .bench import load_average, machine_info as common
+    info = common()
     try:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
     except (ValueError, OSError):
         mem = None
-    return {"platform": platform.platform(), "cpu": cpu, "cores": os.cpu_count(),
-            "memory_GiB": mem, "python": platform.python_version(),
-            "numpy": np.__version__, "scipy": scipy.__version__,
-            "blas_threads": "default (unset)" if threads == "default" else int(threads),
-            "load_average_at_start": load}
+    info.update(memory_GiB=mem,
+                blas_threads="default (unset)" if threads == "default" else int(threads),
+                load_average_at_start=load_average())
+    return info
 
 
 def plot_scale(records, fits, path):
@@ -635,7 +623,7 @@ def format_table(result):
         lines.append(f"exponent of {name}: " + "; ".join(parts)
                      + f" (target <= {TARGET_EXPONENT})")
     m = result["machine"]
-    lines.append(f"machine: {m['cpu']}, {m['cores']} cores, BLAS threads {m['blas_threads']}; "
+    lines.append(f"machine: {m['cpu']}, {m['cpu_count']} cores, BLAS threads {m['blas_threads']}; "
                  f"whole measurement {result['wall_time_s']:.0f} s")
     return "\n".join(lines)
 
