@@ -4,15 +4,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
 
 from .evaluation import Evaluator, ModelError, NonFiniteError, State
-from .linalg import SingularMatrixError
+from .linalg import SingularMatrixError, all_finite
 
 __all__ = ["predict", "newton", "solve_step", "StepOutcome"]
 
 _isfinite = math.isfinite
-_isfinite_array = np.isfinite
 _sqrt = math.sqrt
 
 
@@ -48,7 +46,7 @@ def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: 
     solve = ev.solve
     for k in range(1, max_iterations + 1):
         residual, tangent = residual_and_jacobian(u)
-        if not _isfinite_array(residual).all():
+        if not all_finite(residual):
             return u, k - 1, False, "residual is not finite"
         try:
             du = solve(tangent, -residual)
@@ -57,7 +55,7 @@ def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: 
         # ‖Δu‖² as np.linalg.norm forms it; NaN or infinity in Δu makes it
         # non-finite (an overflow too, hence the entry-wise test only then)
         du2 = du.dot(du)
-        if not _isfinite(du2) and not _isfinite_array(du).all():
+        if not _isfinite(du2) and not all_finite(du):
             return u, k, False, "Newton correction is not finite"
         u = u + du
         if _sqrt(du2) <= tol * max(_sqrt(u.dot(u)), floor):
@@ -118,8 +116,8 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
                 stage = f" (sub-step {index + 1})" if scheme.n_stages > 1 else ""
                 return StepOutcome(None, iterations, message + stage)
             end = problem.finish(u)
-            if not (_isfinite_array(end.u).all() and _isfinite_array(end.v).all()
-                    and _isfinite_array(end.a).all()):
+            if not (all_finite(end.u) and all_finite(end.v)
+                    and all_finite(end.a)):
                 return StepOutcome(None, iterations, "end-of-step state is not finite")
             done.append(end)
     except ModelError:

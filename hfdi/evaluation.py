@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import checks
-from .linalg import Factorization, normalise_matrix, solve
+from .linalg import Factorization, all_finite, normalise_matrix, solve
 from .system import SecondOrderSystem
 
 __all__ = ["State", "Evaluator", "ModelError", "NonFiniteError", "DENSE_BELOW"]
@@ -48,7 +48,6 @@ def brief(x) -> str:
 
 _ndarray = np.ndarray
 _float64 = np.dtype(np.float64)
-_isfinite_array = np.isfinite
 
 
 def _at_u(u) -> str:
@@ -158,7 +157,7 @@ class Evaluator:
     # function of ``args`` that places a failure, called only on failure.
     def _vector(self, value, what, where, *args):
         if (type(value) is _ndarray and value.shape == self._vector_shape
-                and value.dtype == _float64 and _isfinite_array(value).all()):
+                and value.dtype == _float64 and all_finite(value)):
             return value
         try:
             arr = np.asarray(value, dtype=float)
@@ -173,13 +172,13 @@ class Evaluator:
 
     def _matrix(self, value, what, where, *args):
         if (type(value) is _ndarray and value.shape == self._matrix_shape
-                and value.dtype == _float64 and _isfinite_array(value).all()):
+                and value.dtype == _float64 and all_finite(value)):
             return value
         n = self.n
         if sp.issparse(value):
             if value.shape != (n, n):
                 raise ModelError(f"{what} returned shape {value.shape}, expected ({n}, {n})")
-            if not _isfinite_array(value.data).all():
+            if not all_finite(value.data):
                 raise NonFiniteError(f"{what} is not finite ({_first_bad(value)}) at "
                                      f"{where(*args)}")
             return value.toarray() if n < DENSE_BELOW else value
