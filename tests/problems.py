@@ -65,3 +65,15 @@ def write_doc_table(name, table, path=ROBUSTNESS_DOC):
     _, tail = rest.split(end)
     path.write_text(f"{head}{begin}\n{table}\n{end}{tail}", encoding="utf-8")
     return path
+
+
+def sigint_as_in_a_terminal():
+    """``preexec_fn`` of a child process that a test interrupts with SIGINT.
+
+    A command started in the background by a non-interactive shell inherits
+    SIGINT ignored, and Python then installs no ``KeyboardInterrupt`` handler:
+    run that way, the suite's interrupted children would finish instead. The
+    child gets the default disposition, as under a terminal's Ctrl-C.
+    """
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

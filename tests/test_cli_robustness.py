@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from problems import write_doc_table  # noqa: E402
+from problems import sigint_as_in_a_terminal, write_doc_table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -310,7 +310,8 @@ def start_all(out: Path, cache: Path) -> subprocess.Popen:
     env = dict(os.environ, HFDI_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT))
     return subprocess.Popen([sys.executable, "-m", "validation", *ALL_ARGS, "--out", str(out)],
                             cwd=out.parent, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=sigint_as_in_a_terminal)
 
 
 def wait_for(proc: subprocess.Popen, path: Path, timeout: float = 120.0) -> None:

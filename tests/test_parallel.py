@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pytest
 
+from problems import sigint_as_in_a_terminal
 from validation import parallel
 from validation.cli import main
 from validation.parallel import Runner, RunnerError
@@ -264,7 +265,8 @@ def test_interrupted_parallel_table_leaves_no_worker(how, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "validation", "table",
                              "dumbbell,tetrahedra,articulated,toss_rule", "--no-eps",
                              "--jobs", "2"], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=sigint_as_in_a_terminal)
     try:
         proc.stderr.readline()                         # the first run is done: workers are up
         workers = children(proc.pid)
