@@ -6,7 +6,9 @@ the iteration-count step-size rule of "A predictor–corrector time integration
 algorithm for dynamic analysis of nonlinear systems" (2020).
 """
 from . import models, spectral
-from .controller import FixedStep, IterationCountController
+from .controller import (DEFAULT_RTOL, Combined, Controller, ErrorControl, FixedStep,
+                         IterationCount, IterationCountController)
+from .dense import Solution
 from .evaluation import ModelError, State
 from .integrator import Integrator, IntegratorState, Result, Statistics, Status, integrate
 from .schemes import HFDI, SCHEMES, Bathe, Newmark, Scheme, get_scheme
@@ -18,7 +20,8 @@ __version__ = "0.1.0"
 __all__ = [
     "integrate", "Integrator", "IntegratorState", "Result", "Statistics", "Status", "State",
     "Scheme", "Newmark", "Bathe", "HFDI", "SCHEMES", "get_scheme",
-    "IterationCountController", "FixedStep",
+    "Controller", "ErrorControl", "IterationCount", "Combined", "FixedStep",
+    "IterationCountController", "DEFAULT_RTOL", "Solution",
     "SecondOrderSystem", "System", "LinearSystem", "check_derivatives", "DerivativeCheck",
     "ModelError", "models", "spectral",
 ]

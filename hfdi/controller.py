@@ -1,16 +1,212 @@
-"""Step-size controllers: the paper's iteration-count rule and a fixed step."""
+"""Step-size controllers: small objects that choose the first step and judge every attempt.
+
+A controller has two methods, in the manner of diffrax's:
+
+``init(trial, h0) -> (attempt, decision)``
+    Choose the first step. ``trial(h)`` runs one attempt of size ``h`` (at
+    most; it may be shortened to land on a time) from the initial state and
+    returns its :class:`Attempt`; the controller returns the attempt to accept
+    (or ``None``) and a :class:`Decision` with the size proposed next.
+``adapt(attempt, rejections) -> decision``
+    Accept or reject an attempt, propose the next size, or stop the run with a
+    failed status. ``rejections`` counts the attempts already rejected for
+    this step.
+
+The integrator is the loop: it runs attempts, lands steps on the times it
+must reach, and keeps the statistics; the rules are here. Four controllers:
+
+- :class:`IterationCount`, the paper's rule (Eq. 39): the step size follows
+  the Newton iteration count. It controls the work per step, **not the
+  error**: on a linear problem Newton always converges at once and the step
+  grows to ``max_step`` whatever the accuracy.
+- :class:`ErrorControl`: the local error estimate of
+  :func:`~hfdi.corrector.local_error` in a weighted RMS norm with weights
+  ``atol + rtol·|u|``, as IDA and ``scipy.integrate.solve_ivp`` do.
+- :class:`Combined`: both; an attempt is accepted when both accept, and the
+  smaller proposal wins.
+- :class:`FixedStep`: a constant size.
+"""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-__all__ = ["IterationCountController", "FixedStep"]
+import numpy as np
+
+from . import checks
+
+__all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
+           "FixedStep", "IterationCountController", "TARGET_ITERATIONS_RANGE",
+           "DEFAULT_RTOL"]
+
+#: Allowed target Newton corrections per (sub-)step. Above 100 the corrector's
+#: ``N_max = 2 N̄`` no longer bounds the work of a diverging attempt usefully.
+TARGET_ITERATIONS_RANGE = (1.0, 100.0)
+#: The relative tolerance of the error-controlled mode when none is given.
+DEFAULT_RTOL = 1e-4
+#: Allowed relative tolerances: above 0.1 the estimate's asymptotics mean
+#: nothing; below 1e-13 rounding errors of the step dominate the estimate.
+RTOL_RANGE = (1e-13, 0.1)
 
 
-class IterationCountController:
+@dataclass
+class Attempt:
+    """One attempt at a step, as the integrator hands it to a controller.
+
+    Attributes
+    ----------
+    h : float
+        The size taken.
+    proposed : float
+        The size the controller had proposed (``h`` differs when the step
+        was shortened to land on a time).
+    clipped : bool
+        Whether the step was shortened (or stretched a little) to land.
+    converged : bool
+        Whether every stage's corrector converged.
+    iterations : int
+        Newton corrections of the attempt (all stages).
+    message : str
+        Why the corrector failed (empty when it converged).
+    error : ndarray (N,) or None
+        Local error estimate of ``u`` (only for controllers with
+        ``uses_error_estimate``, and only when converged).
+    history : bool
+        Whether the estimate had the predictor's history (``False`` on the
+        first step and after a load breakpoint).
+    u_start, u_end : ndarray (N,) or None
+        Displacements at the start and end of the attempt.
+    """
+
+    h: float
+    proposed: float
+    clipped: bool
+    converged: bool
+    iterations: int
+    message: str = ""
+    error: np.ndarray | None = None
+    history: bool = True
+    u_start: np.ndarray | None = None
+    u_end: np.ndarray | None = None
+
+
+@dataclass
+class Decision:
+    """A controller's verdict on an attempt.
+
+    ``status`` is ``None`` unless the run must stop; it is then the name of a
+    failed :class:`~hfdi.Status` and ``message`` says why.
+    """
+
+    accept: bool
+    next_step: float
+    status: str | None = None
+    message: str = ""
+
+
+class Controller:
+    """Base class: see the module's docstring for the protocol.
+
+    Attributes
+    ----------
+    uses_error_estimate : bool
+        Whether attempts must carry the local error estimate.
+    target : float or None
+        Target Newton corrections per step (the iteration-count rule only).
+    max_iterations : int
+        Default ``N_max``: corrections allowed per (sub-)step before the
+        corrector counts as diverged.
+    min_step, max_step : float
+    max_rejections : int
+        Consecutive rejected attempts allowed for one step.
+    first_step_trials : int
+        Attempts allowed to choose the first step.
+    """
+
+    uses_error_estimate = False
+    target = None
+    max_iterations = 50
+
+    def __init__(self, min_step=None, max_step=None, max_rejections=30, first_step_trials=40):
+        self.min_step = 0.0 if min_step is None else checks.positive("min_step", min_step)
+        self.max_step = math.inf if max_step is None or max_step == math.inf else \
+            checks.positive("max_step", max_step)
+        if self.min_step >= self.max_step:
+            raise ValueError(f"min_step must be < max_step = {self.max_step}, got "
+                             f"{self.min_step}")
+        self.max_rejections = checks.integer("max_halvings", max_rejections, 0)
+        self.first_step_trials = checks.integer("first_step_trials", first_step_trials, 1)
+
+    def init(self, trial, h0: float):
+        raise NotImplementedError
+
+    def adapt(self, attempt: Attempt, rejections: int) -> Decision:
+        raise NotImplementedError
+
+    def landing(self, h: float, remaining: float) -> float:
+        """The size to take when ``remaining`` is left to the next time to reach
+        and ``h`` is proposed: ``remaining`` itself to land on it.
+
+        A step is not left shorter than about half the proposed one: within
+        10 % it is stretched to land, below two steps the rest is split
+        evenly, so that no sliver of a step (whose velocity ``Δu/h`` would
+        lose digits) is ever taken.
+        """
+        if remaining <= 1.1 * h:
+            return remaining
+        if remaining < 2.0 * h:
+            return 0.5 * remaining
+        return h
+
+    def _clamp(self, h):
+        return min(max(h, self.min_step), self.max_step)
+
+    def _retry(self, attempt: Attempt, rejections: int, h_next: float, why: str) -> Decision:
+        """Reject ``attempt``; retry with ``h_next`` unless a guard stops the run."""
+        tried = f"h = {attempt.h:.6g}"
+        if rejections + 1 > self.max_rejections:
+            what = f"diverged after {self.max_rejections} halvings" if not attempt.converged \
+                else f"rejected {self.max_rejections} times in a row"
+            return Decision(False, h_next, "HALVINGS_EXHAUSTED",
+                            f"step {what} (last attempt {tried}): {why}")
+        if h_next < self.min_step:
+            return Decision(False, h_next, "STEP_BELOW_MINIMUM",
+                            f"step {h_next:.6g} below min_step = {self.min_step:.6g} after "
+                            f"the attempt with {tried} was rejected: {why}")
+        return Decision(False, h_next)
+
+
+class FixedStep(Controller):
+    """A constant step size (for order tests and references).
+
+    Steps land on a grid ``t_a + k·step`` counted from the last time a step
+    had to be shortened, so that ``t_end/n`` takes exactly ``n`` steps.
+    """
+
+    def __init__(self, step: float, **limits):
+        self.step = checks.positive("step", step)
+        super().__init__(**limits)
+
+    def init(self, trial, h0):
+        attempt = trial(self.step)
+        return (attempt if attempt.converged else None), self.adapt(attempt, 0)
+
+    def adapt(self, attempt, rejections):
+        if attempt.converged:
+            return Decision(True, self.step)
+        return Decision(False, self.step, "NEWTON_FAILED",
+                        f"corrector failed with fixed step {attempt.h:.6g}: {attempt.message}")
+
+    def __repr__(self):
+        return f"FixedStep({self.step})"
+
+
+class IterationCount(Controller):
     """Step size from the Newton iteration count (paper Eq. 39, Section 5).
 
     ``h_{n+1} = h_n (N̄ / N_n)^{1/2}``, with ``N̄`` the target corrections of a
-    whole step (``2 N̄`` for Bathe's two sub-steps).
+    whole step (``2 N̄`` for Bathe's two sub-steps). This rule controls the
+    work per step, not the error.
 
     The paper writes the rule on a ratio ``μ`` that it multiplies again into
     the previous step; read literally that compounds the correction and the
@@ -20,42 +216,269 @@ class IterationCountController:
     A step shortened to land on an output or communication time says little
     about the size the controller proposed: when it converged within the
     target, the proposal is kept; when it needed more, the rule applies to the
-    step actually taken.
+    step actually taken. A diverged attempt is retried with the step halved.
 
     Parameters
     ----------
     target : float
-        Target corrections per step.
-    min_step, max_step : float
-        Bounds of the proposed size.
+        Target corrections per step, in :data:`TARGET_ITERATIONS_RANGE` per
+        stage.
+    n_stages : int
+        Stages of the scheme (2 for Bathe): the step's target is
+        ``n_stages · target``.
     """
 
-    def __init__(self, target: float, min_step: float, max_step: float):
-        self.target = float(target)
-        self.min_step = float(min_step)
-        self.max_step = float(max_step)
+    def __init__(self, target: float, n_stages: int = 1, **limits):
+        low, high = TARGET_ITERATIONS_RANGE
+        try:
+            target = checks.real("target_iterations", target, low=low, low_closed=True,
+                                 high=high, high_closed=True)
+        except ValueError:
+            raise ValueError(f"target_iterations must be a finite number in [{low:g}, {high:g}] "
+                             f"(Newton corrections per step), got {target!r}") from None
+        self.per_stage = target
+        self.target = target * n_stages
+        self.max_iterations = max(1, int(math.floor(2.0 * target)))
+        super().__init__(**limits)
 
-    def next_step(self, h: float, proposed: float, clipped: bool, iterations: int) -> float:
-        """The size proposed for the step after one of size ``h`` that took
-        ``iterations`` corrections (``proposed`` was the size asked for)."""
+    def next_step(self, h, proposed, clipped, iterations):
         if clipped and iterations <= self.target:
             new = proposed
         else:
             new = h * math.sqrt(self.target / max(iterations, 1))
-        return min(max(new, self.min_step), self.max_step)
+        return self._clamp(new)
+
+    def landing(self, h, remaining):
+        # the paper's tables were made with this rule: keep it
+        if h >= remaining or remaining - h <= 0.01 * h:
+            return remaining
+        return h
+
+    def adapt(self, attempt, rejections):
+        if attempt.converged:
+            return Decision(True, self.next_step(attempt.h, attempt.proposed, attempt.clipped,
+                                                 attempt.iterations))
+        return self._retry(attempt, rejections, 0.5 * attempt.h, attempt.message)
+
+    def init(self, trial, h0):
+        """``Δt₀`` such that the first step converges in ``N̄`` iterations
+        (Section 5): bracket ``h`` between a size that needs too few
+        corrections and one that needs too many (or diverges), doubling or
+        halving until bracketed and bisecting geometrically after."""
+        target = self.target
+        h = h0
+        low = high = None
+        best = None            # (distance to target, attempt)
+        message = ""
+        smallest = math.inf
+        trials = 0
+        for _ in range(self.first_step_trials):
+            attempt = trial(h)
+            if attempt is None:            # below the resolution of time at t
+                break
+            trials += 1
+            smallest = min(smallest, attempt.h)
+            if attempt.converged:
+                n = attempt.iterations
+                if best is None or abs(n - target) < best[0]:
+                    best = (abs(n - target), attempt)
+                if abs(n - target) <= 0.5 or (n < target and (attempt.clipped
+                                                              or attempt.h >= self.max_step)):
+                    break
+                if n < target:
+                    low = attempt.h
+                else:
+                    high = attempt.h
+            else:
+                message = attempt.message
+                high = attempt.h
+            if low is not None and high is not None:
+                if high / low < 1.0 + 1e-3:
+                    break
+                h = math.sqrt(low * high)
+            elif low is not None:
+                h = min(2.0 * low, self.max_step)
+            else:
+                h = 0.5 * high
+            if h < self.min_step:
+                break
+        if best is None:
+            return None, Decision(False, h, "FIRST_STEP_FAILED",
+                                  f"no first step converged in {trials} trials down to h = "
+                                  f"{smallest:.6g}: {message}")
+        attempt = best[1]
+        return attempt, self.adapt(attempt, 0)
 
     def __repr__(self):
-        return f"IterationCountController(target={self.target})"
+        return f"IterationCount(target={self.per_stage})"
 
 
-class FixedStep:
-    """A constant step size (for order tests and references)."""
+#: The former name of :class:`IterationCount`.
+IterationCountController = IterationCount
 
-    def __init__(self, step: float):
-        self.step = float(step)
 
-    def next_step(self, h, proposed, clipped, iterations):
-        return self.step
+class ErrorControl(Controller):
+    """Step size from the local error estimate (docs/algorithm.md, "Error control").
+
+    ``err = ‖e / (atol + rtol·max(|u_n|, |u_{n+1}|))‖_RMS`` with ``e`` from
+    :func:`~hfdi.corrector.local_error`. An attempt with ``err ≤ 1`` is
+    accepted; otherwise it is retried. The next size is
+    ``h · safety · err^{−1/(p+1)}``, limited to ``[shrink, grow]·h`` (and to
+    at most ``h`` right after a rejection). A diverged corrector halves the
+    step.
+
+    Parameters
+    ----------
+    rtol : float or array_like (N,)
+        Relative tolerance, in :data:`RTOL_RANGE`.
+    atol : float or array_like (N,)
+        Absolute tolerance, ``>= 0`` (and ``> 0`` where ``u`` may vanish).
+    order : int
+        Order ``p`` of the scheme.
+    safety, grow, shrink : float
+        The usual factors: 0.9, 5 and 0.2.
+    """
+
+    uses_error_estimate = True
+    max_iterations = 10
+
+    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, order: int, safety=0.9, grow=5.0,
+                 shrink=0.2, **limits):
+        self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
+        self.atol = _tolerance("atol", 1e-3 * np.min(self.rtol) if atol is None else atol,
+                               0.0, math.inf)
+        if np.any(np.asarray(self.atol) <= 0.0):
+            # a weight atol + rtol·|u| of zero would fail every step at u = 0
+            raise ValueError(f"atol must be > 0 (a finite number or one per degree of freedom), "
+                             f"got {atol!r}")
+        if np.ndim(self.rtol) and np.ndim(self.atol) and np.shape(self.rtol) != np.shape(self.atol):
+            raise ValueError(f"rtol and atol given per degree of freedom must have the same "
+                             f"shape, got {np.shape(self.rtol)} and {np.shape(self.atol)}")
+        self.order = checks.integer("order", order, 1)
+        self.safety = checks.real("safety", safety, low=0.0, high=1.0, high_closed=True)
+        self.grow = checks.real("grow", grow, low=1.0, high=math.inf)
+        self.shrink = checks.real("shrink", shrink, low=0.0, high=1.0)
+        super().__init__(**limits)
+
+    def check_size(self, n: int):
+        """Refuse tolerances given per degree of freedom for another size."""
+        for name in ("rtol", "atol"):
+            value = getattr(self, name)
+            if np.ndim(value) and np.shape(value) != (n,):
+                raise ValueError(f"{name} given per degree of freedom must have shape ({n},), "
+                                 f"got {np.shape(value)}")
+
+    def error_norm(self, attempt: Attempt) -> float:
+        """The weighted RMS norm of the attempt's error estimate."""
+        scale = self.atol + self.rtol * np.maximum(np.abs(attempt.u_start), np.abs(attempt.u_end))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = attempt.error / scale
+        ratio = np.where(attempt.error == 0.0, 0.0, ratio)
+        return float(np.sqrt(np.mean(ratio * ratio)))
+
+    def _factor(self, err, exponent):
+        if err == 0.0:
+            return self.grow
+        return min(self.grow, max(self.shrink, self.safety * err ** -exponent))
+
+    def _exponent(self, attempt):
+        # without history the estimate is the Taylor predictor's O(h³) error
+        return 1.0 / (self.order + 1) if attempt.history else 1.0 / 3.0
+
+    def adapt(self, attempt, rejections):
+        if not attempt.converged:
+            return self._retry(attempt, rejections, 0.5 * attempt.h, attempt.message)
+        err = self.error_norm(attempt)
+        if not math.isfinite(err):
+            return self._retry(attempt, rejections, 0.5 * attempt.h,
+                               "error estimate is not finite")
+        factor = self._factor(err, self._exponent(attempt))
+        if err <= 1.0:
+            if rejections:
+                factor = min(factor, 1.0)
+            h_next = attempt.h * factor
+            if attempt.clipped:
+                h_next = max(h_next, min(attempt.proposed, attempt.h * self.grow))
+            return Decision(True, self._clamp(h_next))
+        return self._retry(attempt, rejections, attempt.h * factor,
+                           f"local error {err:.3g} times the tolerance")
+
+    def init(self, trial, h0):
+        """The first step by the same estimate, from the Taylor predictor
+        (no history): shrink ``h0`` until the estimate passes."""
+        h = h0
+        message = ""
+        trials = 0
+        for rejections in range(self.first_step_trials):
+            attempt = trial(h)
+            if attempt is None:
+                break
+            trials += 1
+            decision = self.adapt(attempt, rejections)
+            if decision.accept:
+                return attempt, decision
+            message = decision.message
+            if decision.status is not None:
+                break
+            h = decision.next_step
+        return None, Decision(False, h, "FIRST_STEP_FAILED",
+                              f"no first step passed the error test in {trials} trials "
+                              f"down to h = {h:.6g}"
+                              f"{': ' + message if message else ''}")
 
     def __repr__(self):
-        return f"FixedStep({self.step})"
+        return f"ErrorControl(rtol={self.rtol}, atol={self.atol})"
+
+
+class Combined(Controller):
+    """The iteration-count rule and the error rule together: an attempt is
+    accepted when both accept it, and the smaller proposal wins."""
+
+    uses_error_estimate = True
+
+    def __init__(self, iteration: IterationCount, error: ErrorControl):
+        self.iteration, self.error = iteration, error
+        self.target = iteration.target
+        self.max_iterations = iteration.max_iterations
+        self.min_step = max(iteration.min_step, error.min_step)
+        self.max_step = min(iteration.max_step, error.max_step)
+        self.max_rejections = iteration.max_rejections
+        self.first_step_trials = iteration.first_step_trials
+
+    def check_size(self, n):
+        self.error.check_size(n)
+
+    def adapt(self, attempt, rejections):
+        a = self.iteration.adapt(attempt, rejections)
+        b = self.error.adapt(attempt, rejections)
+        if a.status is not None:
+            return a
+        if b.status is not None:
+            return b
+        return Decision(a.accept and b.accept, min(a.next_step, b.next_step))
+
+    def init(self, trial, h0):
+        attempt, decision = self.iteration.init(trial, h0)
+        if attempt is None:
+            return attempt, decision
+        checked = self.adapt(attempt, 0)
+        if checked.accept:
+            return attempt, checked
+        return self.error.init(trial, checked.next_step)
+
+    def __repr__(self):
+        return f"Combined({self.iteration!r}, {self.error!r})"
+
+
+def _tolerance(name, value, low, high):
+    """A tolerance as a float or a 1-D float array, every entry in ``[low, high)``."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
+                         f"of freedom) in [{low:g}, {high:g}), got {value!r}") from None
+    if np.iscomplexobj(np.asarray(value)) or arr.ndim > 1 or arr.size == 0 or \
+            not np.all(np.isfinite(arr)) or np.any(arr < low) or np.any(arr >= high):
+        raise ValueError(f"{name} must be a finite number or a 1-D array of them (one per "
+                         f"degree of freedom) in [{low:g}, {high:g}), got {value!r}")
+    return float(arr) if arr.ndim == 0 else arr.copy()

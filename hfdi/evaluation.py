@@ -146,6 +146,9 @@ class Evaluator:
             isinstance(self.damping, np.ndarray) and self.damping.ndim == 1)
         self._vector_shape = (n,)
         self._matrix_shape = (n, n)
+        #: A load breakpoint that the step being attempted ends on: the load
+        #: and its rate there are the limits from the left (see load()).
+        self.left_limit_at = None
 
     # -- counted model calls --------------------------------------------------
     # Every value is checked for its shape (a wrong one is a mistake in the
@@ -206,7 +209,16 @@ class Evaluator:
         return self._matrix(self.system.stiffness_derivative(u, w), "stiffness_derivative",
                             _at_u_w, u, w)
 
+    def _one_sided(self, t):
+        # At a breakpoint where p or p' jumps, the step that ends there needs
+        # the limits from the left. Loads are written piecewise (``t < t1``
+        # ...); evaluating them one rounding unit before the breakpoint picks
+        # the left branch, and the value differs from the left limit by
+        # O(ulp(t)·p').
+        return np.nextafter(t, -np.inf) if t == self.left_limit_at else t
+
     def load(self, t):
+        t = self._one_sided(t)
         p = self._vector(self.system.load(t), "load", _at_t, t)
         if self.extra_load is not None:
             p = p + self._vector(self.extra_load(t), "extra_load", _at_t, t)
@@ -217,6 +229,7 @@ class Evaluator:
         return self.system.load_rate is not None and self.extra_load is None
 
     def load_rate(self, t):
+        t = self._one_sided(t)
         return self._vector(self.system.load_rate(t), "load_rate", _at_t, t)
 
     def potential_energy(self, u):

@@ -17,13 +17,15 @@ import enum
 import inspect
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import checks
-from .controller import FixedStep, IterationCountController
-from .corrector import predict, solve_step
+from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
+                         IterationCount)
+from .corrector import local_error, predict, solve_step
+from .dense import Solution, hermite_quintic
 from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
 from .schemes import HFDI, Scheme, get_scheme
 from .system import SecondOrderSystem
@@ -59,7 +61,8 @@ class Statistics:
     steps : int
         Predictor–corrector steps, diverged attempts included.
     accepted, rejected : int
-        Accepted steps and diverged attempts (``steps = accepted + rejected``).
+        Accepted steps and rejected attempts, diverged or failing the error
+        test (``steps = accepted + rejected``).
     newton_iterations : int
         ``N_tot``: Newton corrections of all steps, diverged ones included
         (both sub-steps for Bathe).
@@ -68,6 +71,9 @@ class Statistics:
     first_step_trial_iterations : int
         Newton corrections of the discarded first-step trials; they are not in
         ``steps`` or ``newton_iterations``.
+    error_test_failures : int
+        Attempts whose corrector converged but whose local error estimate
+        failed the tolerance (part of ``rejected``).
     nfev, njev, ntev, npev, nlu : int
         Evaluations of f, K, T and V, and linear factorisations.
     cpu_time : float
@@ -78,6 +84,7 @@ class Statistics:
     accepted: int = 0
     rejected: int = 0
     newton_iterations: int = 0
+    error_test_failures: int = 0
     first_step_trials: int = 0
     first_step_trial_iterations: int = 0
     nfev: int = 0
@@ -98,15 +105,6 @@ class Statistics:
     def mean_step(self) -> float:
         """``Δt_mv``: time covered divided by ``steps``."""
         return (self.t_reached - self.t_start) / self.steps if self.steps else float("nan")
-
-    def __getitem__(self, key):
-        return getattr(self, key)
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["mean_iterations"] = self.mean_iterations
-        d["mean_step"] = self.mean_step
-        return d
 
 
 @dataclass
@@ -129,6 +127,10 @@ class IntegratorState:
     last_step: float
     last_iterations: int
     last_energy_increment: float
+    grid_origin: float
+    grid_steps: int
+    controller: str
+    n_dof: int
 
 
 def _optional_positive(name, value):
@@ -156,25 +158,49 @@ def _initial_vector(name, value, n, source):
 class Integrator:
     """Adaptive predictor–corrector integration of ``M u'' + C u' + f(u) = p(t)``.
 
-    Exactly one of ``target_iterations`` (adaptive) and ``step`` (fixed step)
-    must be given.
+    Four modes, chosen by the arguments (docs/accuracy.md says when to use
+    which):
+
+    - **error control** — ``rtol`` (and ``atol``) given, or none of ``rtol``,
+      ``target_iterations``, ``step`` and ``controller`` (then
+      ``rtol = DEFAULT_RTOL = 1e-4``): the local error estimate of every step
+      is kept below the tolerance;
+    - **iteration count** — ``target_iterations`` alone: the paper's rule
+      (Eq. 39). It controls the Newton work per step, **not the error**;
+    - **combined** — ``target_iterations`` and ``rtol``: an attempt must pass
+      both, and the smaller proposed step wins;
+    - **fixed step** — ``step``.
+
+    A :class:`~hfdi.controller.Controller` object given as ``controller``
+    replaces all four.
 
     Parameters
     ----------
     system : SecondOrderSystem
     scheme : {"newmark", "bathe", "hfdi"} or Scheme
+    rtol : float or array_like (N,), optional
+        Relative tolerance of the local error of ``u``, in ``[1e-13, 0.1)``.
+    atol : float or array_like (N,), optional
+        Absolute tolerance, ``> 0``. Default ``1e-3 · rtol · u_scale`` (the
+        model's length ``u_scale``).
     target_iterations : float, optional
-        Target Newton iteration count ``N̄`` per (sub-)step (Eq. 39). For Bathe
-        the step's target is ``2 N̄``, as the paper's "2·N̄". The corrector of
-        each (sub-)step diverges after ``N_max = 2 N̄`` corrections.
+        Target Newton iteration count ``N̄`` per (sub-)step (Eq. 39), in
+        ``[1, 100]``. For Bathe the step's target is ``2 N̄``, as the paper's
+        "2·N̄". The corrector of each (sub-)step diverges after
+        ``N_max = 2 N̄`` corrections.
     step : float, optional
-        Fixed step size.
+        Fixed step size. Steps land on ``t0 + k·step``: ``(t_end − t0)/n``
+        takes exactly ``n`` steps.
+    controller : Controller, optional
+        A step-size controller object (see :mod:`hfdi.controller`).
     t0 : float
         Initial time.
     u0, v0 : array_like (N,), optional
         Initial displacement and velocity; the model's defaults when omitted.
-    tol : float
-        Newton tolerance ``η`` of Eq. 38, in (0, 1).
+    tol : float, optional
+        Newton tolerance ``η`` of Eq. 38, in (0, 1). Default ``1e-8``, and at
+        most ``rtol/100`` (not below ``1e-12``) under error control so that
+        the corrector's error stays below the one controlled.
     first_step : float, optional
         First trial step. Default: ``1/ω`` with ``ω`` a Gershgorin bound of the
         highest frequency of ``(K(u0), M)``, capped by ``max_step``.
@@ -182,16 +208,19 @@ class Integrator:
         Guards on the step size. Defaults: ``1e-12·max(1, |t_bound|)`` and
         ``t_bound − t0`` (or no limit without ``t_bound``).
     max_halvings : int
-        Consecutive halvings allowed after diverged attempts.
+        Consecutive rejected attempts allowed for one step.
     max_steps : int
         Maximum number of steps (attempts included).
     max_iterations : int, optional
         Corrections allowed per (sub-)step: ``N_max``. Default ``2 N̄``
-        rounded down (adaptive) or 50 (fixed step).
+        rounded down (iteration count), 10 (error control) or 50 (fixed
+        step).
     first_step_trials : int
         Attempts allowed to choose the first step size.
     t_bound : float, optional
-        The end of the run when known; sets default step limits.
+        The end of the run when known; sets default step limits. Once it is
+        reached the integrator is finished: :attr:`status` is ``SUCCESS``
+        and :meth:`step` takes no more steps.
     energy_limit : float, optional
         Stop with ``Status.ENERGY_GROWTH`` when the spurious energy
         ``Σ ΔE`` (Eq. 40) exceeds ``energy_limit`` times the energy scale of
@@ -199,6 +228,11 @@ class Integrator:
         energy and external work). ``None`` disables the check.
     extra_load : callable ``t -> (N,)``, optional
         Added to the model's load.
+    breakpoints : array_like, optional
+        Times where the load or its rate jumps, besides the model's own
+        ``load_breakpoints()``. Under error control steps land on them and
+        the predictor restarts there; the iteration-count and fixed-step
+        modes keep their steps (the paper's tables are made so).
 
     Raises
     ------
@@ -214,18 +248,15 @@ class Integrator:
         as failed steps.
     """
 
-    def __init__(self, system: SecondOrderSystem, scheme="hfdi", *, target_iterations=None,
-                 step=None, t0=0.0, u0=None, v0=None, tol=1e-8, first_step=None,
-                 min_step=None, max_step=None, max_halvings=30, max_steps=1_000_000,
-                 max_iterations=None, first_step_trials=40, t_bound=None, energy_limit=None,
-                 extra_load=None):
+    def __init__(self, system: SecondOrderSystem, scheme="hfdi", *, rtol=None, atol=None,
+                 target_iterations=None, step=None, controller=None, t0=0.0, u0=None, v0=None,
+                 tol=None, first_step=None, min_step=None, max_step=None, max_halvings=30,
+                 max_steps=1_000_000, max_iterations=None, first_step_trials=40, t_bound=None,
+                 energy_limit=None, extra_load=None, breakpoints=None):
         self.scheme: Scheme = get_scheme(scheme)
         checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
         self.ev = ev = Evaluator(system, extra_load)
         self.system = system
-        if (target_iterations is None) == (step is None):
-            raise ValueError("give exactly one of target_iterations (adaptive) and step (fixed), "
-                             f"got target_iterations={target_iterations!r}, step={step!r}")
         if isinstance(self.scheme, HFDI) and self.scheme.load_rate == "exact" \
                 and not ev.has_load_rate:
             why = "extra_load is given" if system.load_rate is not None else \
@@ -233,58 +264,27 @@ class Integrator:
             raise ValueError(f"scheme HFDI(load_rate='exact') needs the exact load rate, but "
                              f"{why}; use HFDI(load_rate='auto') or "
                              f"HFDI(load_rate='difference')")
-        try:
-            tol = checks.real("tol", tol, low=0.0, high=1.0)
-        except ValueError:
-            raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
-        self.tol = tol
         self.t0 = checks.real("t0", t0)
         self.t_bound = None if t_bound is None else checks.real("t_bound", t_bound)
         if self.t_bound is not None and not self.t_bound > self.t0:
             raise ValueError(f"t_bound must be > t0 = {self.t0}, got {t_bound!r}")
         span = None if self.t_bound is None else self.t_bound - self.t0
-        self.max_step = _optional_positive("max_step", max_step) \
-            or (span if span is not None else math.inf)
-        self.min_step = _optional_positive("min_step", min_step) \
-            or 1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0))
-        if self.min_step >= self.max_step:
-            default = " (the default; give min_step for so short a run)" if min_step is None \
-                else ""
-            raise ValueError(f"min_step must be < max_step = {self.max_step}, got "
-                             f"{self.min_step}{default}")
-        self.max_halvings = checks.integer("max_halvings", max_halvings, 0)
         self.max_steps = checks.integer("max_steps", max_steps, 1)
-        self.first_step_trials = checks.integer("first_step_trials", first_step_trials, 1)
         self.energy_limit = _optional_positive("energy_limit", energy_limit)
-
-        self.adaptive = target_iterations is not None
-        if self.adaptive:
-            try:
-                # above 100 the corrector's N_max = 2 N̄ no longer bounds the work of
-                # a diverging attempt in any useful way
-                target = checks.real("target_iterations", target_iterations, low=1.0,
-                                     low_closed=True, high=100.0, high_closed=True)
-            except ValueError:
-                raise ValueError(f"target_iterations must be a finite number in [1, 100] "
-                                 f"(Newton corrections per step), got "
-                                 f"{target_iterations!r}") from None
-            self.controller = IterationCountController(target * self.scheme.n_stages,
-                                                       self.min_step, self.max_step)
-            default_max = max(1, int(math.floor(2.0 * target)))
-            self.sliver = 0.01
-        else:
-            h = checks.positive("step", step)
-            if span is not None and span / h > self.max_steps * (1.0 + 1e-9):
-                raise ValueError(f"step = {step!r} needs {math.ceil(span / h)} steps from t0 = "
-                                 f"{self.t0:g} to t_bound = {self.t_bound:g}, more than "
-                                 f"max_steps = {self.max_steps}; allowed: step >= "
-                                 f"{span / self.max_steps:.6g}")
-            self.controller = FixedStep(h)
-            default_max = 50
-            self.sliver = 1e-9
-        self.max_iterations = default_max if max_iterations is None else \
+        self.controller = self._controller(
+            controller, rtol, atol, target_iterations, step, span, min_step, max_step,
+            max_halvings, first_step_trials, float(getattr(system, "u_scale", 1.0) or 1.0))
+        c = self.controller
+        if hasattr(c, "check_size"):
+            c.check_size(ev.n)
+        self.min_step, self.max_step = c.min_step, c.max_step
+        self.fixed = isinstance(c, FixedStep)
+        self.max_iterations = c.max_iterations if max_iterations is None else \
             checks.integer("max_iterations", max_iterations, 1)
+        self.tol = self._newton_tolerance(tol)
         self.floor = float(getattr(system, "u_scale", 1.0) or 1.0)
+        self.breakpoints = self._breakpoints(breakpoints) if c.uses_error_estimate else \
+            np.empty(0)
 
         n = ev.n
         initial = []
@@ -301,20 +301,96 @@ class Integrator:
 
         start = time.process_time()
         current, K0, potential = self._initial_state(u0, v0)
-        if self.adaptive:
-            h0 = first_step or self._default_first_step(K0)
-            proposed = min(h0, self.max_step)
+        if self.fixed:
+            proposed = c.step
         else:
-            proposed = self.controller.step
+            proposed = min(first_step or self._default_first_step(K0), self.max_step)
         stats = Statistics(t_start=self.t0, t_reached=self.t0)
         self._s = IntegratorState(
             current=current, previous=None, proposed_step=proposed,
-            first_step_pending=self.adaptive, status=int(Status.RUNNING), message="",
+            first_step_pending=not self.fixed, status=int(Status.RUNNING), message="",
             statistics=stats, potential=potential, initial_potential=potential, work=0.0,
             energy_error=0.0,
             energy_scale=ev.kinetic_energy(current.v), last_step=math.nan,
-            last_iterations=0, last_energy_increment=0.0)
+            last_iterations=0, last_energy_increment=0.0, grid_origin=self.t0, grid_steps=0,
+            controller=repr(c), n_dof=n)
         self._cpu(start)
+
+    # -- construction --------------------------------------------------------
+    def _controller(self, controller, rtol, atol, target, step, span, min_step, max_step,
+                    max_halvings, first_step_trials, u_scale) -> Controller:
+        """The controller of the mode the arguments ask for."""
+        given = {name: value for name, value in (("rtol", rtol), ("atol", atol),
+                                                 ("target_iterations", target),
+                                                 ("step", step)) if value is not None}
+        if controller is not None:
+            if given:
+                raise ValueError(f"controller replaces rtol, atol, target_iterations and step; "
+                                 f"got controller and {', '.join(given)}")
+            if not isinstance(controller, Controller):
+                raise TypeError(f"controller must be a hfdi.controller.Controller, got "
+                                f"{type(controller).__name__}")
+            return controller
+        if step is not None and len(given) > 1:
+            others = ", ".join(f"{name}={value!r}" for name, value in given.items()
+                               if name != "step")
+            raise ValueError(f"step (the fixed-step mode) excludes rtol, atol and "
+                             f"target_iterations, got step={step!r} and {others}")
+        if atol is not None and rtol is None and target is not None:
+            raise ValueError("atol needs error control: give rtol too (with target_iterations "
+                             "for the combined mode)")
+        max_step = _optional_positive("max_step", max_step) \
+            or (span if span is not None else math.inf)
+        default_min = min_step is None
+        min_step = _optional_positive("min_step", min_step) \
+            or 1e-12 * max(1.0, abs(self.t_bound if self.t_bound is not None else self.t0))
+        if min_step >= max_step:
+            hint = " (the default; give min_step for so short a run)" if default_min else ""
+            raise ValueError(f"min_step must be < max_step = {max_step}, got {min_step}{hint}")
+        limits = dict(min_step=min_step, max_step=max_step, max_rejections=max_halvings,
+                      first_step_trials=first_step_trials)
+        if step is not None:
+            h = checks.positive("step", step)
+            if span is not None and span / h > self.max_steps * (1.0 + 1e-9):
+                raise ValueError(f"step = {step!r} needs {math.ceil(span / h)} steps from t0 = "
+                                 f"{self.t0:g} to t_bound = {self.t_bound:g}, more than "
+                                 f"max_steps = {self.max_steps}; allowed: step >= "
+                                 f"{span / self.max_steps:.6g}")
+            return FixedStep(h, **limits)
+        iteration = None if target is None else \
+            IterationCount(target, self.scheme.n_stages, **limits)
+        if iteration is not None and rtol is None:
+            return iteration
+        rtol = DEFAULT_RTOL if rtol is None else rtol
+        if atol is None:
+            atol = 1e-3 * np.min(rtol) * u_scale
+        error = ErrorControl(rtol, atol, order=self.scheme.order, **limits)
+        return error if iteration is None else Combined(iteration, error)
+
+    def _newton_tolerance(self, tol):
+        if tol is None:
+            tol = 1e-8
+            if self.controller.uses_error_estimate:
+                rtol = getattr(self.controller, "error", self.controller).rtol
+                tol = min(tol, max(1e-12, 0.01 * float(np.min(rtol))))
+        try:
+            return checks.real("tol", tol, low=0.0, high=1.0)
+        except ValueError:
+            raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
+
+    def _breakpoints(self, extra):
+        """The sorted load breakpoints of the model and of ``extra``."""
+        own = self.system.load_breakpoints() if hasattr(self.system, "load_breakpoints") \
+            else ()
+        try:
+            times = np.concatenate([np.asarray(own, dtype=float).ravel(),
+                                    np.asarray(() if extra is None else extra,
+                                               dtype=float).ravel()])
+        except (TypeError, ValueError):
+            raise ValueError(f"breakpoints must be an array of times, got {extra!r}") from None
+        if not np.all(np.isfinite(times)):
+            raise ValueError(f"breakpoints must be finite, got {times!r}")
+        return np.unique(times)
 
     # -- public state --------------------------------------------------------
     @property
@@ -339,12 +415,17 @@ class Integrator:
         return self._s.status < 0
 
     @property
+    def finished(self) -> bool:
+        """Whether ``t_bound`` has been reached."""
+        return self.t_bound is not None and self.t >= self.t_bound
+
+    @property
     def statistics(self) -> Statistics:
         return self._s.statistics
 
     @property
     def proposed_step(self) -> float:
-        """The step size the controller proposes for the next step."""
+        """The size the controller proposes for the next step."""
         return self._s.proposed_step
 
     @property
@@ -353,7 +434,7 @@ class Integrator:
 
     @property
     def last_iterations(self) -> int:
-        """Newton corrections of the last accepted step (both sub-steps for Bathe)."""
+        """Newton corrections of the last accepted step."""
         return self._s.last_iterations
 
     @property
@@ -363,7 +444,7 @@ class Integrator:
 
     @property
     def total_energy(self) -> float:
-        """``W = V + T`` at the current state (Section 4)."""
+        """``W = V + T`` at the current state (Eq. 40)."""
         return self._s.potential + self.ev.kinetic_energy(self._s.current.v)
 
     @property
@@ -378,7 +459,7 @@ class Integrator:
 
     @property
     def energy_error(self) -> float:
-        """``Σ ΔE`` over the accepted steps."""
+        """``Σ ΔE`` since the start: the spurious energy of the run."""
         return self._s.energy_error
 
     def get_state(self) -> IntegratorState:
@@ -388,13 +469,54 @@ class Integrator:
 
     def set_state(self, saved: IntegratorState) -> None:
         """Restore a state from :meth:`get_state`; the run then continues
-        exactly as it did from that point."""
+        exactly as it did from that point.
+
+        Raises
+        ------
+        TypeError
+            If ``saved`` is not an :class:`IntegratorState`.
+        ValueError
+            If it belongs to a model of another size or to an integrator of
+            another mode (controller), or holds non-finite values; the
+            integrator is then left as it was.
+        """
         if not isinstance(saved, IntegratorState):
             raise TypeError(f"state must be an IntegratorState, got {type(saved).__name__}")
+        self._check_state(saved)
         self._s = copy.deepcopy(saved)
         st = self._s.statistics
         ev = self.ev
         ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu = st.nfev, st.njev, st.ntev, st.npev, st.nlu
+
+    def _check_state(self, saved: IntegratorState):
+        n = self.ev.n
+        if saved.n_dof != n:
+            raise ValueError(f"state has {saved.n_dof} degrees of freedom, this integrator's "
+                             f"model has {n}")
+        if saved.controller != repr(self.controller):
+            raise ValueError(f"state was saved by an integrator with controller "
+                             f"{saved.controller}; this one has {self.controller!r}")
+        for label, st in (("current", saved.current), ("previous", saved.previous)):
+            if st is None and label == "previous":
+                continue
+            if not isinstance(st, State):
+                raise ValueError(f"state.{label} must be a State, got {type(st).__name__}")
+            for name in ("u", "v", "a", "f", "p"):
+                value = getattr(st, name)
+                if value is None and name == "f":       # not kept by every scheme
+                    continue
+                if not (isinstance(value, np.ndarray) and value.shape == (n,)
+                        and value.dtype == np.float64 and np.isfinite(value).all()):
+                    raise ValueError(f"state.{label}.{name} must be a finite float array of "
+                                     f"shape ({n},), got {brief(value)}")
+            if not math.isfinite(st.t):
+                raise ValueError(f"state.{label}.t must be finite, got {st.t!r}")
+        if self.t_bound is not None and saved.current.t > self.t_bound:
+            raise ValueError(f"state.current.t = {saved.current.t!r} is beyond t_bound = "
+                             f"{self.t_bound!r}")
+        if not (math.isfinite(saved.proposed_step) and saved.proposed_step > 0):
+            raise ValueError(f"state.proposed_step must be finite and > 0, got "
+                             f"{saved.proposed_step!r}")
 
     def load_changed(self) -> None:
         """Tell the integrator that the load jumps at the current time.
@@ -406,12 +528,15 @@ class Integrator:
         co-simulation input changed at a communication point), both are
         recomputed from the load now, the acceleration being the right limit.
         """
+        self._refresh_load()
+        self._sync_counters()
+
+    def _refresh_load(self):
         current = self._s.current
         p = self.ev.load(current.t)
         f = current.f if current.f is not None else self.ev.force(current.u)
         a = self.ev.acceleration(current.t, current.u, current.v, f, p)
         self._s.current = State(current.t, current.u, current.v, a, f, p)
-        self._sync_counters()
 
     # -- stepping ------------------------------------------------------------
     def _initial_state(self, u0, v0):
@@ -484,27 +609,63 @@ class Integrator:
         self._s.message = f"t = {self.t:.10g}: {message}"
         return False
 
-    def _clip(self, h: float, t_limit: float):
-        """The end time of a step of proposed size ``h`` that must not pass ``t_limit``.
+    def _limit(self, t_limit: float) -> float:
+        """``t_limit``, or the next load breakpoint before it."""
+        bp = self.breakpoints
+        if bp.size:
+            i = np.searchsorted(bp, self.t, side="right")
+            if i < bp.size and bp[i] < t_limit:
+                return float(bp[i])
+        return t_limit
 
-        Lands exactly on ``t_limit`` when within reach, or when stopping
-        short would leave a sliver smaller than ``sliver·h``."""
+    def _clip(self, h: float, t_limit: float):
+        """The end time of a step of proposed size ``h`` that must not pass
+        ``t_limit``, and whether it lands there (the controller's landing
+        rule; the fixed step's grid)."""
         t = self.t
         remaining = t_limit - t
-        if h >= remaining or remaining - h <= self.sliver * h:
+        if self.fixed:
+            s = self._s
+            t_next = s.grid_origin + (s.grid_steps + 1) * h
+            # within a millionth of the step the grid point is t_limit itself
+            if t_next >= t_limit - 1e-6 * h:
+                return t_limit, True
+            return t_next, False
+        take = self.controller.landing(h, remaining)
+        if take >= remaining:
             return t_limit, True
-        return t + h, False
+        return t + take, take != h
 
-    def _attempt(self, t_end: float):
+    def _try(self, proposed: float, t_limit: float):
+        """One attempt of proposed size ``proposed`` towards ``t_limit``, as an
+        :class:`~hfdi.controller.Attempt` (``None`` below the resolution of time)."""
         s = self._s
         current, previous = s.current, s.previous
-        return solve_step(self.ev, self.scheme, current, t_end,
-                          lambda offset: predict(current, previous, offset),
-                          self.tol, self.floor, self.max_iterations)
+        t_end, clipped = self._clip(proposed, t_limit)
+        h = t_end - current.t
+        if not h > 0.0:
+            return None
+        ev = self.ev
+        ev.left_limit_at = t_end if (self.breakpoints.size and t_end == t_limit
+                                     and t_end in self.breakpoints) else None
+        try:
+            outcome = solve_step(ev, self.scheme, current, t_end,
+                                 lambda offset: predict(current, previous, offset),
+                                 self.tol, self.floor, self.max_iterations)
+        finally:
+            ev.left_limit_at = None
+        attempt = Attempt(h, proposed, clipped, outcome.converged, outcome.total_iterations,
+                          outcome.message, history=previous is not None)
+        attempt.outcome = outcome
+        if outcome.converged and self.controller.uses_error_estimate:
+            attempt.u_start, attempt.u_end = current.u, outcome.state.u
+            attempt.error = local_error(current, previous, outcome.state.u, h)
+        return attempt
 
-    def _accept(self, outcome, h):
+    def _accept(self, attempt) -> bool:
         s = self._s
         ev = self.ev
+        outcome, h = attempt.outcome, attempt.h
         old, new = s.current, outcome.state
         try:
             potential = ev.potential_energy(new.u)
@@ -522,6 +683,18 @@ class Integrator:
             work += 0.5 * float((b.u - a.u) @ (a.p + b.p))
         increment = potential - s.potential + kinetic_new - kinetic_old - work  # Eq. 40
         s.previous, s.current = old, new
+        if self.fixed:
+            if attempt.clipped and new.t != s.grid_origin + (s.grid_steps + 1) * h \
+                    and abs(new.t - (s.grid_origin + (s.grid_steps + 1) * attempt.proposed)) \
+                    > 1e-6 * attempt.proposed:
+                s.grid_origin, s.grid_steps = new.t, 0   # shortened off the grid
+            else:
+                s.grid_steps += 1
+        if self.breakpoints.size and new.t in self.breakpoints:
+            # a kink or jump of the load: the history behind it would spoil the
+            # predictor, and the next step starts from the load's right limit
+            s.previous = None
+            self._refresh_load()
         s.work += work
         s.energy_error += increment
         s.energy_scale = max(s.energy_scale, kinetic_new + abs(potential - s.initial_potential)
@@ -538,16 +711,21 @@ class Integrator:
             return self._fail(Status.ENERGY_GROWTH,
                               f"energy balance broke down: spurious energy {s.energy_error:.4g} "
                               f"exceeds {self.energy_limit:g} x energy scale {s.energy_scale:.4g}")
+        if self.finished:
+            s.status = int(Status.SUCCESS)
+            s.message = f"reached t_bound = {self.t_bound!r}"
         return True
 
     def step(self, t_limit: float = math.inf) -> bool:
         """Take one accepted step, not beyond ``t_limit``.
 
-        Diverged attempts are retried with the step halved (Section 4).
-        Returns ``False`` when a guard stopped the run; :attr:`status` and
-        :attr:`message` then say why, and :attr:`state` is the last good state.
+        Rejected attempts are retried as the controller says (halved after a
+        diverged corrector). Returns ``False`` when no step was taken: a guard
+        stopped the run (:attr:`status` and :attr:`message` say why, and
+        :attr:`state` is the last good state), or the integrator is
+        :attr:`finished` (status ``SUCCESS``).
         """
-        if self.failed:
+        if self.failed or self.finished:
             return False
         if not t_limit > self.t:
             raise ValueError(f"t_limit must be > t = {self.t}, got {t_limit!r}")
@@ -556,7 +734,7 @@ class Integrator:
         start = time.process_time()
         try:
             if self._s.first_step_pending:
-                return self._first_step(t_limit)
+                return self._first_step(self._limit(t_limit))
             return self._regular_step(t_limit)
         except ModelError as exc:
             # a wrong shape mid-run: retrying cannot help, and raising would
@@ -570,102 +748,58 @@ class Integrator:
     def _regular_step(self, t_limit):
         s = self._s
         st = s.statistics
-        halvings = 0
+        limit = self._limit(t_limit)
+        rejections = 0
         while True:
             if st.steps >= self.max_steps:
                 before = f" before t = {t_limit:.10g}" if math.isfinite(t_limit) else ""
                 return self._fail(Status.MAX_STEPS,
-                                  f"max_steps = {self.max_steps} reached (attempts, diverged "
+                                  f"max_steps = {self.max_steps} reached (attempts, rejected "
                                   f"ones included){before}")
-            proposed = s.proposed_step
-            t_end, clipped = self._clip(proposed, t_limit)
-            h = t_end - self.t
-            if not h > 0.0:
-                # the halvings went below the spacing of floating-point times at t
+            attempt = self._try(s.proposed_step, limit)
+            if attempt is None:
+                # the step went below the spacing of floating-point times at t
                 return self._fail(Status.STEP_BELOW_MINIMUM,
-                                  f"step {proposed:.6g} is below the resolution of time at t")
-            outcome = self._attempt(t_end)
+                                  f"step {s.proposed_step:.6g} is below the resolution of "
+                                  f"time at t")
             st.steps += 1
-            st.newton_iterations += outcome.total_iterations
-            if outcome.converged:
-                s.proposed_step = self.controller.next_step(h, proposed, clipped,
-                                                            outcome.total_iterations)
-                return self._accept(outcome, h)
+            st.newton_iterations += attempt.iterations
+            decision = self.controller.adapt(attempt, rejections)
+            if decision.accept:
+                s.proposed_step = decision.next_step
+                return self._accept(attempt)
             st.rejected += 1
-            attempt = f"h = {h:.6g}, to t = {t_end:.10g}"
-            if not self.adaptive:
-                return self._fail(Status.NEWTON_FAILED,
-                                  f"corrector failed with fixed step {h:.6g} (to t = "
-                                  f"{t_end:.10g}): {outcome.message}")
-            halvings += 1
-            if halvings > self.max_halvings:
-                return self._fail(Status.HALVINGS_EXHAUSTED,
-                                  f"step diverged after {self.max_halvings} halvings (last "
-                                  f"attempt {attempt}): {outcome.message}")
-            if 0.5 * h < self.min_step:
-                return self._fail(Status.STEP_BELOW_MINIMUM,
-                                  f"step {0.5 * h:.6g} below min_step = {self.min_step:.6g} "
-                                  f"after the attempt with {attempt} failed: {outcome.message}")
-            s.proposed_step = 0.5 * h
+            if attempt.converged:
+                st.error_test_failures += 1
+            if decision.status is not None:
+                return self._fail(Status[decision.status],
+                                  f"{decision.message} (to t = {self.t + attempt.h:.10g})")
+            s.proposed_step = decision.next_step
+            rejections += 1
 
     def _first_step(self, t_limit):
-        """Choose ``Δt₀`` so that the first step converges in ``N̄`` iterations
-        (Section 5): bracket ``h`` between a size that needs too few corrections
-        and one that needs too many (or diverges), doubling or halving until
-        bracketed and bisecting geometrically after."""
+        """The first step, chosen by the controller's ``init``. Its trials
+        other than the accepted one are counted apart from the steps."""
         s = self._s
         st = s.statistics
-        target = self.controller.target
-        h = s.proposed_step
-        low = high = None
-        best = None            # (distance to target, outcome, h, proposed, clipped)
-        message = ""
-        smallest = math.inf
-        for _ in range(self.first_step_trials):
-            t_end, clipped = self._clip(h, t_limit)
-            h_try = t_end - self.t
-            if not h_try > 0.0:        # below the resolution of time at t
-                break
-            smallest = min(smallest, h_try)
-            outcome = self._attempt(t_end)
-            st.first_step_trials += 1
-            st.first_step_trial_iterations += outcome.total_iterations
-            if outcome.converged:
-                n = outcome.total_iterations
-                if best is None or abs(n - target) < best[0]:
-                    best = (abs(n - target), outcome, h_try, h, clipped)
-                if abs(n - target) <= 0.5 or (n < target and (clipped or h_try >= self.max_step)):
-                    break
-                if n < target:
-                    low = h_try
-                else:
-                    high = h_try
-            else:
-                message = outcome.message
-                high = h_try
-            if low is not None and high is not None:
-                if high / low < 1.0 + 1e-3:
-                    break
-                h = math.sqrt(low * high)
-            elif low is not None:
-                h = min(2.0 * low, self.max_step)
-            else:
-                h = 0.5 * high
-            if h < self.min_step:
-                break
-        if best is None:
-            return self._fail(Status.FIRST_STEP_FAILED,
-                              f"no first step converged in {st.first_step_trials} trials "
-                              f"down to h = {smallest:.6g}: {message}")
-        _, outcome, h_try, proposed, clipped = best
+
+        def trial(h):
+            attempt = self._try(h, t_limit)
+            if attempt is not None:
+                st.first_step_trials += 1
+                st.first_step_trial_iterations += attempt.iterations
+            return attempt
+
+        attempt, decision = self.controller.init(trial, s.proposed_step)
+        if attempt is None:
+            return self._fail(Status[decision.status or "FIRST_STEP_FAILED"], decision.message)
         # The accepted trial is the run's first step; the others are reported apart.
-        st.first_step_trial_iterations -= outcome.total_iterations
+        st.first_step_trial_iterations -= attempt.iterations
         st.steps += 1
-        st.newton_iterations += outcome.total_iterations
+        st.newton_iterations += attempt.iterations
         s.first_step_pending = False
-        s.proposed_step = self.controller.next_step(h_try, proposed, clipped,
-                                                    outcome.total_iterations)
-        return self._accept(outcome, h_try)
+        s.proposed_step = decision.next_step
+        return self._accept(attempt)
 
     def advance(self, t_stop: float, callback=None) -> bool:
         """Integrate to ``t_stop`` and land on it exactly.
@@ -708,8 +842,8 @@ class Result:
     Attributes
     ----------
     t : ndarray (n,)
-        Times of the initial state and of every accepted step (the ``t_eval``
-        points among them).
+        Times of the initial state and of every accepted step (with
+        ``save_steps=False``: of the initial and the last state only).
     u, v, a : ndarray (n, N)
         Displacement, velocity and acceleration at ``t``.
     step_size : ndarray (n,)
@@ -727,8 +861,11 @@ class Result:
     success : bool
     stats : Statistics
     scheme : str
-    t_eval_index : ndarray of int or None
-        Index into ``t`` of each requested ``t_eval`` point.
+    t_eval : ndarray (m,) or None
+        The requested output times.
+    u_eval, v_eval : ndarray (m, N) or None
+        ``u`` and ``v`` there, by the dense output (NaN past the end of a
+        failed run).
     system : SecondOrderSystem
         The model integrated.
     """
@@ -746,12 +883,24 @@ class Result:
     message: str
     stats: Statistics
     scheme: str
-    t_eval_index: np.ndarray | None = None
+    t_eval: np.ndarray | None = None
+    u_eval: np.ndarray | None = None
+    v_eval: np.ndarray | None = None
     system: SecondOrderSystem | None = field(default=None, repr=False)
+    steps_saved: bool = True
 
     @property
     def success(self) -> bool:
         return self.status == Status.SUCCESS
+
+    @property
+    def sol(self) -> Solution:
+        """Dense output over the run: ``sol(t)`` gives ``(u, v)`` at any ``t``
+        in ``[t[0], t[-1]]`` by the quintic Hermite interpolant on the step
+        ends (:class:`~hfdi.dense.Solution`)."""
+        if not self.steps_saved:
+            raise ValueError("sol needs the steps: this run was made with save_steps=False")
+        return Solution(self.t, self.u, self.v, self.a)
 
     def quantities(self, system: SecondOrderSystem | None = None) -> dict:
         """The quantities of interest of ``system`` (default: the model
@@ -765,33 +914,112 @@ class Result:
                 f"t_final={self.t[-1]:.6g})")
 
 
-def integrate(system: SecondOrderSystem, scheme, t_end, *, target_iterations=None, step=None,
-              u0=None, v0=None, t0=0.0, t_eval=None, tol=1e-8, **options) -> Result:
+class _Rows:
+    """Per-step records in arrays that grow by doubling: a step costs a copy of
+    its numbers, not a Python object per array."""
+
+    def __init__(self, n: int):
+        self.size = 0
+        self.n = n
+        self._alloc(64)
+
+    def _alloc(self, capacity):
+        old = getattr(self, "data", None)
+        self.data = {"t": np.empty(capacity), "u": np.empty((capacity, self.n)),
+                     "v": np.empty((capacity, self.n)), "a": np.empty((capacity, self.n)),
+                     "step_size": np.empty(capacity), "iterations": np.empty(capacity, int),
+                     "energy_increment": np.empty(capacity), "total_energy": np.empty(capacity),
+                     "external_work": np.empty(capacity)}
+        if old is not None:
+            for key, arr in old.items():
+                self.data[key][:self.size] = arr[:self.size]
+
+    def append(self, state: State, h, iterations, increment, energy, work):
+        if self.size == self.data["t"].shape[0]:
+            self._alloc(2 * self.size)
+        i = self.size
+        d = self.data
+        d["t"][i] = state.t
+        d["u"][i] = state.u
+        d["v"][i] = state.v
+        d["a"][i] = state.a
+        d["step_size"][i] = h
+        d["iterations"][i] = iterations
+        d["energy_increment"][i] = increment
+        d["total_energy"][i] = energy
+        d["external_work"][i] = work
+        self.size += 1
+
+    def arrays(self) -> dict:
+        return {key: arr[:self.size].copy() for key, arr in self.data.items()}
+
+
+def _times(name, value, t0, t_end):
+    """``value`` as a finite, strictly increasing float array inside ``[t0, t_end]``."""
+    try:
+        times = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of times in [t0, t_end], "
+                         f"got {value!r}") from None
+    if not np.all(np.isfinite(times)):
+        i = int(np.flatnonzero(~np.isfinite(times))[0])
+        raise ValueError(f"{name} must be finite, got {name}[{i}] = {float(times[i])!r}")
+    if np.any(np.diff(times) <= 0):
+        i = int(np.flatnonzero(np.diff(times) <= 0)[0])
+        raise ValueError(f"{name} must be strictly increasing, got {name}[{i}] = "
+                         f"{float(times[i])!r} followed by {name}[{i + 1}] = "
+                         f"{float(times[i + 1])!r}")
+    if times.size and (times[0] < t0 or times[-1] > t_end):
+        raise ValueError(f"{name} must lie in [t0, t_end] = [{t0}, {t_end}], "
+                         f"got [{times[0]}, {times[-1]}]")
+    return times
+
+
+#: Wall-clock seconds between two calls of integrate's progress callback.
+PROGRESS_INTERVAL = 0.5
+
+
+def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
+              target_iterations=None, step=None, u0=None, v0=None, t0=0.0, t_eval=None,
+              save_steps=True, progress=None, tol=None, **options) -> Result:
     """Integrate ``M u'' + C u' + f(u) = p(t)`` from ``t0`` to ``t_end``.
 
-    Adaptive when ``target_iterations`` is given (step size from the Newton
-    iteration count, Eq. 39), fixed-step when ``step`` is given.
+    The mode follows the arguments (see :class:`Integrator`): error control
+    with ``rtol``/``atol`` — the default, at ``rtol = 1e-4`` —, the paper's
+    iteration count with ``target_iterations`` alone (it does not control the
+    error), both combined, or a fixed ``step``.
 
     Parameters
     ----------
     system : SecondOrderSystem
     scheme : {"newmark", "bathe", "hfdi"} or Scheme
     t_end : float
+    rtol, atol : float or array_like (N,), optional
+        Tolerances of the local error of ``u``; see :class:`Integrator`.
     target_iterations : float, optional
         ``N̄`` per (sub-)step; see :class:`Integrator`.
     step : float, optional
         Fixed step size.
     u0, v0 : array_like (N,), optional
     t0 : float
-    t_eval : array_like, optional
-        Times in ``(t0, t_end]`` the steps must land on exactly; found in the
-        result through ``t_eval_index``.
-    tol : float
-        Newton tolerance ``η`` (Eq. 38).
+    t_eval : array_like (m,), optional
+        Output times in ``[t0, t_end]``, at most ``max_steps`` of them; ``u``
+        and ``v`` there come from the dense output (``u_eval``,
+        ``v_eval``). They do not change the steps.
+    save_steps : bool
+        Keep every accepted step (``t``, ``u``, ..., and ``sol``). With
+        ``False`` only the initial and last states and the ``t_eval``
+        outputs are kept: memory independent of the number of steps.
+    progress : callable ``progress(t, statistics)``, optional
+        Called every half second of wall-clock time with the time reached and
+        the run's :class:`Statistics`, and once at the end, so that a long or
+        stalled run shows.
+    tol : float, optional
+        Newton tolerance ``η`` (Eq. 38); see :class:`Integrator`.
     **options
         Passed to :class:`Integrator` (``first_step``, ``min_step``,
         ``max_step``, ``max_halvings``, ``max_steps``, ``max_iterations``,
-        ``energy_limit``, ...).
+        ``energy_limit``, ``controller``, ``breakpoints``, ...).
 
     Returns
     -------
@@ -815,67 +1043,69 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, target_iterations=Non
         raise ValueError(f"t_end must be a number > t0 = {t0}, got {t_end!r}") from None
     if not (math.isfinite(t_end) and t_end > t0):
         raise ValueError(f"t_end must be finite and > t0 = {t0}, got {t_end!r}")
-    stops = [t_end]
     if t_eval is not None:
-        try:
-            t_eval = np.asarray(t_eval, dtype=float).ravel()
-        except (TypeError, ValueError):
-            raise ValueError(f"t_eval must be an array of times in [t0, t_end], "
-                             f"got {t_eval!r}") from None
-        if not np.all(np.isfinite(t_eval)):
-            i = int(np.flatnonzero(~np.isfinite(t_eval))[0])
-            raise ValueError(f"t_eval must be finite, got t_eval[{i}] = {float(t_eval[i])!r}")
-        if np.any(np.diff(t_eval) <= 0):
-            i = int(np.flatnonzero(np.diff(t_eval) <= 0)[0])
-            raise ValueError(f"t_eval must be strictly increasing, got t_eval[{i}] = "
-                             f"{float(t_eval[i])!r} followed by t_eval[{i + 1}] = "
-                             f"{float(t_eval[i + 1])!r}")
-        if t_eval.size and (t_eval[0] < t0 or t_eval[-1] > t_end):
-            raise ValueError(f"t_eval must lie in [t0, t_end] = [{t0}, {t_end}], "
-                             f"got [{t_eval[0]}, {t_eval[-1]}]")
-        stops = [t for t in t_eval if t > t0] + ([t_end] if not t_eval.size or
-                                                  t_eval[-1] < t_end else [])
+        t_eval = _times("t_eval", t_eval, t0, t_end)
+        max_steps = options.get("max_steps", inspect.signature(Integrator).parameters[
+            "max_steps"].default)
+        if t_eval.size > max_steps:
+            raise ValueError(f"t_eval has {t_eval.size} points, more than max_steps = "
+                             f"{max_steps}; give fewer output times or raise max_steps")
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress must be callable as progress(t, statistics), got "
+                         f"{progress!r}")
     allowed = [name for name in inspect.signature(Integrator).parameters
-               if name not in ("system", "scheme", "target_iterations", "step", "t0", "u0", "v0",
-                               "tol", "t_bound")]
+               if name not in ("system", "scheme", "rtol", "atol", "target_iterations", "step",
+                               "t0", "u0", "v0", "tol", "t_bound")]
     unknown = sorted(set(options) - set(allowed))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)} of integrate; allowed: "
                          f"{', '.join(allowed)}")
-    integrator = Integrator(system, scheme, target_iterations=target_iterations, step=step,
-                            t0=t0, u0=u0, v0=v0, tol=tol, t_bound=t_end, **options)
+    integrator = Integrator(system, scheme, rtol=rtol, atol=atol,
+                            target_iterations=target_iterations, step=step, t0=t0, u0=u0, v0=v0,
+                            tol=tol, t_bound=t_end, **options)
     s0 = integrator.state
-    rows_t, rows_u, rows_v, rows_a = [s0.t], [s0.u], [s0.v], [s0.a]
-    rows_h, rows_n, rows_de, rows_w, rows_l = [math.nan], [0], [0.0], [integrator.total_energy], [0.0]
+    rows = _Rows(integrator.ev.n)
+    rows.append(s0, math.nan, 0, 0.0, integrator.total_energy, 0.0)
+    last = [s0, math.nan, 0, 0.0, integrator.total_energy, 0.0]
+    if t_eval is not None:
+        u_eval = np.full((t_eval.size, integrator.ev.n), np.nan)
+        v_eval = np.full_like(u_eval, np.nan)
+        at_start = t_eval == t0
+        u_eval[at_start], v_eval[at_start] = s0.u, s0.v
+        pending = [int(np.count_nonzero(at_start))]   # index of the next t_eval point
+    clock = [time.monotonic()]
 
     def record(itg: Integrator):
-        st = itg.state
-        rows_t.append(st.t)
-        rows_u.append(st.u)
-        rows_v.append(st.v)
-        rows_a.append(st.a)
-        rows_h.append(itg.last_step)
-        rows_n.append(itg.last_iterations)
-        rows_de.append(itg.last_energy_increment)
-        rows_w.append(itg.total_energy)
-        rows_l.append(itg.external_work)
+        new = itg.state
+        if t_eval is not None and pending[0] < t_eval.size:
+            stop = int(np.searchsorted(t_eval, new.t, side="right"))
+            if stop > pending[0]:
+                old = last[0]          # where this step started
+                nodes = np.array([old.t, new.t])
+                u, v, _ = hermite_quintic(nodes, np.stack([old.u, new.u]),
+                                          np.stack([old.v, new.v]), np.stack([old.a, new.a]),
+                                          t_eval[pending[0]:stop])
+                u_eval[pending[0]:stop], v_eval[pending[0]:stop] = u, v
+                pending[0] = stop
+        entry = (new, itg.last_step, itg.last_iterations, itg.last_energy_increment,
+                 itg.total_energy, itg.external_work)
+        if save_steps:
+            rows.append(*entry)
+        last[:] = entry
+        if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
+            clock[0] = time.monotonic()
+            progress(new.t, itg.statistics)
 
-    ok = True
-    for t_stop in stops:
-        ok = integrator.advance(t_stop, callback=record)
-        if not ok:
-            break
+    ok = integrator.advance(t_end, callback=record)
+    if progress is not None:
+        progress(integrator.t, integrator.statistics)
+    if not save_steps and rows.size == 1 and integrator.statistics.accepted:
+        rows.append(*last)
     status = integrator.status if not ok else Status.SUCCESS
     message = integrator.message if not ok else "reached t_end"
-    t = np.asarray(rows_t)
-    index = None
-    if t_eval is not None:
-        index = np.searchsorted(t, t_eval)
-        index = np.where((index < t.size) & (t[np.minimum(index, t.size - 1)] == t_eval), index, -1)
-    result = Result(t=t, u=np.asarray(rows_u), v=np.asarray(rows_v), a=np.asarray(rows_a),
-                    step_size=np.asarray(rows_h), iterations=np.asarray(rows_n),
-                    energy_increment=np.asarray(rows_de), total_energy=np.asarray(rows_w),
-                    external_work=np.asarray(rows_l), status=status, message=message,
+    result = Result(**rows.arrays(), status=status, message=message,
                     stats=copy.copy(integrator.statistics), scheme=integrator.scheme.name,
-                    t_eval_index=index, system=system)
+                    t_eval=t_eval, u_eval=None if t_eval is None else u_eval,
+                    v_eval=None if t_eval is None else v_eval, system=system,
+                    steps_saved=save_steps)
     return result

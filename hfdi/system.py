@@ -93,6 +93,15 @@ class SecondOrderSystem:
     #: case HFDI uses the paper's difference quotient (Section 4).
     load_rate: Callable | None = None
 
+    def load_breakpoints(self):
+        """Times where the load ``p`` or its rate ``p'`` jumps (a kink of a hat
+        pulse, a step load), as a sequence of floats; empty by default.
+
+        Error-controlled runs land their steps on them and restart the
+        predictor there, so that no step straddles a kink (docs/algorithm.md).
+        """
+        return ()
+
     def potential_energy(self, u):
         """Potential energy ``V(u)`` with ``f = dV/du``; NaN if unknown."""
         return np.nan

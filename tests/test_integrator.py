@@ -69,11 +69,18 @@ def test_many_small_advances_reach_the_same_solution():
     assert many.proposed_step > 0.005           # the proposal is not that of the 0.005 grid
 
 
-def test_t_eval_points_are_landed_on():
-    t_eval = [0.1, 0.37, 1.5, 2.0]
+def test_t_eval_is_served_by_the_dense_output_and_leaves_the_steps_alone():
+    t_eval = [0.0, 0.1, 0.37, 1.5, 2.0]
+    plain = hfdi.integrate(DUMBBELL, "bathe", 2.0, target_iterations=3.0)
     result = hfdi.integrate(DUMBBELL, "bathe", 2.0, target_iterations=3.0, t_eval=t_eval)
     assert result.success
-    np.testing.assert_array_equal(result.t[result.t_eval_index], t_eval)
+    np.testing.assert_array_equal(result.t, plain.t)
+    np.testing.assert_array_equal(result.u, plain.u)
+    u, v = plain.sol(t_eval)
+    np.testing.assert_allclose(result.u_eval, u, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(result.v_eval, v, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(result.u_eval[-1], plain.u[-1])
+    np.testing.assert_array_equal(result.u_eval[0], plain.u[0])
 
 
 def test_fixed_step_grid():
@@ -279,8 +286,12 @@ def test_energy_balance_includes_the_external_work():
 
 # -- bad input ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(), "exactly one of target_iterations"),
-    (dict(target_iterations=3.0, step=0.1), "exactly one of target_iterations"),
+    (dict(target_iterations=3.0, step=0.1), "step .the fixed-step mode. excludes rtol"),
+    (dict(step=0.1, rtol=1e-6), "step .the fixed-step mode. excludes rtol"),
+    (dict(rtol=0.5), r"rtol must be a finite number or a 1-D array"),
+    (dict(rtol=[1e-6, 1e-6]), r"rtol given per degree of freedom must have shape \(4,\)"),
+    (dict(rtol=1e-6, atol=0.0), "atol must be > 0"),
+    (dict(target_iterations=3.0, atol=1e-6), "atol needs error control"),
     (dict(target_iterations=0.5), r"target_iterations must be a finite number in \[1, 100\]"),
     (dict(target_iterations=math.nan), "target_iterations"),
     (dict(step=-0.1), "step must be a finite number > 0, got -0.1"),

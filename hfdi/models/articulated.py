@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .loads import hat
+from .loads import hat, hat_breakpoints
 from .pair import PairPotential
 
 __all__ = ["Articulated", "articulated", "relative_angle"]
@@ -276,6 +276,10 @@ class Articulated(SecondOrderSystem):
         r = self.link_lengths(u)
         return float(0.5 * self.k_e * np.sum((r - self.h) ** 2)
                      + 0.5 * self.k_f * relative_angle(u) ** 2)
+
+    def load_breakpoints(self):
+        """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
+        return hat_breakpoints(self.load_time)
 
     def load(self, t):
         p = np.zeros(6)

@@ -27,7 +27,7 @@ import numpy as np
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .loads import hat
+from .loads import hat, hat_breakpoints
 from .pair import PairPotential
 
 __all__ = ["Tetrahedra", "tetrahedra"]
@@ -182,6 +182,10 @@ class Tetrahedra(SecondOrderSystem):
 
     def potential_energy(self, u):
         return float(self._phi(self.distances(u), 0).sum())
+
+    def load_breakpoints(self):
+        """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
+        return hat_breakpoints(self.load_time)
 
     def load(self, t):
         p = np.zeros(12)

@@ -47,7 +47,7 @@ import scipy.sparse as sp
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .loads import hat
+from .loads import hat, hat_breakpoints
 
 __all__ = ["TossRule", "toss_rule"]
 
@@ -412,6 +412,10 @@ class TossRule(SecondOrderSystem):
         np.multiply(Rk, yz[4:6], out=S[:, 2])
         Q += S
         return self._assemble(self._kernel_sum(P, Q, 0.0))
+
+    def load_breakpoints(self):
+        """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
+        return hat_breakpoints(self.load_time)
 
     def load(self, t):
         """``p(t)``: force ``F(t)`` in +y and moment ``M(t)`` at the left end node (chosen)."""
