@@ -76,8 +76,10 @@ class Solution:
 
     Parameters
     ----------
-    t : ndarray (K,), strictly increasing, K >= 1
-        Step ends (the initial time first).
+    t : ndarray (K,), non-decreasing, K >= 1
+        Step ends (the initial time first). A time given twice is a jump of
+        the acceleration (a load jump): the interval before it ends with the
+        first state, the one after starts with the second.
     u, v, a : ndarray (K, N)
         The states there.
     """
@@ -85,8 +87,8 @@ class Solution:
     def __init__(self, t, u, v, a):
         self.t = np.asarray(t, dtype=float)
         self.u, self.v, self.a = np.asarray(u), np.asarray(v), np.asarray(a)
-        if self.t.ndim != 1 or self.t.size < 1 or np.any(np.diff(self.t) <= 0):
-            raise ValueError("Solution: t must be a non-empty, strictly increasing 1-D array")
+        if self.t.ndim != 1 or self.t.size < 1 or np.any(np.diff(self.t) < 0):
+            raise ValueError("Solution: t must be a non-empty, non-decreasing 1-D array")
 
     @property
     def t_span(self):

@@ -314,6 +314,7 @@ class Integrator:
             energy_scale=ev.kinetic_energy(current.v), last_step=math.nan,
             last_iterations=0, last_energy_increment=0.0, grid_origin=self.t0, grid_steps=0,
             controller=repr(c), n_dof=n)
+        self._arrival = current
         self._cpu(start)
 
     # -- construction --------------------------------------------------------
@@ -690,6 +691,7 @@ class Integrator:
                 s.grid_origin, s.grid_steps = new.t, 0   # shortened off the grid
             else:
                 s.grid_steps += 1
+        self._arrival = new
         if self.breakpoints.size and new.t in self.breakpoints:
             # a kink or jump of the load: the history behind it would spoil the
             # predictor, and the next step starts from the load's right limit
@@ -843,7 +845,10 @@ class Result:
     ----------
     t : ndarray (n,)
         Times of the initial state and of every accepted step (with
-        ``save_steps=False``: of the initial and the last state only).
+        ``save_steps=False``: of the initial and the last state only). At a
+        declared load breakpoint where the acceleration jumps, the time is
+        there twice: the state the step reached (the load's left limit),
+        then the one the next step starts from (a step of size 0).
     u, v, a : ndarray (n, N)
         Displacement, velocity and acceleration at ``t``.
     step_size : ndarray (n,)
@@ -1076,7 +1081,8 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     clock = [time.monotonic()]
 
     def record(itg: Integrator):
-        new = itg.state
+        new = itg._arrival                      # the state the step reached
+        restart = itg.state                     # the next one's start: differs after a jump
         if t_eval is not None and pending[0] < t_eval.size:
             stop = int(np.searchsorted(t_eval, new.t, side="right"))
             if stop > pending[0]:
@@ -1091,6 +1097,10 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
                  itg.total_energy, itg.external_work)
         if save_steps:
             rows.append(*entry)
+        if restart is not new and not itg.finished and not np.array_equal(restart.a, new.a):
+            entry = (restart, 0.0, 0, 0.0, itg.total_energy, itg.external_work)
+            if save_steps:
+                rows.append(*entry)
         last[:] = entry
         if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
             clock[0] = time.monotonic()

@@ -1,0 +1,298 @@
+"""Error-controlled stepping: the local error estimate against true local
+errors, tolerance proportionality against exact solutions, the four modes,
+dense output, load breakpoints, landing without slivers.
+
+The references are independent of the integrator: exact solutions
+(``exact_problems``) and, for true local errors, scipy's DOP853 at tolerances
+far below the errors measured.
+"""
+import math
+import sys
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import hfdi
+from hfdi.corrector import local_error, predict
+
+sys.path.insert(0, str(Path(__file__).parent))
+import exact_problems  # noqa: E402
+
+SCHEMES = ["newmark", "bathe", "hfdi"]
+PROBLEMS = {"duffing": (exact_problems.duffing, 10.0),
+            "kepler": (exact_problems.kepler, 2.0 * math.pi),
+            "damped_chain": (exact_problems.damped_chain, 5.0)}
+
+
+def relative_error(result, exact):
+    u, _ = exact(result.t)
+    return float(np.max(np.abs(result.u - u)) / np.max(np.abs(u)))
+
+
+def coupled_pair():
+    """A smooth 2-DOF nonlinear system (hardening springs, coupled)."""
+    m = np.array([1.0, 2.0])
+
+    def f(u):
+        return np.array([4 * u[0] + u[0] ** 3 - (u[1] - u[0]),
+                         3 * u[1] - (u[0] - u[1]) + 0.5 * u[1] ** 3])
+
+    def K(u):
+        return np.array([[5 + 3 * u[0] ** 2, -1.0], [-1.0, 4 + 1.5 * u[1] ** 2]])
+
+    def T(u, w):
+        return np.diag([6 * u[0] * w[0], 3 * u[1] * w[1]])
+
+    model = hfdi.System(m, f, K, T, initial_displacement=[1.0, -0.5])
+
+    def rhs(t, y):
+        return np.concatenate([y[2:], -f(y[:2]) / m])
+
+    return model, rhs
+
+
+def local_error_ratios(scheme, h, estimate):
+    """Per step of a fixed-step run on [0, 1]: ``estimate(current, previous,
+    u_new, h)`` projected on the true local error (the step from the
+    numerical state, against DOP853) over its squared norm."""
+    model, rhs = coupled_pair()
+    itg = hfdi.Integrator(model, scheme, step=h, t_bound=1.0)
+    ratios = []
+    while not itg.finished:
+        before = itg.get_state()
+        assert itg.step()
+        if before.previous is None:
+            continue
+        cur, new = before.current, itg.state
+        exact = solve_ivp(rhs, (cur.t, new.t), np.concatenate([cur.u, cur.v]), method="DOP853",
+                          rtol=1e-13, atol=1e-15).y[:2, -1]
+        true = new.u - exact
+        est = estimate(cur, before.previous, new.u, new.t - cur.t)
+        ratios.append(float(est @ true / (true @ true)))
+    return np.array(ratios)
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_estimate_over_true_local_error_tends_to_one(scheme):
+    """In a real run (the history carries the previous steps' errors) the
+    estimate of :func:`hfdi.corrector.local_error` over the true local error
+    tends to 1: its median error shrinks with h, linearly for HFDI (1 + O(h))."""
+    medians = [np.median(local_error_ratios(scheme, h, local_error)) for h in (0.04, 0.02, 0.01)]
+    deviation = np.abs(np.array(medians) - 1.0)
+    assert deviation[-1] < (0.08 if scheme == "hfdi" else 0.01), medians
+    assert deviation[2] < deviation[1] < deviation[0], medians
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_corrector_minus_its_own_predictor_is_minus_six_local_errors(scheme):
+    """Why the estimate does not use the corrector's predictor: at equal steps
+    its history point u_{n-1} carries the previous local error with weight 7,
+    so u_{n+1} − P(h) tends to c(1) = 1 − 7 = −6 times the local error
+    (docs/algorithm.md, "Error control")."""
+    def milne(cur, prev, u_new, h):
+        return u_new - predict(cur, prev, h)
+    median = np.median(local_error_ratios(scheme, 0.01, milne))
+    assert abs(median + 6.0) < (0.6 if scheme == "hfdi" else 0.2), median
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("problem", sorted(PROBLEMS))
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_error_and_work_follow_the_tolerance(problem, scheme):
+    """Local error per step ≤ rtol: steps grow as rtol^(−1/(p+1)) and the
+    global error falls as about rtol^(p/(p+1)) (regressions over four decades)."""
+    factory, t_end = PROBLEMS[problem]
+    model, exact = factory()
+    order = hfdi.get_scheme(scheme).order
+    rtols = np.array([1e-5, 1e-6, 1e-7, 1e-8])
+    errors, steps = [], []
+    for rtol in rtols:
+        result = hfdi.integrate(model, scheme, t_end, rtol=rtol)
+        assert result.success, result.message
+        errors.append(relative_error(result, exact))
+        steps.append(result.stats.steps)
+    work_slope = np.polyfit(np.log(rtols), np.log(steps), 1)[0]
+    error_slope = np.polyfit(np.log(rtols), np.log(errors), 1)[0]
+    assert abs(work_slope + 1.0 / (order + 1)) < 0.05, (work_slope, steps)
+    assert abs(error_slope - order / (order + 1)) < 0.15, (error_slope, errors)
+    assert np.all(np.diff(np.log(errors)) < 0), errors
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_default_mode_controls_the_error_where_the_paper_mode_does_not(scheme):
+    """On a linear problem Newton converges at once, so the paper's rule grows
+    the step to max_step whatever the error; the default mode is accurate."""
+    model, exact = exact_problems.damped_chain()
+    default = hfdi.integrate(model, scheme, 5.0)
+    paper = hfdi.integrate(model, scheme, 5.0, target_iterations=3.0)
+    assert default.success and paper.success
+    assert relative_error(default, exact) < 0.02
+    assert relative_error(paper, exact) > 10 * relative_error(default, exact)
+    assert paper.stats.steps < 30 < default.stats.steps
+
+
+def test_combined_mode_takes_the_smaller_proposal():
+    model, exact = exact_problems.duffing()
+    error = hfdi.integrate(model, "hfdi", 10.0, rtol=1e-6)
+    count = hfdi.integrate(model, "hfdi", 10.0, target_iterations=2.0)
+    both = hfdi.integrate(model, "hfdi", 10.0, rtol=1e-6, target_iterations=2.0)
+    assert both.success
+    assert both.stats.steps >= max(error.stats.steps, count.stats.steps) * 0.9
+    assert relative_error(both, exact) <= 1.5 * relative_error(error, exact)
+
+
+def test_controller_objects_are_injectable():
+    model, _ = exact_problems.duffing()
+    by_name = hfdi.integrate(model, "bathe", 10.0, target_iterations=3.0)
+    controller = hfdi.IterationCount(3.0, n_stages=2, min_step=1e-11, max_step=10.0)
+    by_object = hfdi.integrate(model, "bathe", 10.0, controller=controller)
+    np.testing.assert_array_equal(by_object.t, by_name.t)
+    np.testing.assert_array_equal(by_object.u, by_name.u)
+    error = hfdi.ErrorControl(1e-6, 1e-9, order=2)
+    run = hfdi.integrate(model, "bathe", 10.0, controller=error)
+    same = hfdi.integrate(model, "bathe", 10.0, rtol=1e-6, atol=1e-9)
+    assert run.stats.steps == same.stats.steps
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_fixed_step_takes_exactly_n_steps(scheme):
+    """``t_end/n`` takes n steps: no sliver at the end, whose velocity
+    ``Δu/h`` would lose most of its digits."""
+    model, exact = exact_problems.duffing()
+    n = 48_000 if scheme == "newmark" else 6_000
+    result = hfdi.integrate(model, scheme, 2.0, step=2.0 / n)
+    assert result.success
+    assert result.stats.steps == n and result.t[-1] == 2.0
+    np.testing.assert_allclose(result.step_size[1:], 2.0 / n, rtol=1e-6)
+    u, v = exact(2.0)
+    assert abs(result.v[-1][0] - v[0][0]) < 1e-4 * abs(v[0][0])
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_landing_never_leaves_a_sliver(scheme):
+    """Error control landing on many arbitrary times: every step is at least
+    half the one before it, apart from error-driven shrinking."""
+    model, _ = exact_problems.duffing()
+    itg = hfdi.Integrator(model, scheme, rtol=1e-6, t_bound=10.0)
+    steps = []
+    # targets at least 0.1 apart, far more than a step
+    targets = 0.15 * np.arange(1, 60) + np.random.default_rng(1).uniform(0.0, 0.05, 59)
+    for t in targets:
+        assert itg.advance(t, callback=lambda i: steps.append(i.last_step))
+    assert itg.advance(10.0, callback=lambda i: steps.append(i.last_step))
+    steps = np.array(steps[10:])            # past the start, which begins small
+    assert steps.min() > 0.25 * np.median(steps), (steps.min(), np.median(steps))
+
+
+def test_finished_integrator_takes_no_step():
+    model, _ = exact_problems.duffing()
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6, t_bound=1.0)
+    assert itg.status == hfdi.Status.RUNNING
+    assert itg.advance(1.0)
+    steps = itg.statistics.steps
+    assert itg.finished and itg.status == hfdi.Status.SUCCESS
+    assert itg.step() is False
+    assert itg.status == hfdi.Status.SUCCESS and itg.statistics.steps == steps
+
+
+def test_set_state_refuses_foreign_or_broken_states():
+    model, _ = exact_problems.duffing()
+    other, _ = exact_problems.kepler()
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6)
+    itg.advance(0.5)
+    good = itg.get_state()
+    two = hfdi.Integrator(other, "hfdi", rtol=1e-6)
+    with pytest.raises(ValueError, match="state has 1 degrees of freedom, this integrator's "
+                                         "model has 2"):
+        two.set_state(good)
+    fixed = hfdi.Integrator(model, "hfdi", step=0.01)
+    with pytest.raises(ValueError, match="state was saved by an integrator with controller"):
+        fixed.set_state(good)
+    broken = itg.get_state()
+    broken.current.u[0] = math.nan
+    with pytest.raises(ValueError, match=r"state.current.u must be a finite float array"):
+        itg.set_state(broken)
+    np.testing.assert_array_equal(itg.state.u, good.current.u)   # left as it was
+    itg.set_state(good)
+    assert itg.advance(1.0)
+
+
+def test_dense_output_is_as_accurate_as_the_steps():
+    model, exact = exact_problems.kepler()
+    result = hfdi.integrate(model, "hfdi", 2.0 * math.pi, rtol=1e-8)
+    node_error = np.max(np.abs(result.u - exact(result.t)[0]))
+    mid = 0.5 * (result.t[1:] + result.t[:-1])
+    u, v = result.sol(mid)
+    ue, ve = exact(mid)
+    assert np.max(np.abs(u - ue)) < 1.5 * node_error + 1e-12
+    assert np.max(np.abs(v - ve)) < 10 * node_error + 1e-10
+    with pytest.raises(ValueError, match="t must lie in the run's interval"):
+        result.sol(7.0)
+
+
+def test_save_steps_false_keeps_only_the_outputs():
+    model, _ = exact_problems.duffing()
+    t_eval = np.linspace(0.0, 10.0, 11)
+    full = hfdi.integrate(model, "newmark", 10.0, step=1e-3, t_eval=t_eval)
+    lean = hfdi.integrate(model, "newmark", 10.0, step=1e-3, t_eval=t_eval, save_steps=False)
+    assert lean.t.shape == (2,) and lean.t[-1] == 10.0
+    np.testing.assert_array_equal(lean.u_eval, full.u_eval)
+    np.testing.assert_array_equal(lean.u[-1], full.u[-1])
+    with pytest.raises(ValueError, match="save_steps=False"):
+        lean.sol(1.0)
+
+
+def test_save_steps_false_memory_does_not_grow_with_the_steps():
+    model, _ = exact_problems.duffing()
+    peaks = []
+    for n in (2_000, 20_000):
+        tracemalloc.start()
+        hfdi.integrate(model, "newmark", 1.0, step=1.0 / n, save_steps=False)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert peaks[1] < 2 * peaks[0], peaks
+
+
+def test_progress_is_reported():
+    model, _ = exact_problems.duffing()
+    seen = []
+    result = hfdi.integrate(model, "hfdi", 10.0, rtol=1e-6,
+                            progress=lambda t, stats: seen.append((t, stats.accepted)))
+    assert seen and seen[-1] == (10.0, result.stats.accepted)
+
+
+def step_load(t):
+    return np.array([0.0 if t < 0.3 else 2.0])
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_load_jump_declared_as_breakpoint(scheme):
+    """u'' + 4u = 2·H(t − 0.3): exact u = (1 − cos 2(t − 0.3))/2 after the
+    jump. Landing on the jump and starting again from the load's right limit
+    keeps the error at the tolerance's level."""
+    model = hfdi.LinearSystem(np.array([1.0]), np.array([[4.0]]), load=step_load)
+    t = np.linspace(0.0, 3.0, 301)
+    exact = np.where(t < 0.3, 0.0, 0.5 * (1.0 - np.cos(2.0 * (t - 0.3))))
+    landed = hfdi.integrate(model, scheme, 3.0, rtol=1e-6, atol=1e-9, breakpoints=[0.3],
+                            t_eval=t)
+    assert 0.3 in landed.t
+    assert np.all(landed.u_eval[t < 0.3] == 0.0)       # nothing moves before the load
+    # as accurate as a run that starts at the jump with the load already on
+    on = hfdi.LinearSystem(np.array([1.0]), np.array([[4.0]]), load=lambda t: np.array([2.0]))
+    after = t[t >= 0.3]
+    fresh = hfdi.integrate(on, scheme, 3.0, t0=0.3, rtol=1e-6, atol=1e-9, t_eval=after)
+    error = np.max(np.abs(landed.u_eval[:, 0] - exact))
+    assert error <= 2.0 * np.max(np.abs(fresh.u_eval[:, 0] - exact[t >= 0.3]))
+
+
+def test_model_breakpoints_are_landed_on_under_error_control_only():
+    model = hfdi.models.articulated()
+    kinks = model.load_breakpoints()
+    controlled = hfdi.integrate(model, "hfdi", 0.1, rtol=1e-6)
+    paper = hfdi.integrate(model, "hfdi", 0.1, target_iterations=3.0)
+    assert controlled.success and paper.success
+    assert set(k for k in kinks if 0 < k <= 0.1) <= set(controlled.t)
+    assert not set(k for k in kinks if 0 < k < 0.1) <= set(paper.t)
