@@ -68,14 +68,17 @@ class Attempt:
         Newton corrections of the attempt (all stages).
     message : str
         Why the corrector failed (empty when it converged).
-    error : ndarray (N,) or None
-        Local error estimate of ``u`` (only for controllers with
+    error : ndarray (2N,) or None
+        Local error estimate of ``u`` and ``v`` (only for controllers with
         ``uses_error_estimate``, and only when converged).
     history : bool
         Whether the estimate had the predictor's history (``False`` on the
         first step and after a load breakpoint).
-    u_start, u_end : ndarray (N,) or None
-        Displacements at the start and end of the attempt.
+    y_start, y_end : ndarray (2N,) or None
+        ``(u, v)`` at the start and end of the attempt (with ``error``).
+    velocity_noise : float
+        The uncertainty of ``v`` left by the corrector's tolerance, added to
+        the weights of ``v`` so that it never drives the step down.
     """
 
     h: float
@@ -86,8 +89,9 @@ class Attempt:
     message: str = ""
     error: np.ndarray | None = None
     history: bool = True
-    u_start: np.ndarray | None = None
-    u_end: np.ndarray | None = None
+    y_start: np.ndarray | None = None
+    y_end: np.ndarray | None = None
+    velocity_noise: float = 0.0
 
 
 @dataclass
@@ -320,8 +324,9 @@ IterationCountController = IterationCount
 class ErrorControl(Controller):
     """Step size from the local error estimate (docs/algorithm.md, "Error control").
 
-    ``err = ‖e / (atol + rtol·max(|u_n|, |u_{n+1}|))‖_RMS`` with ``e`` from
-    :func:`~hfdi.corrector.local_error`. An attempt with ``err ≤ 1`` is
+    ``err = ‖e / (atol + rtol·max(|y_n|, |y_{n+1}|))‖_RMS`` over the
+    first-order state ``y = (u, v)``, as IDA and ``solve_ivp`` weigh it, with
+    ``e`` from :func:`~hfdi.corrector.local_error`. An attempt with ``err ≤ 1`` is
     accepted; otherwise it is retried. The next size is
     ``h · safety · err^{−1/(p+1)}``, limited to ``[shrink, grow]·h`` (and to
     at most ``h`` right after a rejection). A diverged corrector halves the
@@ -329,10 +334,13 @@ class ErrorControl(Controller):
 
     Parameters
     ----------
-    rtol : float or array_like (N,)
-        Relative tolerance, in :data:`RTOL_RANGE`.
-    atol : float or array_like (N,)
-        Absolute tolerance, ``>= 0`` (and ``> 0`` where ``u`` may vanish).
+    rtol : float or array_like (N,) or (2N,)
+        Relative tolerance, in :data:`RTOL_RANGE`. A scalar or an (N,) array
+        applies to ``u`` and ``v`` alike; a (2N,) array gives ``u``'s, then
+        ``v``'s.
+    atol : float or array_like (N,) or (2N,)
+        Absolute tolerance, ``> 0``, laid out as ``rtol``; in the units of
+        ``u`` (and of ``v`` for the second half of a (2N,) array).
     order : int
         Order ``p`` of the scheme.
     safety, grow, shrink : float
@@ -351,9 +359,6 @@ class ErrorControl(Controller):
             # a weight atol + rtol·|u| of zero would fail every step at u = 0
             raise ValueError(f"atol must be > 0 (a finite number or one per degree of freedom), "
                              f"got {atol!r}")
-        if np.ndim(self.rtol) and np.ndim(self.atol) and np.shape(self.rtol) != np.shape(self.atol):
-            raise ValueError(f"rtol and atol given per degree of freedom must have the same "
-                             f"shape, got {np.shape(self.rtol)} and {np.shape(self.atol)}")
         self.order = checks.integer("order", order, 1)
         self.safety = checks.real("safety", safety, low=0.0, high=1.0, high_closed=True)
         self.grow = checks.real("grow", grow, low=1.0, high=math.inf)
@@ -361,16 +366,23 @@ class ErrorControl(Controller):
         super().__init__(**limits)
 
     def check_size(self, n: int):
-        """Refuse tolerances given per degree of freedom for another size."""
+        """Refuse tolerances given per degree of freedom for another size, and
+        lay those given for ``u`` out over ``(u, v)``."""
         for name in ("rtol", "atol"):
             value = getattr(self, name)
-            if np.ndim(value) and np.shape(value) != (n,):
-                raise ValueError(f"{name} given per degree of freedom must have shape ({n},), "
-                                 f"got {np.shape(value)}")
+            if np.ndim(value) and np.shape(value) not in ((n,), (2 * n,)):
+                raise ValueError(f"{name} given per degree of freedom must have shape ({n},) "
+                                 f"(u and v alike) or ({2 * n},) (u, then v), got "
+                                 f"{np.shape(value)}")
+            if np.ndim(value) and np.shape(value) == (n,):
+                setattr(self, name, np.concatenate([value, value]))
 
     def error_norm(self, attempt: Attempt) -> float:
         """The weighted RMS norm of the attempt's error estimate."""
-        scale = self.atol + self.rtol * np.maximum(np.abs(attempt.u_start), np.abs(attempt.u_end))
+        scale = self.atol + self.rtol * np.maximum(np.abs(attempt.y_start), np.abs(attempt.y_end))
+        if attempt.velocity_noise:
+            n = scale.size // 2
+            scale[n:] += attempt.velocity_noise
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = attempt.error / scale
         ratio = np.where(attempt.error == 0.0, 0.0, ratio)

@@ -4,11 +4,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 
 from .evaluation import Evaluator, ModelError, NonFiniteError, State
 from .linalg import SingularMatrixError, all_finite
 
-__all__ = ["predict", "predict_from_rates", "local_error", "newton", "solve_step", "StepOutcome"]
+__all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton", "solve_step", "StepOutcome"]
 
 _isfinite = math.isfinite
 _sqrt = math.sqrt
@@ -38,7 +40,7 @@ def predict(current: State, previous: State | None, s: float):
 
 def predict_from_rates(current: State, previous: State, s: float):
     """The quartic ``Q`` with ``Q(0) = u_n``, ``Q'(0) = v_n``, ``Q''(0) = a_n``,
-    ``Q'(−H) = v_{n−1}`` and ``Q''(−H) = a_{n−1}``, at ``s`` after ``t_n``.
+    ``Q'(−H) = v_{n−1}`` and ``Q''(−H) = a_{n−1}``, and ``Q'``, at ``s`` after ``t_n``.
 
     Unlike :func:`predict` it does not use ``u_{n−1}``: the history enters
     only through ``H v_{n−1}`` and ``H² a_{n−1}``, so the previous step's
@@ -46,49 +48,78 @@ def predict_from_rates(current: State, previous: State, s: float):
     ``P`` (see :func:`local_error`). With ``r2 = v_{n−1} − v_n + H a_n`` and
     ``r3 = a_{n−1} − a_n``: ``Q(s) = u_n + v_n s + a_n s²/2 + c3 s³ + c4 s⁴``,
     ``c3 = r2/H² + r3/(3H)``, ``c4 = (2 r2 + H r3)/(4 H³)``.
+
+    Returns
+    -------
+    Q, dQ : ndarray (N,)
     """
     H = current.t - previous.t
     r2 = previous.v - current.v + H * current.a
     r3 = previous.a - current.a
     c3 = r2 / (H * H) + r3 / (3.0 * H)
     c4 = (2.0 * r2 + H * r3) / (4.0 * H ** 3)
-    return current.u + s * current.v + (0.5 * s * s) * current.a + (s ** 3) * c3 + (s ** 4) * c4
+    s2 = s * s
+    Q = current.u + s * current.v + (0.5 * s2) * current.a + (s2 * s) * c3 + (s2 * s2) * c4
+    dQ = current.v + s * current.a + (3.0 * s2) * c3 + (4.0 * s2 * s) * c4
+    return Q, dQ
 
 
-def local_error(current: State, previous: State | None, u_new, h: float):
-    """Estimate of the local error of ``u`` in the step from ``current`` to ``u_new``.
+def local_error(current: State, previous: State | None, new: State, h: float,
+                order: int):
+    """Estimate of the local error of ``u`` and ``v`` in the step from ``current`` to ``new``.
 
-    Milne's device: the converged ``u_new`` minus an extrapolation from the
-    past (no extra model evaluation). The extrapolation is
-    :func:`predict_from_rates`, exact to ``O(h⁵)`` on a smooth solution, one
-    order above HFDI's local error and two above Newmark's and Bathe's; the
-    previous step's error enters it at ``O(h^{p+2})`` only. The estimate over
-    the true local error therefore tends to 1 (HFDI: 1 + O(h)) in a real run,
-    with no correction factor (docs/algorithm.md, "Error control", says why
-    the corrector's own predictor :func:`predict` is not used: its history
-    point ``u_{n−1}`` carries the previous error at the order of the
-    estimate).
+    Milne's device: the converged state minus an extrapolation from the past
+    (no extra model evaluation). The extrapolation is
+    :func:`predict_from_rates`: ``Q`` is exact to ``O(h⁵)`` on a smooth
+    solution, one order above HFDI's local error in ``u`` and two above
+    Newmark's and Bathe's, and the previous step's error enters it at
+    ``O(h^{p+2})`` only; so the estimate of ``u`` over its true local error
+    tends to 1 (HFDI: 1 + O(h)) in a real run, with no correction factor.
+    ``Q'`` is exact to ``O(h⁴)`` but takes ``v_{n−1}`` with weight ``O(1)``:
+    the difference for ``v`` is divided by :func:`velocity_history_factor`,
+    which makes it asymptotically exact for Newmark and Bathe and of the
+    right order for HFDI.
+    docs/algorithm.md, "Error control", says why the corrector's own
+    predictor :func:`predict` is not used (its history point ``u_{n−1}``
+    carries the previous error at the order of the estimate).
 
     Without history (the first step, and the first after a load breakpoint)
-    the extrapolation is the Taylor polynomial ``u_n + h v_n + h² a_n/2``,
-    whose own error ``O(h³)`` is of the order of Newmark's and Bathe's local
-    error and above HFDI's: the estimate then errs on the safe side.
+    the extrapolation is the Taylor polynomial ``u_n + h v_n + h² a_n/2``
+    (and ``v_n + h a_n``), whose own error is of the order of Newmark's and
+    Bathe's local error or above: the estimate then errs on the safe side.
 
     Parameters
     ----------
     current, previous : State
         The step's start and the state before it (``None`` without history).
-    u_new : ndarray (N,)
-        The converged displacement at ``current.t + h``.
+    new : State
+        The converged state at ``current.t + h``.
     h : float
+    order : int
+        Order ``p`` of the scheme.
 
     Returns
     -------
-    ndarray (N,)
+    ndarray (2N,)
+        The estimates for ``u``, then for ``v``.
     """
     if previous is None:
-        return u_new - (current.u + h * current.v + (0.5 * h * h) * current.a)
-    return u_new - predict_from_rates(current, previous, h)
+        Q = current.u + h * current.v + (0.5 * h * h) * current.a
+        return np.concatenate([new.u - Q, new.v - (current.v + h * current.a)])
+    Q, dQ = predict_from_rates(current, previous, h)
+    sigma = h / (current.t - previous.t)
+    return np.concatenate([new.u - Q, (new.v - dQ) / velocity_history_factor(sigma, order)])
+
+
+def velocity_history_factor(sigma: float, order: int) -> float:
+    """``c_v(σ) = 1 + (3σ² + 2σ³)/σ^{p+1}``: ``v_{n+1} − Q'(h)`` over the local
+    error of ``v`` in a run.
+
+    ``v_{n−1}`` enters ``Q'(h)`` with the weight ``3σ² + 2σ³`` and carries the
+    previous step's local error of ``v``, ``≈ ℓ_v/σ^{p+1}`` (docs/algorithm.md,
+    "Error control"). ``c_v > 1`` for every ``σ > 0``.
+    """
+    return 1.0 + (3.0 + 2.0 * sigma) * sigma ** (1 - order)
 
 
 def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: int):

@@ -199,7 +199,7 @@ class Integrator:
         Initial displacement and velocity; the model's defaults when omitted.
     tol : float, optional
         Newton tolerance ``η`` of Eq. 38, in (0, 1). Default ``1e-8``, and at
-        most ``rtol/100`` (not below ``1e-12``) under error control so that
+        most ``rtol/1000`` (not below ``1e-12``) under error control so that
         the corrector's error stays below the one controlled.
     first_step : float, optional
         First trial step. Default: ``1/ω`` with ``ω`` a Gershgorin bound of the
@@ -373,7 +373,7 @@ class Integrator:
             tol = 1e-8
             if self.controller.uses_error_estimate:
                 rtol = getattr(self.controller, "error", self.controller).rtol
-                tol = min(tol, max(1e-12, 0.01 * float(np.min(rtol))))
+                tol = min(tol, max(1e-12, 1e-3 * float(np.min(rtol))))
         try:
             return checks.real("tol", tol, low=0.0, high=1.0)
         except ValueError:
@@ -659,8 +659,15 @@ class Integrator:
                           outcome.message, history=previous is not None)
         attempt.outcome = outcome
         if outcome.converged and self.controller.uses_error_estimate:
-            attempt.u_start, attempt.u_end = current.u, outcome.state.u
-            attempt.error = local_error(current, previous, outcome.state.u, h)
+            new = outcome.state
+            attempt.y_start = np.concatenate([current.u, current.v])
+            attempt.y_end = np.concatenate([new.u, new.v])
+            attempt.error = local_error(current, previous, new, h, self.scheme.order)
+            # the corrector leaves u uncertain by up to tol·max(‖u‖, floor), and
+            # every scheme forms v from Δu/h with a factor of at most 3: below
+            # that the velocity's error cannot be told (nor controlled)
+            attempt.velocity_noise = 3.0 * self.tol * max(float(np.sqrt(new.u @ new.u)),
+                                                          self.floor) / h
         return attempt
 
     def _accept(self, attempt) -> bool:

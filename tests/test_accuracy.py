@@ -54,10 +54,10 @@ def coupled_pair():
     return model, rhs
 
 
-def local_error_ratios(scheme, h, estimate):
+def local_error_ratios(scheme, h, estimate, part=slice(0, 2)):
     """Per step of a fixed-step run on [0, 1]: ``estimate(current, previous,
-    u_new, h)`` projected on the true local error (the step from the
-    numerical state, against DOP853) over its squared norm."""
+    new, h)`` projected on the true local error of ``(u, v)[part]`` (the step
+    from the numerical state, against DOP853) over its squared norm."""
     model, rhs = coupled_pair()
     itg = hfdi.Integrator(model, scheme, step=h, t_bound=1.0)
     ratios = []
@@ -68,9 +68,9 @@ def local_error_ratios(scheme, h, estimate):
             continue
         cur, new = before.current, itg.state
         exact = solve_ivp(rhs, (cur.t, new.t), np.concatenate([cur.u, cur.v]), method="DOP853",
-                          rtol=1e-13, atol=1e-15).y[:2, -1]
-        true = new.u - exact
-        est = estimate(cur, before.previous, new.u, new.t - cur.t)
+                          rtol=1e-13, atol=1e-15).y[:, -1]
+        true = (np.concatenate([new.u, new.v]) - exact)[part]
+        est = estimate(cur, before.previous, new, new.t - cur.t, itg.scheme.order)[part]
         ratios.append(float(est @ true / (true @ true)))
     return np.array(ratios)
 
@@ -84,6 +84,12 @@ def test_estimate_over_true_local_error_tends_to_one(scheme):
     deviation = np.abs(np.array(medians) - 1.0)
     assert deviation[-1] < (0.08 if scheme == "hfdi" else 0.01), medians
     assert deviation[2] < deviation[1] < deviation[0], medians
+    # v: 1 + O(h) for Newmark and Bathe; for HFDI, whose local error of v is of
+    # the order of Q''s own error, the estimate has the right size, opposite sign
+    v_medians = [np.median(local_error_ratios(scheme, h, local_error, slice(2, 4)))
+                 for h in (0.04, 0.02, 0.01)]
+    v_deviation = np.abs(np.abs(v_medians) - 1.0)
+    assert v_deviation[-1] < 0.07 and v_deviation[2] < v_deviation[0], v_medians
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
@@ -92,8 +98,8 @@ def test_corrector_minus_its_own_predictor_is_minus_six_local_errors(scheme):
     its history point u_{n-1} carries the previous local error with weight 7,
     so u_{n+1} − P(h) tends to c(1) = 1 − 7 = −6 times the local error
     (docs/algorithm.md, "Error control")."""
-    def milne(cur, prev, u_new, h):
-        return u_new - predict(cur, prev, h)
+    def milne(cur, prev, new, h, order):
+        return np.concatenate([new.u - predict(cur, prev, h), new.v])
     median = np.median(local_error_ratios(scheme, 0.01, milne))
     assert abs(median + 6.0) < (0.6 if scheme == "hfdi" else 0.2), median
 
@@ -102,8 +108,10 @@ def test_corrector_minus_its_own_predictor_is_minus_six_local_errors(scheme):
 @pytest.mark.parametrize("problem", sorted(PROBLEMS))
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_error_and_work_follow_the_tolerance(problem, scheme):
-    """Local error per step ≤ rtol: steps grow as rtol^(−1/(p+1)) and the
-    global error falls as about rtol^(p/(p+1)) (regressions over four decades)."""
+    """Local error per step ≤ rtol: steps grow as rtol^(−1/(p+1)) (regression
+    over four decades) and the global error falls as rtol^(p/(p+1)) (over the
+    last three: at rtol 1e-5 the Duffing oscillator's phase error is not yet
+    in its asymptotic regime)."""
     factory, t_end = PROBLEMS[problem]
     model, exact = factory()
     order = hfdi.get_scheme(scheme).order
@@ -115,7 +123,7 @@ def test_error_and_work_follow_the_tolerance(problem, scheme):
         errors.append(relative_error(result, exact))
         steps.append(result.stats.steps)
     work_slope = np.polyfit(np.log(rtols), np.log(steps), 1)[0]
-    error_slope = np.polyfit(np.log(rtols), np.log(errors), 1)[0]
+    error_slope = np.polyfit(np.log(rtols[1:]), np.log(errors[1:]), 1)[0]
     assert abs(work_slope + 1.0 / (order + 1)) < 0.05, (work_slope, steps)
     assert abs(error_slope - order / (order + 1)) < 0.15, (error_slope, errors)
     assert np.all(np.diff(np.log(errors)) < 0), errors
@@ -296,3 +304,33 @@ def test_model_breakpoints_are_landed_on_under_error_control_only():
     assert controlled.success and paper.success
     assert set(k for k in kinks if 0 < k <= 0.1) <= set(controlled.t)
     assert not set(k for k in kinks if 0 < k < 0.1) <= set(paper.t)
+
+
+# -- the table of docs/accuracy.md ------------------------------------------------------------
+def accuracy_table(rtols=(1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)):
+    """Achieved relative error (max over the steps of ``|u − u_exact|`` over
+    ``max |u_exact|``) and steps against ``rtol``, per problem and scheme."""
+    head = "| problem | scheme | " + " | ".join(f"rtol {r:.0e}" for r in rtols) + " |"
+    lines = [head, "|---|---|" + "---|" * len(rtols)]
+    for problem in sorted(PROBLEMS):
+        factory, t_end = PROBLEMS[problem]
+        model, exact = factory()
+        for scheme in SCHEMES:
+            cells = []
+            for rtol in rtols:
+                result = hfdi.integrate(model, scheme, t_end, rtol=rtol)
+                cells.append(f"{relative_error(result, exact):.1e} ({result.stats.steps})"
+                             if result.success else result.status.name)
+            lines.append(f"| {problem} | {scheme} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    # python tests/test_accuracy.py          prints the table
+    # python tests/test_accuracy.py --write  updates it in docs/accuracy.md
+    from problems import write_doc_table
+    table = accuracy_table()
+    if "--write" in sys.argv[1:]:
+        write_doc_table("accuracy", table, Path(__file__).parents[1] / "docs" / "accuracy.md")
+    else:
+        print(table)

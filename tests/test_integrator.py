@@ -290,6 +290,7 @@ def test_energy_balance_includes_the_external_work():
     (dict(step=0.1, rtol=1e-6), "step .the fixed-step mode. excludes rtol"),
     (dict(rtol=0.5), r"rtol must be a finite number or a 1-D array"),
     (dict(rtol=[1e-6, 1e-6]), r"rtol given per degree of freedom must have shape \(4,\)"),
+    (dict(atol=np.ones(8) * 1e-9, rtol=np.ones(5) * 1e-6), r"or \(8,\) \(u, then v\)"),
     (dict(rtol=1e-6, atol=0.0), "atol must be > 0"),
     (dict(target_iterations=3.0, atol=1e-6), "atol needs error control"),
     (dict(target_iterations=0.5), r"target_iterations must be a finite number in \[1, 100\]"),
