@@ -62,3 +62,28 @@ def test_paper_tables_are_complete():
         assert set(schemes) == {"newmark", "bathe", "hfdi"}
     assert paper_row("dumbbell", "hfdi", 3.3)["steps"] == 45
     assert paper_row("dumbbell", "newmark", 4.5) is None          # "div"
+
+
+def test_table_rtol_runs_are_error_controlled(tmp_path, capsys, monkeypatch):
+    """``--rtol``: error-controlled runs, more accurate the tighter the tolerance,
+    labelled by rtol and without the paper's rows (it has no such runs)."""
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "runs.json"
+    assert main(["table", "dumbbell", "--schemes", "hfdi", "--rtol", "1e-3,1e-6",
+                 "--t-end", "0.5", "--json", str(out)]) == 0
+    records = json.loads(out.read_text())
+    assert [(r["target"], r["rtol"]) for r in records] == [(None, 1e-3), (None, 1e-6)]
+    assert all(r["status"] == "SUCCESS" for r in records)
+    assert records[1]["eps"]["u"] < 0.1 * records[0]["eps"]["u"]
+    assert records[1]["steps"] > records[0]["steps"]
+    printed = capsys.readouterr().out
+    assert "rtol" in printed and "1e-06" in printed and "(paper)" not in printed
+
+
+@pytest.mark.parametrize("bad", ["0.5", "1e-20", "x", ""])
+def test_table_rtol_out_of_range_is_one_line(bad, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["table", "dumbbell", "--rtol", bad])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rtol" in err[0]

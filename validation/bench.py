@@ -7,7 +7,8 @@ next one, ...) so that a drift of the machine's load is shared by all:
 
 * ours — Newmark, Bathe and HFDI (:func:`hfdi.integrate`), one run per target
   iteration count ``N̄`` (per sub-step for Bathe), Newton tolerance 1e-8 and
-  the energy guard of the paper's tables;
+  the energy guard of the paper's tables; and each error-controlled, one run
+  per ``rtol`` of ``ours_rtols``;
 * IDA (SUNDIALS, through scikit-sundae) on the first-order implicit form of
   :mod:`validation.reference` with its analytic iteration matrix, one run per
   ``rtol``; the linear solver is :mod:`validation.reference`'s ``"auto"``
@@ -18,7 +19,9 @@ next one, ...) so that a drift of the machine's load is shared by all:
   ``[[0, I], [−M⁻¹K(u), −M⁻¹C]]``, a CSR matrix when the model's ``K`` is
   sparse (the toss rule), dense otherwise; one run per ``rtol``.
 
-Competitors' absolute tolerances follow
+Competitors' absolute tolerances, and those of our error-controlled runs
+(methods ``<scheme>-rtol``: ``hfdi.integrate(..., rtol=rtol, atol=...)``,
+whose error norm weighs ``(u, v)`` as IDA does), follow
 :func:`validation.reference.default_atol` at the run's ``rtol``:
 ``atol_u,i = rtol · max(|u0_i|, u_scale)``, ``atol_v,i = rtol · max(|v0_i|, V)``
 with ``V = max(‖v0‖∞, u_scale / t_end)`` — the rule of the reference itself.
@@ -91,7 +94,12 @@ __all__ = ["bench_problem", "bench_task", "pareto_front", "interpolate_wall", "s
            "run_bench_command", "SCHEMES", "COMPETITORS", "DEFAULT_TARGETS", "DEFAULT_RTOLS"]
 
 SCHEMES = ("newmark", "bathe", "hfdi")
+#: Our schemes under error control (``hfdi.integrate(..., rtol=...)``), one run per rtol.
+ERROR_CONTROLLED = tuple(f"{s}-rtol" for s in SCHEMES)
+OURS = SCHEMES + ERROR_CONTROLLED
 COMPETITORS = ("ida", "radau", "bdf")
+#: Relative tolerances of our error-controlled runs, loosest first.
+DEFAULT_OURS_RTOLS = tuple(10.0 ** -k for k in range(3, 10))
 
 #: Targets ``N̄`` per scheme (per sub-step for Bathe), loosest first. They span
 #: the accuracy the iteration-count rule reaches: 5 gives a few steps per
@@ -139,11 +147,13 @@ class _Budget(Exception):
 
 # -- the runs -------------------------------------------------------------------------
 
-def _run_ours(model, scheme, t_end, target):
+def _run_ours(model, scheme, t_end, target=None, rtol=None):
+    # error control with the competitors' absolute tolerances, (u, v) alike
+    mode = dict(target_iterations=target) if rtol is None else \
+        dict(rtol=rtol, atol=default_atol(model, rtol, t_end))
     cpu = time.process_time()
     start = time.perf_counter()
-    result = hfdi.integrate(model, scheme, t_end, target_iterations=target,
-                            energy_limit=ENERGY_LIMIT)
+    result = hfdi.integrate(model, scheme, t_end, energy_limit=ENERGY_LIMIT, **mode)
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu
     st = result.stats
@@ -301,6 +311,8 @@ def _solve(problem, method, setting, t_end, max_nfev):
     model = hfdi.models.get(problem)
     if method in SCHEMES:
         return model, _run_ours(model, method, t_end, setting)
+    if method in ERROR_CONTROLLED:
+        return model, _run_ours(model, method.split("-")[0], t_end, rtol=setting)
     if method == "ida":
         return model, _run_ida(model, t_end, setting, max_nfev)
     return model, _run_scipy(model, {"radau": "Radau", "bdf": "BDF"}[method], t_end, setting,
@@ -332,7 +344,7 @@ def _record(problem, method, setting, raws, model, reference):
     walls = [r["wall"] for r in raws]
     rec = {
         "problem": problem, "method": method,
-        "kind": "ours" if method in SCHEMES else "competitor",
+        "kind": "ours" if method in OURS else "competitor",
         "target": float(setting) if method in SCHEMES else None,
         "rtol": None if method in SCHEMES else float(setting),
         "label": _label(method, setting),
@@ -381,7 +393,7 @@ def _label(method, setting):
 
 def _skipped(problem, method, setting, why):
     return {"problem": problem, "method": method,
-            "kind": "ours" if method in SCHEMES else "competitor",
+            "kind": "ours" if method in OURS else "competitor",
             "target": None, "rtol": float(setting), "label": _label(method, setting),
             "success": False, "status": "SKIPPED", "message": why, "t_reached": None,
             "wall": None, "walls": [], "cpu": None, "repeats_identical": True, "eps_u": math.nan,
@@ -391,7 +403,7 @@ def _skipped(problem, method, setting, why):
 
 
 def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS,
-                  competitors=COMPETITORS, t_end=None, repeats=REPEATS,
+                  ours_rtols=DEFAULT_OURS_RTOLS, competitors=COMPETITORS, t_end=None, repeats=REPEATS,
                   repeat_below=REPEAT_BELOW, reference_rtol=REFERENCE_RTOL,
                   max_nfev=MAX_NFEV, skip_nfev=SKIP_NFEV, progress=None) -> dict:
     """Work–precision runs of every method on one problem, one after another.
@@ -407,6 +419,9 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
         every scheme, or scheme → list. Default :data:`DEFAULT_TARGETS`.
     rtols : sequence of float
         Relative tolerances of the competitors (sorted loosest first here).
+    ours_rtols : sequence of float
+        Relative tolerances of our schemes' error-controlled runs (methods
+        ``<scheme>-rtol``); empty for none.
     competitors : sequence of str
         Of ``"ida"``, ``"radau"``, ``"bdf"``.
     t_end : float, optional
@@ -446,11 +461,13 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     # of the competitors needs the order
     per_scheme = {s: tuple(sorted(map(float, ts), reverse=True)) for s, ts in per_scheme.items()}
     rtols = tuple(sorted(map(float, rtols), reverse=True))
+    ours_rtols = tuple(sorted(map(float, ours_rtols or ()), reverse=True))
 
     say(f"{problem}: IDA reference (rtol {reference_rtol:g}; computed once, then cached)")
     reference = cached_reference(problem, t_end=t_end, rtol=reference_rtol)
 
-    methods = [(m, per_scheme[m]) for m in schemes] + [(c, rtols) for c in competitors]
+    methods = [(m, per_scheme[m]) for m in schemes] + \
+        [(f"{m}-rtol", ours_rtols) for m in schemes] + [(c, rtols) for c in competitors]
     methods = [(m, ts) for m, ts in methods if ts]
     for method, settings in methods:
         # warm-up, untimed: imports and first-call costs belong to no run
@@ -493,7 +510,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
         "observation_time": float(model.observation_time),
         "settings": {
             "schemes": list(schemes), "targets": {s: list(ts) for s, ts in per_scheme.items()},
-            "competitors": list(competitors), "rtols": list(rtols), "repeats": int(repeats),
+            "ours_rtols": list(ours_rtols), "competitors": list(competitors), "rtols": list(rtols), "repeats": int(repeats),
             "repeat_below": float(repeat_below), "reference_rtol": float(reference_rtol),
             "max_nfev": int(max_nfev), "skip_nfev": int(skip_nfev),
             "inaccurate_factor": INACCURATE_FACTOR,
@@ -619,7 +636,7 @@ def speedups(records, cost="wall") -> dict:
         a competitor's cost does not grow as its accuracy falls; ``fronts``:
         each method's front.
     """
-    ours = sorted({r["method"] for r in records if r["kind"] == "ours"}, key=SCHEMES.index)
+    ours = sorted({r["method"] for r in records if r["kind"] == "ours"}, key=OURS.index)
     rivals = sorted({r["method"] for r in records if r["kind"] == "competitor"},
                     key=COMPETITORS.index)
     fronts = {m: _front(records, {m}, cost) for m in ours + rivals}
@@ -687,12 +704,13 @@ def goal(records, rtol=GOAL_RTOL, factor=GOAL_FACTOR, cost="wall") -> dict:
     ida = ida[0]
     out["ida"] = {"eps_u": ida["eps_u"], cost: ida[cost], "steps": ida["steps"],
                   "nfev": ida["nfev"]}
-    hfdi_runs = [r for r in records if r["method"] == "hfdi" and r["success"]]
+    hfdi_methods = {"hfdi", "hfdi-rtol"}
+    hfdi_runs = [r for r in records if r["method"] in hfdi_methods and r["success"]]
     if not hfdi_runs:
         out["note"] = "no successful HFDI run"
         return out
     reach = [r for r in hfdi_runs if r["eps_u"] <= ida["eps_u"]]
-    front = _front(records, {"hfdi"}, cost)
+    front = _front(records, hfdi_methods, cost)
     wall_i, where = interpolate_wall([p["eps_u"] for p in front], [p[cost] for p in front],
                                      ida["eps_u"])
     out["interpolation"] = where
@@ -705,7 +723,8 @@ def goal(records, rtol=GOAL_RTOL, factor=GOAL_FACTOR, cost="wall") -> dict:
                        f"(HFDI's smallest: {best:.2e})")
         return out
     fast = min(reach, key=lambda r: r[cost])
-    out["hfdi"] = {"target": fast["target"], "eps_u": fast["eps_u"], cost: fast[cost],
+    out["hfdi"] = {"target": fast["target"], "rtol": fast["rtol"], "label": fast["label"],
+                   "method": fast["method"], "eps_u": fast["eps_u"], cost: fast[cost],
                    "steps": fast["steps"], "newton_iterations": fast["newton_iterations"]}
     out["ratio"] = ida[cost] / fast[cost]
     out["met"] = bool(out["ratio"] >= factor)
@@ -829,7 +848,7 @@ def format_problem(result) -> str:
         text = (f"  Goal (HFDI vs IDA rtol {g['rtol']:g}): IDA ε_u {g['ida']['eps_u']:.2e} in "
                 f"{g['ida']['wall'] * 1e3:.0f} ms; ")
         if g["hfdi"] is not None:
-            text += (f"fastest HFDI run with ε_u ≤ that: N̄={g['hfdi']['target']:g}, "
+            text += (f"fastest HFDI run with ε_u ≤ that: {g['hfdi']['method']} {g['hfdi']['label']}, "
                      f"ε_u {g['hfdi']['eps_u']:.2e}, {g['hfdi']['wall'] * 1e3:.0f} ms → "
                      f"×{g['ratio']:.2f} measured")
         else:
@@ -840,7 +859,7 @@ def format_problem(result) -> str:
             text += f"; HFDI's front at IDA's ε_u: {g['interpolation']}"
         gc = result["goal_cpu"]
         if gc["ratio"] is not None:
-            text += f"; CPU time: ×{gc['ratio']:.2f} (N̄={gc['hfdi']['target']:g})"
+            text += f"; CPU time: ×{gc['ratio']:.2f} ({gc['hfdi']['method']} {gc['hfdi']['label']})"
         text += (f". ≥{g['factor']:g}×: {'met' if g['met'] else 'NOT met'}")
         lines.append(text)
     m = result["machine"]
@@ -858,7 +877,9 @@ def format_problem(result) -> str:
 
 _STYLE = {"newmark": ("tab:blue", "o", "-"), "bathe": ("tab:green", "s", "-"),
           "hfdi": ("tab:red", "D", "-"), "ida": ("black", "^", "--"),
-          "radau": ("tab:purple", "v", "--"), "bdf": ("tab:orange", "P", "--")}
+          "radau": ("tab:purple", "v", "--"), "bdf": ("tab:orange", "P", "--"),
+          "newmark-rtol": ("tab:blue", "o", ":"), "bathe-rtol": ("tab:green", "s", ":"),
+          "hfdi-rtol": ("tab:red", "D", ":")}
 
 
 def plot_problem(result, path) -> Path:
@@ -880,7 +901,9 @@ def plot_problem(result, path) -> Path:
             color, marker, line = _STYLE.get(method, ("gray", "x", ":"))
             x = [r["wall"] for r in runs]
             y = [r["eps_u"] for r in runs]
-            name = method.upper() if method in ("hfdi", "ida", "bdf") else method.capitalize()
+            base, _, mode = method.partition("-")
+            name = (base.upper() if base in ("hfdi", "ida", "bdf") else base.capitalize()) + \
+                (f" ({mode})" if mode else "")
             ax.plot(x, y, line, color=color, marker=marker, label=name, ms=5, lw=1.2)
             # label the ends of each curve (loosest and tightest setting)
             for r in {id(runs[0]): runs[0], id(runs[-1]): runs[-1]}.values():
@@ -943,6 +966,18 @@ def _rtols(text):
     return sorted(set(values), reverse=True)
 
 
+def _ours_rtols(text):
+    import argparse
+    if text.strip().lower() == "none":
+        return []
+    values = _rtols(text)
+    low, high = hfdi.controller.RTOL_RANGE
+    if any(not (low <= v < high) for v in values):
+        raise argparse.ArgumentTypeError(f"--rtol values must be in [{low:g}, {high:g}), "
+                                         f"got {text!r}")
+    return values
+
+
 def _competitors(text):
     import argparse
     if text.strip().lower() == "none":
@@ -975,6 +1010,10 @@ def add_bench_parser(sub) -> None:
                        help="comma-separated, of ida, radau, bdf, or none (default: all)")
     bench.add_argument("--rtols", type=_rtols, default=list(DEFAULT_RTOLS),
                        help="competitors' relative tolerances (default 1e-3,...,1e-10)")
+    bench.add_argument("--rtol", dest="ours_rtols", type=_ours_rtols,
+                       default=list(DEFAULT_OURS_RTOLS),
+                       help="relative tolerances of our schemes' error-controlled runs "
+                            "(default 1e-3,...,1e-9; none for none)")
     bench.add_argument("--t-end", type=cli._positive, default=None,
                        help="end time of the runs and of the reference (default: T_o)")
     bench.add_argument("--repeats", type=positive_integer, default=REPEATS,
@@ -995,7 +1034,8 @@ def run_bench_command(args) -> int:
     cli._check_runs(problems, args.schemes, args.targets, args.t_end)
     out = cli._out_dir(args.out)
     options = {"schemes": list(args.schemes), "targets": args.targets,
-               "rtols": list(args.rtols), "competitors": list(args.competitors),
+               "rtols": list(args.rtols), "ours_rtols": list(args.ours_rtols),
+               "competitors": list(args.competitors),
                "t_end": args.t_end, "repeats": args.repeats, "max_nfev": args.max_nfev,
                "skip_nfev": max(1, args.max_nfev // 2)}
     started = time.perf_counter()

@@ -55,6 +55,18 @@ def _targets(text):
     return values
 
 
+def _rtols(text):
+    low, high = hfdi.controller.RTOL_RANGE
+    try:
+        values = [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"rtol must be numbers, got {text!r}") from None
+    if not values or any(not (low <= v < high) for v in values):
+        raise argparse.ArgumentTypeError(f"rtol must be numbers in [{low:g}, {high:g}), "
+                                         f"got {text!r}")
+    return sorted(set(values), reverse=True)
+
+
 def _output_file(text):
     """A file the command will write at the end: checked now, not after the runs."""
     if not text.strip():
@@ -134,6 +146,9 @@ def build_parser():
     table.add_argument("--schemes", type=_schemes, default=list(SCHEME_ORDER))
     table.add_argument("--targets", type=_targets, default=None,
                        help="target iteration counts (per sub-step for Bathe)")
+    table.add_argument("--rtol", type=_rtols, default=None, metavar="R[,R...]",
+                       help="error-controlled runs at these relative tolerances instead of "
+                            "the paper's targets (with --targets: both rules combined)")
     table.add_argument("--t-end", type=_positive, default=None, help="observation time T_o")
     table.add_argument("--json", metavar="FILE", type=_output_file,
                        help="write the runs as JSON records")
@@ -183,12 +198,12 @@ def _table(args):
     problems = list(dict.fromkeys(s.strip() for s in args.problem.split(",") if s.strip()))
     for name in problems or [args.problem]:
         _check_problem(name)
-    _check_runs(problems, args.schemes, args.targets, args.t_end)
+    _check_runs(problems, args.schemes, args.targets, args.t_end, args.rtol)
     several = len(problems) > 1
 
     def progress(record):
         where = f"{record.problem:11s} " if several else ""
-        print(f"  {where}{record.scheme:8s} N̄={record.target:<4} steps={record.steps:<6d} "
+        print(f"  {where}{record.scheme:8s} {record.label:<9} steps={record.steps:<6d} "
               f"{record.status}", file=sys.stderr, flush=True)
 
     def say(text):
@@ -196,7 +211,8 @@ def _table(args):
 
     with parallel.runner_from_args(args) as runner:
         tables = run_tables(problems, args.schemes, args.targets, args.t_end,
-                            eps=not args.no_eps, runner=runner, progress=progress, say=say)
+                            eps=not args.no_eps, runner=runner, progress=progress, say=say,
+                            rtols=args.rtol, run_progress=_run_progress)
     records = []
     for problem in problems:
         print(f"{problem}: computational characteristics "
@@ -208,6 +224,27 @@ def _table(args):
             json.dump([r.as_dict() for r in records], fh, indent=1)
     if args.csv:
         records_to_csv(records, args.csv)
+
+
+#: Seconds between two progress lines of one long run.
+PROGRESS_EVERY = 5.0
+
+
+def _run_progress(label):
+    """A ``progress(t, statistics)`` callback for :func:`hfdi.integrate` that
+    prints a line to stderr every :data:`PROGRESS_EVERY` seconds of a long
+    run, so that a slow or stalled run is visible."""
+    import time
+    start = time.monotonic()
+    last = [start]
+
+    def progress(t, stats):
+        now = time.monotonic()
+        if now - last[0] >= PROGRESS_EVERY:
+            last[0] = now
+            print(f"    {label}: t = {t:.6g}, {stats.steps} steps, {now - start:.0f} s",
+                  file=sys.stderr, flush=True)
+    return progress
 
 
 def _out_dir(text) -> Path:
@@ -259,19 +296,24 @@ def _check_problem(name):
                     f"{', '.join(hfdi.models.available())}")
 
 
-def _check_runs(problems, schemes, targets, t_end):
+def _check_runs(problems, schemes, targets, t_end, rtols=None):
     """Let the library refuse the run settings (say a --t-end below its
     smallest step) before the reference and the runs take their time."""
     for name in problems:
         model = hfdi.models.get(name)
         for scheme in schemes:
-            for target in targets or model.paper_targets.get(scheme) or [3.0]:
-                try:
-                    hfdi.Integrator(model, scheme, target_iterations=target,
-                                    t_bound=t_end or model.observation_time)
-                except ValueError as exc:
-                    raise _Exit(f"cannot run {name} to t = {t_end or model.observation_time:g} "
-                                f"({scheme}, N̄ = {target:g}): {exc}") from None
+            for target in targets or ([None] if rtols else
+                                      model.paper_targets.get(scheme) or [3.0]):
+                for rtol in rtols or [None]:
+                    try:
+                        hfdi.Integrator(model, scheme, target_iterations=target, rtol=rtol,
+                                        t_bound=t_end or model.observation_time)
+                    except ValueError as exc:
+                        setting = ", ".join(f"{k} = {v:g}" for k, v in
+                                            (("N̄", target), ("rtol", rtol)) if v is not None)
+                        raise _Exit(f"cannot run {name} to t = "
+                                    f"{t_end or model.observation_time:g} ({scheme}, "
+                                    f"{setting}): {exc}") from None
 
 
 def _figures(args):

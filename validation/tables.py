@@ -27,11 +27,12 @@ ENERGY_LIMIT = 0.5
 
 @dataclass
 class RunRecord:
-    """One run of a table: a problem, a scheme and a target iteration count."""
+    """One run of a table: a problem, a scheme and a target iteration count
+    (the paper's mode), a relative tolerance (error control), or both."""
 
     problem: str
     scheme: str
-    target: float
+    target: float | None
     steps: int
     mean_iterations: float
     mean_step: float
@@ -40,6 +41,17 @@ class RunRecord:
     message: str
     t_reached: float
     eps: dict = field(default_factory=dict)
+    rtol: float | None = None
+
+    @property
+    def label(self) -> str:
+        """``N̄`` (``2·N̄`` for Bathe), ``rtol`` or both, as the table heads its column."""
+        parts = []
+        if self.target is not None:
+            parts.append(("2·" if self.scheme == "bathe" else "") + format(self.target, ".1f"))
+        if self.rtol is not None:
+            parts.append(format(self.rtol, ".0e"))
+        return "/".join(parts)
 
     @property
     def diverged(self) -> bool:
@@ -49,23 +61,28 @@ class RunRecord:
         return asdict(self)
 
 
-def run_experiment(problem: str, scheme: str, target: float, t_end: float | None = None,
-                   params: dict | None = None):
-    """Integrate ``problem`` to its ``T_o`` (or ``t_end``); returns (model, result)."""
+def run_experiment(problem: str, scheme: str, target: float | None,
+                   t_end: float | None = None, params: dict | None = None, rtol=None,
+                   progress=None):
+    """Integrate ``problem`` to its ``T_o`` (or ``t_end``) at the target
+    iteration count ``target`` (the paper's mode), under error control at
+    ``rtol``, or both; returns (model, result). ``progress`` is passed to
+    :func:`hfdi.integrate`."""
     model = hfdi.models.get(problem, **(params or {}))
     t_end = model.observation_time if t_end is None else t_end
-    result = hfdi.integrate(model, scheme, t_end, target_iterations=target,
-                            energy_limit=ENERGY_LIMIT)
+    result = hfdi.integrate(model, scheme, t_end, target_iterations=target, rtol=rtol,
+                            energy_limit=ENERGY_LIMIT, progress=progress)
     return model, result
 
 
-def make_record(problem, scheme, target, model, result, reference=None) -> RunRecord:
+def make_record(problem, scheme, target, model, result, reference=None, rtol=None) -> RunRecord:
     """The table record of one run, with ``ε`` against ``reference`` when given."""
     st = result.stats
     eps = error_norms(model, result, reference) if reference is not None else {}
-    return RunRecord(problem, scheme, float(target), st.steps, st.mean_iterations,
-                     st.mean_step, st.cpu_time, result.status.name, result.message,
-                     float(result.t[-1]), eps)
+    return RunRecord(problem, scheme, None if target is None else float(target), st.steps,
+                     st.mean_iterations, st.mean_step, st.cpu_time, result.status.name,
+                     result.message, float(result.t[-1]), eps,
+                     None if rtol is None else float(rtol))
 
 
 def problem_reference(problem: str, t_end=None, params=None, rtol=1e-12, progress=None):
@@ -109,21 +126,22 @@ def shared_reference(problem: str, t_end=None, params=None, rtol=1e-12):
         return reference
 
 
-def table_run(problem: str, scheme: str, target: float, t_end=None, params=None,
-              eps_rtol=1e-12) -> RunRecord:
+def table_run(problem: str, scheme: str, target: float | None, t_end=None, params=None,
+              eps_rtol=1e-12, rtol=None, progress=None) -> RunRecord:
     """One run of a table and its record, with ``ε`` against the rtol
     ``eps_rtol`` reference (:func:`shared_reference`; none when ``None``).
 
     The unit of work of :func:`run_tables`: a module-level function of plain
     arguments, so that it runs the same in a worker process.
     """
-    model, result = run_experiment(problem, scheme, target, t_end, params)
+    model, result = run_experiment(problem, scheme, target, t_end, params, rtol, progress)
     reference = None if eps_rtol is None else shared_reference(problem, t_end, params, eps_rtol)
-    return make_record(problem, scheme, target, model, result, reference)
+    return make_record(problem, scheme, target, model, result, reference, rtol)
 
 
 def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
-               eps=True, runner=None, progress=None, say=None) -> dict:
+               eps=True, runner=None, progress=None, say=None, rtols=None,
+               run_progress=None) -> dict:
     """Every run of the paper's tables of several problems (their targets unless
     ``targets``), each record with ``ε`` (Eq. 42) of every quantity of interest
     of its model when ``eps``.
@@ -134,6 +152,9 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
     schemes, targets, t_end, params
         Schemes, target iteration counts (every scheme), end time (default
         ``T_o``) and model parameters (every problem).
+    rtols : sequence of float, optional
+        Relative tolerances: the runs are error-controlled, one per rtol
+        (combined with each of ``targets`` when both are given).
     eps : bool
         Compute ``ε`` against the rtol 1e-12 reference.
     runner : validation.parallel.Runner, optional
@@ -144,6 +165,10 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
         ``progress(record)`` for each run, in the order of the runs.
     say : callable, optional
         ``say(text)`` for the references.
+    run_progress : callable, optional
+        ``run_progress(label)`` returns the ``progress(t, statistics)``
+        callback of :func:`hfdi.integrate` for the run ``label``; used when the
+        runs are made in this process (a worker's output is not shown).
 
     Returns
     -------
@@ -170,9 +195,16 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
     for problem in problems:
         model = hfdi.models.get(problem, **(params or {}))
         for scheme in schemes:
-            for target in (targets or model.paper_targets[scheme]):
-                tasks.append((problem, scheme, float(target), t_end, params,
-                              1e-12 if eps else None))
+            for target in (targets or ([None] if rtols else model.paper_targets[scheme])):
+                for rtol in (rtols or [None]):
+                    task = (problem, scheme, None if target is None else float(target),
+                            t_end, params, 1e-12 if eps else None, rtol)
+                    if run_progress is not None and not runner.parallel:
+                        label = "/".join(f"{k}={v:g}" for k, v in (("N̄", target),
+                                                                    ("rtol", rtol))
+                                         if v is not None)
+                        task += (run_progress(f"{problem} {scheme} {label}"),)
+                    tasks.append(task)
     records = runner.map(table_run, tasks,
                          on_result=None if progress is None else lambda i, r: progress(r))
     tables = {problem: [] for problem in problems}
@@ -203,19 +235,22 @@ def format_table(records: list) -> str:
         if not rows:
             continue
         width = 11
-        head = "2·" if scheme == "bathe" else ""
         lines.append(f"{scheme.upper() if scheme == 'hfdi' else scheme.capitalize()}")
-        lines.append(f"  {'N̄':<16}" + "".join(f"{head + format(r.target, '.1f'):>{width}}"
-                                              for r in rows))
+        head = "/".join(name for name, used in (("N̄", rows[0].target is not None),
+                                                 ("rtol", rows[0].rtol is not None)) if used)
+        lines.append(f"  {head:<16}" + "".join(f"{r.label:>{width}}" for r in rows))
         for key, label in (("mean_step", "Δt_mv"), ("steps", "steps"),
                            ("mean_iterations", "N_mv"), ("cpu_time", "t_T [s]")):
             ours = []
             for r in rows:
                 ours.append("div" if r.diverged else _fmt(getattr(r, key), key))
             lines.append(f"  {label:<16}" + "".join(f"{s:>{width}}" for s in ours))
+            if all(r.rtol is not None for r in rows):
+                continue                # error-controlled runs: the paper has none
             theirs = []
             for r in rows:
-                row = paper.get(scheme, {}).get(round(r.target, 3), "n/a")
+                row = "n/a" if r.rtol is not None else \
+                    paper.get(scheme, {}).get(round(r.target, 3), "n/a")
                 theirs.append("n/a" if row == "n/a" else
                               ("div" if row is None else _fmt(row[key], key)))
             lines.append(f"  {'  (paper)':<16}" + "".join(f"{s:>{width}}" for s in theirs))
@@ -225,7 +260,7 @@ def format_table(records: list) -> str:
             lines.append(f"  {'ε_' + name:<16}" + "".join(f"{c:>{width}}" for c in cells))
         for r in rows:
             if r.diverged:
-                lines.append(f"  div at N̄ = {r.target}: {r.status}, {r.message}"
+                lines.append(f"  div at {head} = {r.label}: {r.status}, {r.message}"
                              + (" (ε over the interval reached)" if r.eps else ""))
         lines.append("")
     return "\n".join(lines)
@@ -235,7 +270,7 @@ def records_to_csv(records: list, path) -> None:
     """Write the runs as CSV, one row per run and one ``eps_<name>`` column per quantity."""
     import csv
     names = sorted({n for r in records for n in r.eps})
-    fields = ["problem", "scheme", "target", "steps", "mean_iterations", "mean_step",
+    fields = ["problem", "scheme", "target", "rtol", "steps", "mean_iterations", "mean_step",
               "cpu_time", "status", "t_reached"]
     with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
