@@ -89,15 +89,17 @@ class Unit:
             self._logger(status_name, category, message)
 
     # -- set-up -----------------------------------------------------------------
-    def initialize(self, parameters=None, inputs=None, start_time=0.0, stop_time=None):
-        """setupExperiment, enterInitializationMode, set values, exitInitializationMode.
+    def initialize(self, parameters=None, inputs=None, start_time=0.0, stop_time=None,
+                   tolerance=None):
+        """setupExperiment (with ``tolerance`` when given), enterInitializationMode,
+        set values, exitInitializationMode.
 
         Raises
         ------
         fmpy.fmi1.FMICallException
             When the FMU rejects the parameters (``status`` is the FMI status).
         """
-        self.fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
+        self.fmu.setupExperiment(tolerance=tolerance, startTime=start_time, stopTime=stop_time)
         self.fmu.enterInitializationMode()
         self.set(parameters or {})
         self.set(inputs or {})

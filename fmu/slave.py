@@ -14,8 +14,10 @@ importing process has (see :func:`load_bundle`).
 Variables (DOF numbers are 1-based, the convention of the Modelica-based tools
 that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
 
-* parameters (fixed): ``scheme`` (newmark | bathe | hfdi), ``target_iterations``,
-  ``tolerance`` (Newton tolerance η), ``initial_step`` (0: automatic),
+* parameters (fixed): ``scheme`` (newmark | bathe | hfdi), ``target_iterations``
+  (0: not used), ``rtol`` (error control; 0: the master's tolerance of
+  ``fmi2SetupExperiment`` when defined), ``tolerance`` (Newton tolerance η;
+  0: automatic), ``initial_step`` (0: automatic),
   ``max_step`` (0: no limit) and every scalar constructor parameter of the
   model (``model.NAME`` when the bare name is taken);
 * inputs: ``F[i]``, an external force added to the model's load through
@@ -97,8 +99,9 @@ __all__ = ["HfdiSlave", "FmuError", "load_bundle", "hold_namespace"]
 #: Serialized FMU states start with this line; a version bump makes old ones unreadable.
 _MAGIC = b"hfdi-fmu-state/1\n"
 
-_SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "tolerance": 1e-8,
-                    "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000}
+_SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "rtol": 0.0, "tolerance": 0.0,
+                    "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000,
+                    "master_rtol": 0.0}
 #: Largest target_iterations: Newton may run 2 N-bar corrections per attempt
 #: and 31 attempts per step, each unbounded in time when it cannot converge.
 _MAX_TARGET_ITERATIONS = 100.0
@@ -412,9 +415,14 @@ class HfdiSlave(Fmi2Slave):
             setter=self._param_setter("scheme", str), **fixed))
         solver = [
             ("target_iterations", "1", "target Newton iterations per (sub-)step N-bar "
-                                       "(paper Eq. 39), in [1, 100]"),
+                                       "(paper Eq. 39), in [1, 100]; 0: not used (error "
+                                       "control alone). With an rtol in force both rules "
+                                       "apply (combined mode)"),
+            ("rtol", "1", "relative tolerance of the local error of u and v (error "
+                          "control), in [1e-13, 0.1); 0: the master's tolerance of "
+                          "fmi2SetupExperiment when it defines one, else none"),
             ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in (0, 1); "
-                               "the master's tolerance is not used"),
+                               "0: automatic (1e-8, below rtol/1000 under error control)"),
             ("initial_step", "s", "first trial step size; 0: automatic (1/omega_max)"),
             ("max_step", "s", "largest internal step size; 0: no limit"),
         ]
@@ -557,6 +565,21 @@ class HfdiSlave(Fmi2Slave):
                 self.log(f"fmi2SetupExperiment: start time {start_time!r} is not finite; "
                          f"t0 = {self._start_time!r} is kept", Fmi2Status.warning)
             self._stop_time = None if stop_time is None else float(stop_time)
+            self._params["master_rtol"] = 0.0
+            if tolerance is not None:
+                low, high = self._hfdi.controller.RTOL_RANGE
+                rtol = float(tolerance)
+                if not (math.isfinite(rtol) and rtol > 0):
+                    self.log(f"fmi2SetupExperiment: tolerance {tolerance!r} is not a positive "
+                             f"number; not used", Fmi2Status.warning)
+                else:
+                    if not low <= rtol < high:
+                        clipped = min(max(rtol, low), 0.5 * high)
+                        self.log(f"fmi2SetupExperiment: tolerance {rtol!r} outside "
+                                 f"[{low:g}, {high:g}); {clipped:g} is used",
+                                 Fmi2Status.warning)
+                        rtol = clipped
+                    self._params["master_rtol"] = rtol
         except Exception as exc:  # keep exceptions away from pythonfmu's C++ layer
             self.log(f"setup_experiment({start_time!r}, {stop_time!r}) ignored: {exc!r}",
                      Fmi2Status.warning)
@@ -592,8 +615,8 @@ class HfdiSlave(Fmi2Slave):
         self._itg_key = (dict(self._params), dict(self._mparams), self._start_time)
         self._phase = "stepping"
         self._cache = None
-        self.log(f"{self.model_name}: scheme {self._params['scheme']}, target "
-                 f"{self._params['target_iterations']}, t0 = {self._start_time}, first trial "
+        self.log(f"{self.model_name}: scheme {self._params['scheme']}, controller "
+                 f"{itg.controller!r}, t0 = {self._start_time}, first trial "
                  f"step {itg.proposed_step:.6g}", Fmi2Status.ok)
 
     def terminate(self):
@@ -615,12 +638,18 @@ class HfdiSlave(Fmi2Slave):
             errors.append(f"parameter scheme = {scheme!r} must be one of "
                           f"{', '.join(sorted(hfdi.SCHEMES))}")
         target = params["target_iterations"]
-        if not (_finite_number(target) and 1.0 <= target <= _MAX_TARGET_ITERATIONS):
-            errors.append(f"parameter target_iterations = {target!r} must be a finite "
-                          f"number in [1, {_MAX_TARGET_ITERATIONS:g}]")
+        if not (_finite_number(target) and (target == 0.0
+                                            or 1.0 <= target <= _MAX_TARGET_ITERATIONS)):
+            errors.append(f"parameter target_iterations = {target!r} must be 0 (not used) "
+                          f"or a finite number in [1, {_MAX_TARGET_ITERATIONS:g}]")
+        rtol = params["rtol"]
+        low, high = hfdi.controller.RTOL_RANGE
+        if not (_finite_number(rtol) and (rtol == 0.0 or low <= rtol < high)):
+            errors.append(f"parameter rtol = {rtol!r} must be 0 (the master's tolerance or "
+                          f"none) or a finite number in [{low:g}, {high:g})")
         tol = params["tolerance"]
-        if not (_finite_number(tol) and 0.0 < tol < 1.0):
-            errors.append(f"parameter tolerance = {tol!r} must lie in (0, 1)")
+        if not (_finite_number(tol) and 0.0 <= tol < 1.0):
+            errors.append(f"parameter tolerance = {tol!r} must lie in (0, 1) (0: automatic)")
         for name, zero in (("initial_step", "automatic"), ("max_step", "no limit")):
             value = params[name]
             if not (_finite_number(value) and value >= 0.0):
@@ -644,8 +673,12 @@ class HfdiSlave(Fmi2Slave):
                               f"for the model's default structure, rebuild it for others")
         if errors:
             raise FmuError("; ".join(errors))
+        # the mode: the paper's rule, error control, or both (docs: fmu/README.md)
+        rtol = float(rtol) or float(params.get("master_rtol", 0.0)) or None
+        target = float(target) or None
         try:
-            itg = hfdi.Integrator(model, key, target_iterations=float(target), tol=float(tol),
+            itg = hfdi.Integrator(model, key, target_iterations=target, rtol=rtol,
+                                  tol=float(tol) or None,
                                   t0=float(start_time),
                                   first_step=float(params["initial_step"]) or None,
                                   max_step=float(params["max_step"]) or None,
@@ -653,7 +686,8 @@ class HfdiSlave(Fmi2Slave):
         except Exception as exc:
             model_part = "".join(f", {k} = {v!r}" for k, v in changed.items())
             raise FmuError(f"the integrator rejected the parameters (scheme = {scheme!r}, "
-                           f"target_iterations = {target!r}, tolerance = {tol!r}, "
+                           f"target_iterations = {target!r}, rtol = {rtol!r}, "
+                           f"tolerance = {tol!r}, "
                            f"initial_step = {params['initial_step']!r}, "
                            f"max_step = {params['max_step']!r}{model_part}): {exc}") from None
         return model, itg

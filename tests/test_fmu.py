@@ -133,6 +133,30 @@ def test_simulate_fmu_reproduces_integrator_advance(fmus, scheme):
     assert result["internal_steps"][-1] == itg.statistics.steps > 50     # same internal steps
 
 
+@pytest.mark.parametrize("how, in_process", [
+    (dict(tolerance=1e-6), dict(rtol=1e-6, target_iterations=3.0)),        # combined
+    (dict(parameters={"target_iterations": 0.0, "rtol": 1e-7}), dict(rtol=1e-7)),
+    (dict(parameters={"target_iterations": 0.0}, tolerance=1e-5), dict(rtol=1e-5)),
+])
+def test_tolerances_give_error_control_as_in_process(dumbbell, how, in_process):
+    """The master's tolerance (fmi2SetupExperiment) or the rtol parameter put
+    the FMU under error control, with the same steps as in-process."""
+    path, unzip = dumbbell
+    u = Unit(path, "tol", unzip_dir=unzip)
+    u.initialize(**how)
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), "hfdi", **in_process)
+    t = 0.0
+    for _ in range(20):
+        assert u.step(t, 0.05)
+        t += 0.05
+        assert itg.advance(t)
+    n = itg.ev.n
+    np.testing.assert_allclose(u.get([f"u[{i}]" for i in range(1, n + 1)]), itg.state.u,
+                               rtol=0, atol=1e-12 * np.abs(itg.state.u).max())
+    assert int(u.get(["internal_steps"])[0]) == itg.statistics.steps
+    u.close()
+
+
 @pytest.mark.parametrize("name", [m for m in MODELS if m != "dumbbell"])
 def test_other_models_reproduce_integrator_advance(fmus, name):
     model = hfdi.models.get(name)
@@ -311,7 +335,8 @@ def test_master_halves_and_repeats_a_discarded_step(dumbbell):
 
 @pytest.mark.parametrize("parameters, named", [
     ({"scheme": "euler"}, "scheme"),
-    ({"target_iterations": 0.0}, "target_iterations"),
+    ({"target_iterations": 0.5}, "target_iterations"),
+    ({"rtol": 0.5}, "rtol"),
     ({"tolerance": 1.5}, "tolerance"),
     ({"max_step": -1.0}, "max_step"),
     ({"A": -1.0}, "A"),
