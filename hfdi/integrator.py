@@ -33,6 +33,9 @@ from .system import SecondOrderSystem
 __all__ = ["Integrator", "IntegratorState", "Result", "Statistics", "Status", "integrate"]
 
 
+_EPS = float(np.finfo(float).eps)
+
+
 class Status(enum.IntEnum):
     """How a run ended (negative values are failures).
 
@@ -663,11 +666,12 @@ class Integrator:
             attempt.y_start = np.concatenate([current.u, current.v])
             attempt.y_end = np.concatenate([new.u, new.v])
             attempt.error = local_error(current, previous, new, h, self.scheme.order)
-            # the corrector leaves u uncertain by up to tol·max(‖u‖, floor), and
-            # every scheme forms v from Δu/h with a factor of at most 3: below
-            # that the velocity's error cannot be told (nor controlled)
-            attempt.velocity_noise = 3.0 * self.tol * max(float(np.sqrt(new.u @ new.u)),
-                                                          self.floor) / h
+            # every scheme forms v from Δu/h with a factor of at most 3: the
+            # corrector's remaining error in u, and rounding, make v uncertain
+            # by about 3·(error + ε‖u‖)/h, below which its error can be neither
+            # told nor controlled
+            attempt.velocity_noise = 3.0 * (outcome.newton_error + _EPS * float(
+                np.abs(new.u).max())) / h
         return attempt
 
     def _accept(self, attempt) -> bool:

@@ -149,7 +149,10 @@ def test_combined_mode_takes_the_smaller_proposal():
     both = hfdi.integrate(model, "hfdi", 10.0, rtol=1e-6, target_iterations=2.0)
     assert both.success
     assert both.stats.steps >= max(error.stats.steps, count.stats.steps) * 0.9
-    assert relative_error(both, exact) <= 1.5 * relative_error(error, exact)
+    # as accurate as error control (within the scatter of global errors) and
+    # more than the iteration count alone
+    assert relative_error(both, exact) <= 3 * relative_error(error, exact)
+    assert relative_error(both, exact) < relative_error(count, exact)
 
 
 def test_controller_objects_are_injectable():
@@ -181,18 +184,20 @@ def test_fixed_step_takes_exactly_n_steps(scheme):
 
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_landing_never_leaves_a_sliver(scheme):
-    """Error control landing on many arbitrary times: every step is at least
-    half the one before it, apart from error-driven shrinking."""
+    """Error control landing on many times: the steps that land are no
+    shorter than about half of what error control takes anyway (the smallest
+    step of the same run without stops)."""
     model, _ = exact_problems.duffing()
+    free = hfdi.integrate(model, scheme, 10.0, rtol=1e-6)
     itg = hfdi.Integrator(model, scheme, rtol=1e-6, t_bound=10.0)
     steps = []
     # targets at least 0.1 apart, far more than a step
     targets = 0.15 * np.arange(1, 60) + np.random.default_rng(1).uniform(0.0, 0.05, 59)
-    for t in targets:
+    for t in [*targets, 10.0]:
         assert itg.advance(t, callback=lambda i: steps.append(i.last_step))
-    assert itg.advance(10.0, callback=lambda i: steps.append(i.last_step))
-    steps = np.array(steps[10:])            # past the start, which begins small
-    assert steps.min() > 0.25 * np.median(steps), (steps.min(), np.median(steps))
+    smallest_free = free.step_size[10:].min()          # past the start, which begins small
+    assert min(steps[10:]) > 0.4 * smallest_free, (min(steps[10:]), smallest_free)
+    assert len(steps) < free.stats.accepted + 2 * len(targets)
 
 
 def test_finished_integrator_takes_no_step():
