@@ -10,7 +10,8 @@ from validation.bench import (_mark_inaccurate, bench_problem, goal, interpolate
                               pareto_front, speedups)
 from validation.cli import main
 
-TINY = ["--t-end", "0.05", "--rtols", "1e-4,1e-7", "--targets", "3", "--repeats", "1"]
+TINY = ["--t-end", "0.05", "--rtols", "1e-4,1e-7", "--targets", "3", "--rtol", "1e-5",
+        "--repeats", "1"]
 RECORD_FIELDS = {"problem", "method", "kind", "target", "rtol", "label", "success", "status",
                  "message", "t_reached", "wall", "walls", "cpu", "eps_u", "eps", "steps",
                  "newton_iterations", "nfev", "njev", "nlu"}
@@ -57,7 +58,8 @@ def test_outputs_are_written(tiny):
             assert key in data["machine"]
         methods = [(r["method"], r["target"], r["rtol"]) for r in data["records"]]
         assert methods == [("newmark", 3.0, None), ("bathe", 3.0, None), ("hfdi", 3.0, None),
-                           ("ida", None, 1e-4), ("ida", None, 1e-7),
+                           ("newmark-rtol", None, 1e-5), ("bathe-rtol", None, 1e-5),
+                           ("hfdi-rtol", None, 1e-5), ("ida", None, 1e-4), ("ida", None, 1e-7),
                            ("radau", None, 1e-4), ("radau", None, 1e-7),
                            ("bdf", None, 1e-4), ("bdf", None, 1e-7)]
         png = (tiny / f"bench_{name}.png").read_bytes()
@@ -97,7 +99,8 @@ def test_speedup_rows_refer_to_the_runs(tiny):
     front = data["speedup"]["ours_front"]
     assert front
     for row in front:
-        assert row["method"] in ("newmark", "bathe", "hfdi")
+        assert row["method"] in ("newmark", "bathe", "hfdi", "newmark-rtol", "bathe-rtol",
+                                 "hfdi-rtol")
         assert set(row["competitors"]) == {"ida", "radau", "bdf"}
         if row["ratio"] is not None:
             best = row["competitors"][row["best_competitor"]]

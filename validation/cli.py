@@ -203,7 +203,9 @@ def _table(args):
 
     def progress(record):
         where = f"{record.problem:11s} " if several else ""
-        print(f"  {where}{record.scheme:8s} {record.label:<9} steps={record.steps:<6d} "
+        setting = " ".join(([f"N̄={record.target:g}"] if record.target is not None else [])
+                           + ([f"rtol={record.rtol:.0e}"] if record.rtol is not None else []))
+        print(f"  {where}{record.scheme:8s} {setting:<7} steps={record.steps:<6d} "
               f"{record.status}", file=sys.stderr, flush=True)
 
     def say(text):
