@@ -14,8 +14,9 @@ from scipy.stats import linregress
 import hfdi
 from problems import coupled_duffing
 from validation.errors import error_norm, error_norms
+from hfdi.dense import hermite_quintic
 from validation.reference import (IDAError, NonFiniteResidualError, cached_reference,
-                                  hermite_quintic, ida_dense_reference, ida_reference)
+                                  ida_dense_reference, ida_reference)
 
 pytest.importorskip("sksundae")
 

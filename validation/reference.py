@@ -74,6 +74,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import hfdi
+from hfdi.dense import hermite_quintic
 
 from .atomic import atomic_file
 
@@ -87,7 +88,6 @@ __all__ = [
     "cached_reference",
     "default_atol",
     "default_cache_dir",
-    "hermite_quintic",
 ]
 
 #: Version of the cache layout and of the reference computation; part of the
@@ -462,65 +462,6 @@ def default_atol(model, rtol, span):
     return rtol * np.concatenate([np.maximum(u0, scale), np.maximum(v0, vel)])
 
 
-# -- Hermite interpolation -------------------------------------------------------
-
-def hermite_quintic(t_nodes, u, v, a, t):
-    """Quintic Hermite interpolation of ``u`` with ``u' = v``, ``u'' = a`` at the nodes.
-
-    On each interval ``[t_k, t_k+1]`` the interpolant ``P`` matches ``u``,
-    ``v`` and ``a`` at both ends. Its error is at most
-    ``h⁶ max|u⁽⁶⁾| / 46080`` in ``u``, ``O(h⁵ u⁽⁶⁾)`` in ``P'`` and
-    ``O(h⁴ u⁽⁶⁾)`` in ``P''``.
-
-    Parameters
-    ----------
-    t_nodes : ndarray (K,), strictly increasing, K >= 2
-    u, v, a : ndarray (K, N)
-    t : ndarray (n,), inside ``[t_nodes[0], t_nodes[-1]]``
-
-    Returns
-    -------
-    P, dP, ddP : ndarray (n, N)
-        ``P(t)``, ``P'(t)`` and ``P''(t)``.
-    """
-    t_nodes = np.asarray(t_nodes, dtype=float)
-    t = np.asarray(t, dtype=float)
-    k = np.clip(np.searchsorted(t_nodes, t, side="right") - 1, 0, t_nodes.size - 2)
-    h = (t_nodes[k + 1] - t_nodes[k])[:, None]
-    s = ((t - t_nodes[k])[:, None]) / h
-    s2 = s * s
-    s3 = s2 * s
-    s4 = s3 * s
-    s5 = s4 * s
-    # basis of value, slope and curvature at the left (0) and right (1) ends
-    # (the left value's, 1 - h01, is folded into u0 + h01 (u1 - u0)) ...
-    h10 = s - 6 * s3 + 8 * s4 - 3 * s5
-    h20 = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
-    h01 = 10 * s3 - 15 * s4 + 6 * s5
-    h11 = -4 * s3 + 7 * s4 - 3 * s5
-    h21 = 0.5 * s3 - s4 + 0.5 * s5
-    # ... its first derivatives in s ...
-    d00 = -30 * s2 + 60 * s3 - 30 * s4
-    d10 = 1 - 18 * s2 + 32 * s3 - 15 * s4
-    d20 = s - 4.5 * s2 + 6 * s3 - 2.5 * s4
-    d11 = -12 * s2 + 28 * s3 - 15 * s4
-    d21 = 1.5 * s2 - 4 * s3 + 2.5 * s4
-    # ... and second derivatives in s
-    c00 = -60 * s + 180 * s2 - 120 * s3
-    c10 = -36 * s + 96 * s2 - 60 * s3
-    c20 = 1 - 9 * s + 18 * s2 - 10 * s3
-    c11 = -24 * s + 84 * s2 - 60 * s3
-    c21 = 3 * s - 12 * s2 + 10 * s3
-    u0, u1 = u[k], u[k + 1]
-    v0, v1 = v[k] * h, v[k + 1] * h
-    a0, a1 = a[k] * h * h, a[k + 1] * h * h
-    du = u1 - u0
-    P = u0 + h10 * v0 + h20 * a0 + h01 * du + h11 * v1 + h21 * a1
-    dP = (-d00 * du + d10 * v0 + d20 * a0 + d11 * v1 + d21 * a1) / h
-    ddP = (-c00 * du + c10 * v0 + c20 * a0 + c11 * v1 + c21 * a1) / (h * h)
-    return P, dP, ddP
-
-
 # -- the reference ---------------------------------------------------------------
 
 @dataclass
@@ -578,7 +519,7 @@ class Reference:
         """Displacement and velocity at the times ``t``.
 
         Node times are returned exactly. Between nodes a dense reference
-        interpolates with :func:`hermite_quintic` (``u = P``, ``v = P'``); a
+        interpolates with :func:`hfdi.dense.hermite_quintic` (``u = P``, ``v = P'``); a
         reference of requested output times only cannot be interpolated to
         IDA's accuracy, and raises.
 
