@@ -34,6 +34,67 @@ def coupled_duffing(damping=0.05, load=None, load_rate=None, c=1.0):
                        name="coupled_duffing")
 
 
+def pleiades():
+    """The Pleiades problem (Hairer, Nørsett & Wanner, *Solving ODEs I*, II.10):
+    seven bodies of masses 1 … 7 in a plane under gravity (G = 1) on
+    [0, 3], with close encounters. ``u = (x1, y1, …, x7, y7)``,
+    ``V = −Σ_{i<j} m_i m_j / r_ij``; every pair at once, no loop over bodies."""
+    masses = np.arange(1.0, 8.0)
+    i, j = np.triu_indices(7, 1)
+    mm = masses[i] * masses[j]
+    eye = np.eye(2)
+
+    def pairs(u):
+        x = u.reshape(7, 2)
+        d = x[j] - x[i]                                   # (21, 2)
+        r2 = np.einsum("pk,pk->p", d, d)
+        return d, r2
+
+    def assemble(blocks):
+        """(21, 2, 2) pair blocks H of V_ij(x_j − x_i) into the (14, 14) matrix."""
+        K = np.zeros((7, 2, 7, 2))
+        np.add.at(K, (i, slice(None), i), blocks.transpose(0, 2, 1))
+        np.add.at(K, (j, slice(None), j), blocks.transpose(0, 2, 1))
+        np.add.at(K, (i, slice(None), j), -blocks.transpose(0, 2, 1))
+        np.add.at(K, (j, slice(None), i), -blocks.transpose(0, 2, 1))
+        return K.reshape(14, 14)
+
+    def force(u):
+        d, r2 = pairs(u)
+        g = (mm / r2 ** 1.5)[:, None] * d                 # ∂V_ij/∂x_j
+        f = np.zeros((7, 2))
+        np.add.at(f, j, g)
+        np.add.at(f, i, -g)
+        return f.ravel()
+
+    def stiffness(u):
+        d, r2 = pairs(u)
+        H = (mm / r2 ** 1.5)[:, None, None] * eye - \
+            (3.0 * mm / r2 ** 2.5)[:, None, None] * np.einsum("pk,pl->pkl", d, d)
+        return assemble(H)
+
+    def stiffness_derivative(u, w):
+        d, r2 = pairs(u)
+        dw = w.reshape(7, 2)[j] - w.reshape(7, 2)[i]
+        s = np.einsum("pk,pk->p", d, dw)
+        H = (-3.0 * mm * s / r2 ** 2.5)[:, None, None] * eye \
+            - (3.0 * mm / r2 ** 2.5)[:, None, None] * (np.einsum("pk,pl->pkl", dw, d)
+                                                       + np.einsum("pk,pl->pkl", d, dw)) \
+            + (15.0 * mm * s / r2 ** 3.5)[:, None, None] * np.einsum("pk,pl->pkl", d, d)
+        return assemble(H)
+
+    def energy(u):
+        _, r2 = pairs(u)
+        return float(-np.sum(mm / np.sqrt(r2)))
+
+    x0 = np.column_stack([[3, 3, -1, -3, 2, -2, 2], [3, -3, 2, 0, 0, -4, 4]]).ravel()
+    v0 = np.column_stack([[0, 0, 0, 0, 0, 1.75, -1.5], [0, 0, 0, -1.25, 1, 0, 0]]).ravel()
+    return hfdi.System(mass=np.repeat(masses, 2), internal_force=force, stiffness=stiffness,
+                       stiffness_derivative=stiffness_derivative, potential_energy=energy,
+                       initial_displacement=x0.astype(float),
+                       initial_velocity=v0.astype(float), name="pleiades")
+
+
 def reference_solution(system, t_end, rtol=1e-13):
     """The end state from scipy's DOP853 on the first-order form, at tight tolerance."""
     from scipy.integrate import solve_ivp

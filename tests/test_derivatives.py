@@ -72,3 +72,13 @@ def test_check_detects_a_wrong_stiffness():
                         potential_energy=good.potential_energy,
                         initial_displacement=good.initial_displacement)
     assert hfdi.check_derivatives(wrong, samples=3).stiffness > 1e-5
+
+
+def test_reference_problems_derivatives():
+    """The test problems with exact or published references have exact f, K, T too."""
+    import exact_problems
+    from problems import pleiades
+    for model in (pleiades(), exact_problems.kepler()[0], exact_problems.duffing()[0],
+                  exact_problems.damped_chain()[0]):
+        check = hfdi.check_derivatives(model, samples=10, spread=0.1)
+        assert check.ok(1e-7), (model.name, check)
