@@ -9,7 +9,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 __all__ = ["real", "positive", "non_negative", "integer", "finite_array",
-           "callable_or_none", "square_matrix", "symmetric_definite"]
+           "callable_or_none", "square_matrix", "symmetric_definite", "complex_values"]
 
 
 def real(name: str, value, *, low=None, high=None, low_closed=False, high_closed=False) -> float:
@@ -57,8 +57,20 @@ def integer(name: str, value, minimum: int) -> int:
     return int(value)
 
 
+def complex_values(value) -> bool:
+    """Whether ``value`` (an array, a sparse matrix, a number or a sequence)
+    holds complex numbers: converting it to float would drop their imaginary
+    parts, with nothing but numpy's warning."""
+    try:
+        return bool(np.iscomplexobj(value))
+    except (TypeError, ValueError):          # ragged or unconvertible: the caller says why
+        return False
+
+
 def finite_array(name: str, value, shape, *, positive: bool = False) -> np.ndarray:
     """A float array of the given shape with finite (and, if asked, positive) entries."""
+    if complex_values(value):
+        raise ValueError(f"{name} must be real, got complex values {value!r:.80}")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
@@ -84,6 +96,8 @@ def square_matrix(name: str, value):
     """``value`` as a float ndarray of shape (N,) (a diagonal) or (N, N), or a
     scipy sparse (N, N) matrix, with finite entries and ``N >= 1``."""
     if sp.issparse(value):
+        if complex_values(value):
+            raise ValueError(f"{name} must be real, got a complex sparse matrix")
         if value.ndim != 2 or value.shape[0] != value.shape[1] or value.shape[0] < 1:
             raise ValueError(f"{name} must be square (N, N) with N >= 1, got sparse shape "
                              f"{value.shape}")
@@ -91,6 +105,8 @@ def square_matrix(name: str, value):
             raise ValueError(f"{name} must have finite entries, got a sparse matrix with "
                              f"{np.count_nonzero(~np.isfinite(value.data))} non-finite entries")
         return value
+    if complex_values(value):
+        raise ValueError(f"{name} must be real, got complex values")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):

@@ -62,6 +62,12 @@ def _at_t(t) -> str:
     return f"t = {t:.10g}"
 
 
+def _refuse_complex(value, what):
+    if checks.complex_values(value):
+        raise ModelError(f"{what} returned complex values; a model must return real ones "
+                         f"(their imaginary parts would be dropped)")
+
+
 def _first_bad(values) -> str:
     """The first non-finite entry of ``values`` (an array or sparse matrix) and its index."""
     if sp.issparse(values):
@@ -158,12 +164,16 @@ class Evaluator:
     # is recognised with a few attribute tests and one ufunc; anything else
     # goes through the full conversion and its messages. ``where`` is a
     # function of ``args`` that places a failure, called only on failure.
+    # What is returned is always a copy: a model may hand back the same
+    # buffer at every call, and values are kept (State.f, State.p) or used
+    # together (K and T in one tangent) after later calls.
     def _vector(self, value, what, where, *args):
         if (type(value) is _ndarray and value.shape == self._vector_shape
                 and value.dtype == _float64 and all_finite(value)):
-            return value
+            return value.copy()
+        _refuse_complex(value, what)
         try:
-            arr = np.asarray(value, dtype=float)
+            arr = np.array(value, dtype=float)
         except (TypeError, ValueError):
             raise ModelError(f"{what} returned {value!r:.80}, expected an array of "
                              f"shape ({self.n},)") from None
@@ -176,17 +186,18 @@ class Evaluator:
     def _matrix(self, value, what, where, *args):
         if (type(value) is _ndarray and value.shape == self._matrix_shape
                 and value.dtype == _float64 and all_finite(value)):
-            return value
+            return value.copy()
         n = self.n
+        _refuse_complex(value, what)
         if sp.issparse(value):
             if value.shape != (n, n):
                 raise ModelError(f"{what} returned shape {value.shape}, expected ({n}, {n})")
             if not all_finite(value.data):
                 raise NonFiniteError(f"{what} is not finite ({_first_bad(value)}) at "
                                      f"{where(*args)}")
-            return value.toarray() if n < DENSE_BELOW else value
+            return value.toarray() if n < DENSE_BELOW else value.copy()
         try:
-            arr = np.asarray(value, dtype=float)
+            arr = np.array(value, dtype=float)
         except (TypeError, ValueError):
             raise ModelError(f"{what} returned {type(value).__name__} {value!r:.80}, expected "
                              f"an array or sparse matrix of shape ({n}, {n})") from None
@@ -236,6 +247,7 @@ class Evaluator:
         """``V(u)`` as a float; NaN (the model's "unknown") passes unchecked."""
         self.npev += 1
         value = self.system.potential_energy(u)
+        _refuse_complex(value, "potential_energy")
         try:
             arr = np.asarray(value, dtype=float)
         except (TypeError, ValueError):

@@ -34,6 +34,7 @@ __all__ = ["Integrator", "IntegratorState", "Result", "Statistics", "Status", "i
 
 
 _EPS = float(np.finfo(float).eps)
+_SQRT_EPS = math.sqrt(_EPS)
 
 
 class Status(enum.IntEnum):
@@ -143,6 +144,8 @@ def _optional_positive(name, value):
 def _initial_vector(name, value, n, source):
     """An initial condition as a finite float array of shape (n,)."""
     label = name if source is None else f"{name} (from {source})"
+    if checks.complex_values(value):
+        raise ValueError(f"{label} must be real, got complex values {value!r:.80}")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -236,6 +239,10 @@ class Integrator:
         ``load_breakpoints()``. Under error control steps land on them and
         the predictor restarts there; the iteration-count and fixed-step
         modes keep their steps (the paper's tables are made so).
+    check_stiffness : bool
+        Check ``K(u0)`` against a finite difference of ``f`` (one extra
+        force evaluation) and refuse a model whose ``K`` is not ``∂f/∂u``
+        (default). Turn off only for a force with a kink at ``u0``.
 
     Raises
     ------
@@ -246,18 +253,22 @@ class Integrator:
     ModelError
         (a ``ValueError``) when the model fails at the initial state: ``f``,
         ``K``, ``T`` (HFDI only), ``p``, ``p'`` (when used) or ``V`` returns
-        the wrong shape or a value that is not finite, or raises. They are
-        evaluated here once so that such mistakes come up front rather than
-        as failed steps.
+        the wrong shape, a value that is not finite or complex, or raises;
+        or when ``K(u0)`` does not match a finite difference of ``f`` (see
+        ``check_stiffness``). They are evaluated here once so that such
+        mistakes come up front rather than as failed steps or wrong answers.
     """
 
     def __init__(self, system: SecondOrderSystem, scheme="hfdi", *, rtol=None, atol=None,
                  target_iterations=None, step=None, controller=None, t0=0.0, u0=None, v0=None,
                  tol=None, first_step=None, min_step=None, max_step=None, max_halvings=30,
                  max_steps=1_000_000, max_iterations=None, first_step_trials=40, t_bound=None,
-                 energy_limit=None, extra_load=None, breakpoints=None):
+                 energy_limit=None, extra_load=None, breakpoints=None, check_stiffness=True):
         self.scheme: Scheme = get_scheme(scheme)
         checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
+        if not isinstance(check_stiffness, bool):
+            raise ValueError(f"check_stiffness must be True or False, got {check_stiffness!r}")
+        self.check_stiffness = check_stiffness
         self.ev = ev = Evaluator(system, extra_load)
         self.system = system
         if isinstance(self.scheme, HFDI) and self.scheme.load_rate == "exact" \
@@ -575,6 +586,8 @@ class Integrator:
         f = call("internal_force", ev.force, u0)
         p = call("load", ev.load, t0)
         K = call("stiffness", ev.stiffness, u0)
+        if self.check_stiffness:
+            self._check_stiffness(u0, f, K, call, name)
         if isinstance(self.scheme, HFDI):
             call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
             if self.scheme.load_rate == "exact" or (self.scheme.load_rate == "auto"
@@ -586,6 +599,34 @@ class Integrator:
             raise ModelError(f"model {name!r}: the initial acceleration "
                              f"M⁻¹(p − f − C v0) is not finite ({brief(a)}) {where}")
         return State(t0, u0.copy(), v0.copy(), a, f, p), K, potential
+
+    def _check_stiffness(self, u0, f, K, call, name):
+        """``K(u0)`` against a forward difference of ``f`` along one direction.
+
+        HFDI uses ``K`` in its step equation (``g_t = p' − K v``), so a wrong
+        ``K`` gives wrong answers there, not only a slow Newton; in every
+        scheme it is a mistake in the model. One extra force evaluation. The
+        difference is exact to about ``√ε`` relative (1e-7 measured on every
+        model here); a mismatch above 0.1 % of ``‖K w‖`` (plus the rounding
+        of the difference) is refused.
+        """
+        ev = self.ev
+        w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
+        delta = _SQRT_EPS * max(float(np.abs(u0).max()), self.floor)
+        f1 = call("internal_force", ev.force, u0 + delta * w)
+        difference = (f1 - f) / delta
+        Kw = np.asarray(K @ w).ravel()
+        mismatch = float(np.abs(difference - Kw).max())
+        size = max(float(np.abs(Kw).max()), float(np.abs(difference).max()))
+        rounding = 1e3 * _EPS * (float(np.abs(f).max()) + float(np.abs(f1).max())) / delta
+        if mismatch > 1e-3 * size + rounding:
+            raise ModelError(
+                f"model {name!r}: stiffness does not match internal_force at u0: K(u0)·w and "
+                f"the difference (f(u0 + δw) − f(u0))/δ (δ = {delta:.3g}) differ by "
+                f"{mismatch:.3g}, {mismatch / size:.2%} of their size. K must be ∂f/∂u: "
+                f"HFDI uses it in its step equation, where a wrong K gives a wrong answer "
+                f"(check the model with hfdi.check_derivatives; pass check_stiffness=False "
+                f"only if f has a kink at u0)")
 
     def _default_first_step(self, K) -> float:
         """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""
