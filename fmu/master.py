@@ -84,6 +84,9 @@ class Unit:
         status_name = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
         category = category.decode("utf-8", "replace") if category else ""
         message = message.decode("utf-8", "replace") if message else ""
+        # FMI 2.0's message is a printf format; these FMUs pass no arguments,
+        # so formatting it only turns "%%" into "%"
+        message = message.replace("%%", "%")
         self.messages.append((status_name, category, message))
         if self._logger is not None:
             self._logger(status_name, category, message)

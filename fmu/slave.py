@@ -83,10 +83,12 @@ import importlib.util
 import math
 import numbers
 import os
-import pickle
+import io
+import json
 import re
 import sys
 import threading
+import zipfile
 from xml.etree.ElementTree import Element, SubElement
 
 import numpy as np
@@ -97,7 +99,9 @@ from pythonfmu.enums import Fmi2Status
 __all__ = ["HfdiSlave", "FmuError", "load_bundle", "hold_namespace"]
 
 #: Serialized FMU states start with this line; a version bump makes old ones unreadable.
-_MAGIC = b"hfdi-fmu-state/1\n"
+_MAGIC = b"hfdi-fmu-state/2\n"
+#: The FMU's own fields of a serialized state (beside its arrays and the integrator's key).
+_STATE_HEADER = ("model", "bundle", "phase", "params", "mparams", "start_time", "stop_time")
 
 _SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "rtol": 0.0, "tolerance": 0.0,
                     "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000,
@@ -224,6 +228,25 @@ class FmuError(Exception):
 class _BudgetExhausted(Exception):
     """Stops ``Integrator.advance`` (from its callback) when one ``doStep`` has
     taken ``max_internal_steps`` internal steps without reaching its end."""
+
+
+def _printf_literal(text) -> str:
+    """``text`` as a printf format that prints ``text``."""
+    return str(text).replace("%", "%%")
+
+
+def _like(what, saved, mine):
+    """``saved`` (a restored state's parameters) if it has the keys of
+    ``mine`` with values of the same types (an int for a float too)."""
+    if not isinstance(saved, dict) or set(saved) != set(mine):
+        raise FmuError(f"the state's {what} are not this FMU's")
+    for key, value in saved.items():
+        kind = type(mine[key])
+        ok = isinstance(value, kind) and (kind is bool or not isinstance(value, bool)) or (
+            kind is float and isinstance(value, int) and not isinstance(value, bool))
+        if not ok:
+            raise FmuError(f"the state's {what}: {key} must be of type {kind.__name__}")
+    return {key: type(mine[key])(value) for key, value in saved.items()}
 
 
 class _InvalidState:
@@ -805,13 +828,24 @@ class HfdiSlave(Fmi2Slave):
         self.log(message, Fmi2Status.discard)
         return False
 
+    def log(self, msg, status=Fmi2Status.ok, category=None, debug=None):
+        """Queue ``msg`` for the master's logger, with every ``%`` doubled.
+
+        FMI 2.0 defines the logger's message as a printf format, and the
+        native layer passes it as one: a ``%s`` in a user's string (a
+        parameter value, a path) would make the host's logger read arguments
+        that are not there.
+        """
+        super().log(_printf_literal(msg), status, category)
+
     def _reject(self, message):
         """Log ``message`` and raise :class:`FmuError` into pythonfmu (``fmi2Fatal``)."""
         self.log(message, Fmi2Status.error)
         # the C++ layer will release these once more than it holds them
         for obj in (self, type(self), self.log_queue):
             _add_reference(obj)
-        raise FmuError(message)
+        # the native layer logs the exception's text as a format too
+        raise FmuError(_printf_literal(message))
 
     # -- outputs ----------------------------------------------------------------------
     def _outputs(self):
@@ -944,17 +978,28 @@ class HfdiSlave(Fmi2Slave):
                     or state.get("bundle") != self.bundle:
                 raise FmuError(f"the state was not made by this FMU (model {self.model_name!r}, "
                                f"build {self.bundle})")
-            params, mparams = dict(state["params"]), dict(state["mparams"])
+            params = _like("parameters", state["params"], self._params)
+            mparams = _like("model parameters", state["mparams"], self._mparams)
             start_time, stop_time = state["start_time"], state["stop_time"]
             inputs = np.array(state["inputs"], dtype=float)
             applied = np.array(state["applied"], dtype=float)
             phase = state["phase"]
             if phase not in _PHASES or inputs.shape != (self._n,) \
-                    or applied.shape != (self._n,):
+                    or applied.shape != (self._n,) or not np.isfinite(inputs).all() \
+                    or not np.isfinite(applied).all() \
+                    or not all(t is None or (isinstance(t, float) and math.isfinite(t))
+                               for t in (start_time, stop_time)):
                 raise FmuError("the state is malformed")
+            saved = state["integrator"]
+            if isinstance(saved, bytes):
+                saved = self._hfdi.IntegratorState.from_bytes(saved)
             itg = key = None
-            if state["integrator"] is not None:
+            if saved is not None:
                 key = state["built"]
+                key = (_like("parameters", key[0], self._params),
+                       _like("model parameters", key[1], self._mparams), key[2])
+                if not (isinstance(key[2], float) and math.isfinite(key[2])):
+                    raise FmuError("the state is malformed")
                 if self._itg is not None and self._itg_key == key:
                     itg = self._itg
                 else:
@@ -966,7 +1011,7 @@ class HfdiSlave(Fmi2Slave):
                         itg = self._make_integrator(key[0], key[1], key[2])[1]
                     finally:
                         self._F_applied = current
-                itg.set_state(state["integrator"])
+                itg.set_state(saved)
             self._itg, self._itg_key = itg, key
             self._params, self._mparams = params, mparams
             self._start_time, self._stop_time = start_time, stop_time
@@ -978,22 +1023,57 @@ class HfdiSlave(Fmi2Slave):
 
     @staticmethod
     def _fmu_state_to_bytes(state) -> bytes:
-        # pickle: the integrator's state holds numpy arrays and dataclasses. Called on
-        # the class, with no instance to protect, so it must not raise: bytes that do
-        # not deserialize are rejected by fmi2SetFMUstate instead.
+        # Data only: the magic line, then numpy's .npz of a JSON header (the
+        # FMU's parameters and phase), the inputs and the integrator's own
+        # bytes (hfdi.IntegratorState.to_bytes). Called on the class, with no
+        # instance to protect, so it must not raise: empty bytes are refused
+        # by fmi2SetFMUstate instead.
         try:
-            return _MAGIC + pickle.dumps(state, protocol=4)
+            header = {key: state[key] for key in _STATE_HEADER}
+            header["built"] = state["built"]
+            arrays = {"header": np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
+                      "inputs": np.asarray(state["inputs"], dtype=np.float64),
+                      "applied": np.asarray(state["applied"], dtype=np.float64)}
+            saved = state["integrator"]
+            if saved is not None:
+                # bytes when the state itself came from bytes (_fmu_state_from_bytes)
+                arrays["integrator"] = np.frombuffer(
+                    saved if isinstance(saved, bytes) else saved.to_bytes(), dtype=np.uint8)
+            buffer = io.BytesIO()
+            np.savez(buffer, **arrays)
+            return _MAGIC + buffer.getvalue()
         except Exception:
             return b""
 
     @staticmethod
     def _fmu_state_from_bytes(data):
-        # Unpickling runs code named in the bytes: accept serialized states only
-        # from a source as trusted as the FMU itself.
+        # Nothing in the bytes is ever run: numpy reads them with
+        # allow_pickle=False and the header is JSON. The integrator's part
+        # stays bytes here; fmi2SetFMUstate decodes and checks it with the
+        # FMU's own hfdi (_set_fmu_state), before anything changes.
         try:
             data = bytes(data)
             if not data.startswith(_MAGIC):
                 return _InvalidState("the bytes are not a serialized hfdi FMU state")
-            return pickle.loads(data[len(_MAGIC):])
+            body = data[len(_MAGIC):]
+            with zipfile.ZipFile(io.BytesIO(body)) as archive:
+                entries = archive.infolist()
+                if any(e.compress_type != zipfile.ZIP_STORED for e in entries) or \
+                        sum(e.file_size for e in entries) > len(body):
+                    return _InvalidState("the serialized state has compressed entries")
+            with np.load(io.BytesIO(body), allow_pickle=False) as z:
+                arrays = {key: z[key] for key in z.files}
+            header = json.loads(arrays["header"].tobytes().decode("utf-8"))
+            if not isinstance(header, dict) or set(header) != set(_STATE_HEADER) | {"built"}:
+                return _InvalidState("the serialized state's header is malformed")
+            built = header.pop("built")
+            if built is not None:
+                if not (isinstance(built, list) and len(built) == 3
+                        and isinstance(built[0], dict) and isinstance(built[1], dict)):
+                    return _InvalidState("the serialized state's integrator key is malformed")
+                built = (built[0], built[1], built[2])
+            integrator = arrays.get("integrator")
+            return dict(header, built=built, inputs=arrays["inputs"], applied=arrays["applied"],
+                        integrator=None if integrator is None else integrator.tobytes())
         except Exception as exc:
-            return _InvalidState(f"the serialized state cannot be read: {exc!r}")
+            return _InvalidState(f"the serialized state cannot be read: {type(exc).__name__}")

@@ -13,10 +13,14 @@ predictor's history, the controller's proposed step, the statistics).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import enum
 import inspect
+import io
+import json
 import math
 import time
+import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -114,7 +118,13 @@ class Statistics:
 @dataclass
 class IntegratorState:
     """Everything that determines the continuation of a run (see
-    :meth:`Integrator.get_state`). Picklable."""
+    :meth:`Integrator.get_state`).
+
+    :meth:`to_bytes` and :meth:`from_bytes` write and read it as data only
+    (numpy's ``.npz`` with a JSON header, read with ``allow_pickle=False``),
+    so that bytes from elsewhere can never run code; the round trip is
+    bit-exact.
+    """
 
     current: State
     previous: State | None
@@ -135,6 +145,113 @@ class IntegratorState:
     grid_steps: int
     controller: str
     n_dof: int
+
+    def to_bytes(self) -> bytes:
+        """The state as bytes: arrays in binary, everything else in a JSON header."""
+        arrays = {}
+
+        def one(label, st):
+            if st is None:
+                return None
+            for name in _STATE_ARRAYS:
+                value = getattr(st, name)
+                if value is not None:
+                    arrays[f"{label}.{name}"] = np.asarray(value, dtype=np.float64)
+            return {"t": float(st.t), "f": st.f is not None}
+
+        header = {name: kind(getattr(self, name)) for name, kind in _STATE_SCALARS.items()}
+        header.update(format=STATE_FORMAT, current=one("current", self.current),
+                      previous=one("previous", self.previous),
+                      statistics={k: type(getattr(Statistics, k))(getattr(self.statistics, k))
+                                  for k in _STATISTICS_FIELDS})
+        text = json.dumps(header, allow_nan=True).encode()
+        buffer = io.BytesIO()
+        np.savez(buffer, header=np.frombuffer(text, dtype=np.uint8), **arrays)
+        return buffer.getvalue()
+
+    @classmethod
+    def from_bytes(cls, data) -> IntegratorState:
+        """Read :meth:`to_bytes`' bytes, checking every field's type and shape.
+
+        Raises
+        ------
+        ValueError
+            For bytes that are not such a state (corrupt, truncated, of
+            another format version, or with a field of the wrong type).
+        """
+        try:
+            data = bytes(data)
+            with zipfile.ZipFile(io.BytesIO(data)) as archive:
+                # what to_bytes writes is stored, not compressed: a compressed
+                # entry could expand far beyond the bytes given (a zip bomb)
+                entries = archive.infolist()
+                if any(e.compress_type != zipfile.ZIP_STORED for e in entries) or \
+                        sum(e.file_size for e in entries) > len(data):
+                    raise ValueError("compressed entries")
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                arrays = {key: z[key] for key in z.files}
+            header = json.loads(arrays.pop("header").tobytes().decode())
+        except Exception as exc:
+            raise ValueError(f"not a serialized integrator state ({type(exc).__name__})") \
+                from None
+        if not isinstance(header, dict) or header.get("format") != STATE_FORMAT:
+            raise ValueError(f"not a serialized integrator state of format {STATE_FORMAT!r}")
+        n = _field(header, "n_dof", int)
+
+        def one(label):
+            entry = header.get(label)
+            if entry is None and label == "previous":
+                return None
+            if not isinstance(entry, dict):
+                raise ValueError(f"serialized state: {label} is missing")
+            values = {}
+            for name in _STATE_ARRAYS:
+                key = f"{label}.{name}"
+                if name == "f" and not _field(entry, "f", bool):
+                    values[name] = None
+                    continue
+                value = arrays.pop(key, None)
+                if not (isinstance(value, np.ndarray) and value.dtype == np.float64
+                        and value.shape == (n,)):
+                    raise ValueError(f"serialized state: {key} must be a float64 array of "
+                                     f"shape ({n},)")
+                values[name] = value
+            return State(_field(entry, "t", float), **values)
+
+        current, previous = one("current"), one("previous")
+        if arrays:
+            raise ValueError(f"serialized state: unexpected entries {sorted(arrays)}")
+        counts = header.get("statistics")
+        if not isinstance(counts, dict) or set(counts) != set(_STATISTICS_FIELDS):
+            raise ValueError("serialized state: statistics malformed")
+        statistics = Statistics(**{k: _field(counts, k, type(getattr(Statistics, k)))
+                                   for k in _STATISTICS_FIELDS})
+        scalars = {k: _field(header, k, kind) for k, kind in _STATE_SCALARS.items()}
+        return cls(current=current, previous=previous, statistics=statistics, **scalars)
+
+
+#: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
+STATE_FORMAT = "hfdi-integrator-state/1"
+_STATE_ARRAYS = ("u", "v", "a", "f", "p")
+_STATE_SCALARS = {"proposed_step": float, "first_step_pending": bool, "status": int,
+                  "message": str, "potential": float, "initial_potential": float,
+                  "work": float, "energy_error": float, "energy_scale": float,
+                  "last_step": float, "last_iterations": int, "last_energy_increment": float,
+                  "grid_origin": float, "grid_steps": int, "controller": str, "n_dof": int}
+_STATISTICS_FIELDS = tuple(f.name for f in dataclasses.fields(Statistics))
+
+
+def _field(mapping, key, kind):
+    """``mapping[key]`` of type ``kind`` (an int is a float too; a bool is no int)."""
+    value = mapping.get(key)
+    ok = isinstance(value, bool) if kind is bool else (
+        isinstance(value, int) and not isinstance(value, bool) if kind is int else
+        isinstance(value, (int, float)) and not isinstance(value, bool) if kind is float else
+        isinstance(value, kind))
+    if not ok:
+        raise ValueError(f"serialized state: {key} must be of type {kind.__name__}, "
+                         f"got {type(value).__name__}")
+    return float(value) if kind is float else value
 
 
 def _optional_positive(name, value):

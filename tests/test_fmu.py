@@ -265,6 +265,75 @@ def test_corrupt_state_is_refused_not_a_crash(dumbbell):
     u.close(terminate=False)
 
 
+def test_logged_messages_are_printf_literals(dumbbell):
+    """FMI 2.0's logger takes its message as a printf format: a parameter
+    value with ``%s`` or ``%n`` in it must reach the logger with every ``%``
+    doubled (a C logger would otherwise read arguments that are not there)."""
+    raw = []
+
+    class RawUnit(Unit):
+        def _log(self, env, instance, status, category, message):
+            raw.append(message.decode("utf-8", "replace") if message else "")
+            super()._log(env, instance, status, category, message)
+
+    path, unzip = dumbbell
+    u = RawUnit(path, "printf", unzip_dir=unzip)
+    value = "%s%p%n" * 8
+    with pytest.raises(FMICallException):
+        u.initialize({"scheme": value}, start_time=0.0)
+    mentions = [m for m in raw if "%" in m]
+    assert mentions
+    for message in mentions:
+        assert "%" not in message.replace("%%", ""), message
+    assert any(value in m[2] for m in u.messages)          # the master formats them back
+    u.close(terminate=False)
+
+
+class _RunsCode:
+    """A pickle payload that would create ``path`` when unpickled."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+@pytest.mark.parametrize("how", ["pickle-after-magic", "object-array", "integrator-pickle"])
+def test_serialized_state_never_runs_code(dumbbell, tmp_path, how):
+    """Bytes crafted to run code when read: with the state's magic line
+    followed by a pickle, as an object array inside the .npz, or as the
+    integrator's part. They are refused, nothing runs, the FMU is unchanged."""
+    import io
+    import pickle
+    marker = tmp_path / "ran"
+    u = unit(dumbbell)
+    assert u.step(0.0, 0.05)
+    before = u.get(OBSERVED)
+    good = u.serialize(u.get_state())
+    magic, body = good.split(b"\n", 1)
+    payload = pickle.dumps(_RunsCode(marker))
+    with np.load(io.BytesIO(body)) as z:
+        arrays = {key: z[key] for key in z.files}
+    if how == "pickle-after-magic":
+        data = magic + b"\n" + payload
+    else:
+        key = "inputs" if how == "object-array" else "integrator"
+        arrays[key] = np.array([_RunsCode(marker)], dtype=object)
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        data = magic + b"\n" + buffer.getvalue()
+    with pytest.raises(FMICallException) as info:
+        u.set_state(u.deserialize(data))
+    # fmi2Fatal where FMI 2.0 says fmi2Error: pythonfmu's native layer maps
+    # every refusal to it
+    assert info.value.status in (fmi2Error, fmi2Fatal)
+    assert not marker.exists()
+    assert np.array_equal(u.get(OBSERVED), before)
+    assert u.step(0.05, 0.05)
+    u.close()
+
+
 # -- failures ----------------------------------------------------------------------------------
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 @pytest.mark.parametrize("scheme", SCHEMES)

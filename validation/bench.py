@@ -514,7 +514,8 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
             "repeat_below": float(repeat_below), "reference_rtol": float(reference_rtol),
             "max_nfev": int(max_nfev), "skip_nfev": int(skip_nfev),
             "inaccurate_factor": INACCURATE_FACTOR,
-            "atol_rule": ATOL_RULE, "newton_tol_ours": 1e-8, "energy_limit_ours": ENERGY_LIMIT,
+            "atol_rule": ATOL_RULE, "newton_tol_ours": "hfdi's default: 1e-8 (targets), "
+            "min(1e-8, max(1e-12, rtol/1000)) (error control)", "energy_limit_ours": ENERGY_LIMIT,
             "timing": "wall: time.perf_counter, cpu: time.process_time, around the solve "
                       "only (fresh model per run, built outside the timer); each the best of "
                       "the repeats; methods run in turn, loosest settings first",
