@@ -1,4 +1,4 @@
-"""An FMI 2.0 co-simulation slave around :class:`hfdi.Integrator`, for pythonfmu 0.7.
+"""An FMI 2.0 co-simulation slave around :class:`hfdi.Integrator` (on pythonfmu 0.7's Python classes).
 
 The slave only translates FMI calls into hfdi's public API. One FMU wraps one
 model of hfdi's registry (``hfdi.models``); :mod:`fmu.build` copies this file
@@ -28,57 +28,28 @@ that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
   ``dE`` (Σ ΔE, paper Eq. 40), and the Integer outputs ``internal_steps`` and
   ``newton_iterations``.
 
-How pythonfmu 0.7's C++ layer maps Python behaviour onto FMI status codes
-(read from its sources and checked against the shipped binary):
+How the FMU's native layer (``fmu/native/hfdi_fmi2.c``, through
+:mod:`fmu.entry`) maps this slave's behaviour onto FMI 2.0 statuses:
 
 * ``do_step`` returning ``False`` gives ``fmi2Discard``;
-* **any** Python exception, in any callback, gives ``fmi2Fatal``; there is no
-  way to obtain ``fmi2Error`` from Python. The C++ layer also releases its
-  references to the slave, its class and its log list when it meets an
-  exception, and releases them once more when the instance is freed: without
-  precaution the log list is freed while the slave still uses it, and the
-  cyclic garbage collector, finding fewer references than referrers, corrupts
-  the heap. Every exception this module lets through goes through
-  :meth:`HfdiSlave._reject`, which first adds one reference to each of the
-  three objects, owned by nobody, for the C++ layer to release.
-
-Its loader (``findClass``) also releases the generated module's namespace,
-a borrowed reference, each time it creates an instance, after executing the
-module's source in it once more: the generated module calls
-:func:`hold_namespace` at top level, which adds one unowned reference per
-execution.
-
-Its ``fmi2SetString`` converts each value with strict UTF-8 decoding and,
-when one is not UTF-8, looks up and calls ``set_string`` with that list item
-empty (``NULL``) and the ``UnicodeDecodeError`` still pending. CPython's
-attribute lookup fails with the pending exception unless the attribute is
-found in the instance's own ``__dict__`` (the exception would then reach the
-C++ layer past :meth:`HfdiSlave._reject`), so each instance holds its
-``set_string`` there; the method takes a pending exception over
-(:func:`_take_pending_exception`; the lookup may also have cleared it) and
-rejects a list with an empty item without reading it.
-
-At process exit the library releases its interpreter-state holder (a static
-``std::shared_ptr``) twice: once by the static destructor, once more from its
-unload hook, which corrupts the heap of the host. When the host is a Python
-process, :func:`_release_library_at_exit` lets the library release it from a
-Python ``atexit`` hook first, which leaves the two later releases nothing to
-do.
+* an exception (:class:`FmuError` from :meth:`HfdiSlave._reject`, or any
+  other) gives ``fmi2Error``, with its text as the log message; the instance
+  is left as it was, so the master may go on with it;
+* a String value that is not UTF-8 is refused by the native layer itself
+  (``fmi2Error``) before it reaches the slave.
 
 Hence: ``do_step`` never raises (a failure is logged and answered with
-``fmi2Discard``, the FMU back at the step's start, the time pythonfmu reports
-as ``fmi2LastSuccessfulTime``); invalid parameters are rejected by
-``fmi2ExitInitializationMode`` with ``fmi2Fatal`` and a log message naming the
+``fmi2Discard``, the FMU back at the step's start, the time the native layer
+reports as ``fmi2LastSuccessfulTime``); invalid parameters are rejected by
+``fmi2ExitInitializationMode`` with ``fmi2Error`` and a log message naming the
 parameter; a corrupt or foreign FMU state is rejected by ``fmi2SetFMUstate``
-the same way; so is a call with an invalid value reference or a string that
-is not UTF-8. One ``doStep`` takes at most ``max_internal_steps`` internal
-steps and each of them at most ``2 * target_iterations`` (at most 200) Newton
-corrections per attempt, so that no call runs unbounded.
+the same way; so is a call with an invalid value reference. One ``doStep``
+takes at most ``max_internal_steps`` internal steps and each of them at most
+``2 * target_iterations`` (at most 200) Newton corrections per attempt, so
+that no call runs unbounded.
 """
 from __future__ import annotations
 
-import atexit
-import ctypes
 import importlib.util
 import math
 import numbers
@@ -87,7 +58,6 @@ import io
 import json
 import re
 import sys
-import threading
 import zipfile
 from xml.etree.ElementTree import Element, SubElement
 
@@ -96,7 +66,7 @@ from pythonfmu import (Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, F
                        Fmi2Variability, Integer, Real, String)
 from pythonfmu.enums import Fmi2Status
 
-__all__ = ["HfdiSlave", "FmuError", "load_bundle", "hold_namespace"]
+__all__ = ["HfdiSlave", "FmuError", "load_bundle"]
 
 #: Serialized FMU states start with this line; a version bump makes old ones unreadable.
 _MAGIC = b"hfdi-fmu-state/2\n"
@@ -133,106 +103,13 @@ _DERIVED = {"m": ("m/s", "m/s2", "N"), "rad": ("rad/s", "rad/s2", "N.m"),
             "1": ("1/s", "1/s2", "1")}
 
 
-def _add_reference(obj) -> None:
-    """Increment ``obj``'s reference count for a release pythonfmu's C++ layer
-    makes without owning the reference (see the module docstring).
-
-    The reference must belong to no container: the cyclic garbage collector
-    requires a count at least equal to the references it can find.
-    """
-    ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
-
-
-def hold_namespace(namespace: dict) -> None:
-    """Add one reference to a module namespace (see the module docstring).
-
-    The generated slave module calls this at top level with ``globals()``: it
-    then runs once at import and once in each of pythonfmu's re-executions,
-    which balance the reference the loader releases after each of them; the
-    one of the import keeps the namespace alive for good.
-    """
-    _add_reference(namespace)
-
-
-#: ``PyErr_Occurred`` through ctypes' Python-API calling convention, which
-#: raises the exception pending after the call.
-_PENDING = ctypes.PYFUNCTYPE(ctypes.c_void_p)(("PyErr_Occurred", ctypes.pythonapi))
-
-
-def _take_pending_exception() -> None:
-    """Raise the exception the caller of this Python frame left pending, if any.
-
-    pythonfmu's ``fmi2SetString`` calls the slave with a ``UnicodeDecodeError``
-    still set when a value is not UTF-8 (see the module docstring). It must be
-    taken over before anything else runs: left pending, it makes the next
-    C-level error check misfire and the call end in an exception that does not
-    pass through :meth:`HfdiSlave._reject`.
-    """
-    _PENDING()
-
-
-_LIST_ITEM = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.py_object, ctypes.c_ssize_t)(
-    ("PyList_GetItem", ctypes.pythonapi))
-
-
-def _has_empty_item(values) -> bool:
-    """Whether the list ``values`` has a ``NULL`` item, which Python code must not read."""
-    return type(values) is list and any(_LIST_ITEM(values, i) is None
-                                        for i in range(len(values)))
-
-
-#: Library path -> its ``finalizePythonInterpreter``, for :func:`_release_at_exit`.
-_LIBRARIES = {}
-
-
-def _release_library_at_exit(resources, model_identifier: str) -> None:
-    """Have the FMU's shared library release its interpreter state before the
-    process exits (see the module docstring).
-
-    Only on Linux, where the double release was observed, and only when the
-    library is already loaded (``RTLD_NOLOAD``); anything unexpected leaves
-    the library alone.
-    """
-    if not sys.platform.startswith("linux") or not resources:
-        return
-    path = os.path.join(os.path.dirname(os.path.normpath(str(resources))), "binaries",
-                        "linux64", model_identifier + ".so")
-    if path in _LIBRARIES:
-        return
-    try:
-        library = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)
-        release = library.finalizePythonInterpreter
-    except (OSError, AttributeError):
-        return
-    release.restype, release.argtypes = None, []
-    if not _LIBRARIES:
-        atexit.register(_release_at_exit)
-    _LIBRARIES[path] = release
-
-
-def _release_at_exit() -> None:
-    # A process that is not Python runs the interpreter pythonfmu started on a
-    # thread of its own, and finalizes it from the library's release itself:
-    # releasing again from there would re-enter it. The process's main thread
-    # has the process id as thread id.
-    if threading.get_native_id() != os.getpid():
-        return
-    for release in _LIBRARIES.values():
-        release()
-
-
 class FmuError(Exception):
-    """A request the FMU refuses (reported to the master as ``fmi2Fatal``)."""
+    """A request the FMU refuses (reported to the master as ``fmi2Error``)."""
 
 
 class _BudgetExhausted(Exception):
     """Stops ``Integrator.advance`` (from its callback) when one ``doStep`` has
     taken ``max_internal_steps`` internal steps without reaching its end."""
-
-
-def _printf_literal(text) -> str:
-    """``text`` as a printf format that prints ``text``."""
-    return str(text).replace("%", "%%")
 
 
 def _like(what, saved, mine):
@@ -363,8 +240,6 @@ class HfdiSlave(Fmi2Slave):
         n = self._n = int(model.n_dof)
 
         self.modelName = "hfdi_" + re.sub(r"\W", "_", name)
-        _release_library_at_exit(self.resources, self.modelName)
-        self.set_string = self.set_string     # see the module docstring
         self.description = (
             f"hfdi model {name!r} ({n} DOFs): M u'' + C u' + f(u) = p(t) + F integrated by "
             "the adaptive Newmark / Bathe / HFDI predictor-corrector with the "
@@ -577,52 +452,43 @@ class HfdiSlave(Fmi2Slave):
 
     # -- life cycle -----------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
-        # pythonfmu calls this from fmi2EnterInitializationMode, which
-        # enter_initialization_mode refuses out of its place in the life cycle
         if self._phase != "instantiated":
-            return
-        try:
-            if start_time is not None and math.isfinite(float(start_time)):
-                self._start_time = float(start_time)
-            elif start_time is not None:
-                self.log(f"fmi2SetupExperiment: start time {start_time!r} is not finite; "
-                         f"t0 = {self._start_time!r} is kept", Fmi2Status.warning)
-            self._stop_time = None if stop_time is None else float(stop_time)
-            self._params["master_rtol"] = 0.0
-            if tolerance is not None:
-                low, high = self._hfdi.controller.RTOL_RANGE
-                rtol = float(tolerance)
-                if not (math.isfinite(rtol) and rtol > 0):
-                    self.log(f"fmi2SetupExperiment: tolerance {tolerance!r} is not a positive "
-                             f"number; not used", Fmi2Status.warning)
-                else:
-                    if not low <= rtol < high:
-                        clipped = min(max(rtol, low), 0.5 * high)
-                        self.log(f"fmi2SetupExperiment: tolerance {rtol!r} outside "
-                                 f"[{low:g}, {high:g}); {clipped:g} is used",
-                                 Fmi2Status.warning)
-                        rtol = clipped
-                    self._params["master_rtol"] = rtol
-        except Exception as exc:  # keep exceptions away from pythonfmu's C++ layer
-            self.log(f"setup_experiment({start_time!r}, {stop_time!r}) ignored: {exc!r}",
-                     Fmi2Status.warning)
+            self._reject(f"fmi2SetupExperiment: the FMU is {_PHASES[self._phase]}; the "
+                         "experiment is set up after fmi2Instantiate or fmi2Reset, before "
+                         "fmi2EnterInitializationMode")
+        start = float(start_time)
+        if not math.isfinite(start):
+            self._reject(f"fmi2SetupExperiment: start time {start_time!r} is not finite")
+        stop = None if stop_time is None else float(stop_time)
+        if stop is not None and not (math.isfinite(stop) and stop > start):
+            self._reject(f"fmi2SetupExperiment: stop time {stop_time!r} must be finite and "
+                         f"after the start time {start!r}")
+        rtol = 0.0
+        if tolerance is not None:
+            low, high = self._hfdi.controller.RTOL_RANGE
+            rtol = float(tolerance)
+            if not (math.isfinite(rtol) and rtol > 0):
+                self._reject(f"fmi2SetupExperiment: tolerance {tolerance!r} is not a "
+                             "positive number")
+            if not low <= rtol < high:
+                clipped = min(max(rtol, low), 0.5 * high)
+                self.log(f"fmi2SetupExperiment: tolerance {rtol!r} outside "
+                         f"[{low:g}, {high:g}); {clipped:g} is used", Fmi2Status.warning)
+                rtol = clipped
+        self._start_time, self._stop_time = start, stop
+        self._params["master_rtol"] = rtol
 
     def enter_initialization_mode(self):
         if self._phase != "instantiated":
-            # status fmi2OK: pythonfmu has no other for a call that does not raise
-            self.log(f"fmi2EnterInitializationMode ignored: the FMU is "
-                     f"{_PHASES[self._phase]}; it enters initialization mode once, after "
-                     "fmi2Instantiate or fmi2Reset",
-                     Fmi2Status.error)
-            return
+            self._reject(f"fmi2EnterInitializationMode: the FMU is {_PHASES[self._phase]}; "
+                         "it enters initialization mode once, after fmi2Instantiate or "
+                         "fmi2Reset")
         self._phase = "initialization"
 
     def exit_initialization_mode(self):
         if self._phase not in ("instantiated", "initialization"):
             # starting again from t0 would silently discard the simulation so far
-            self.log(f"fmi2ExitInitializationMode ignored: the FMU is {_PHASES[self._phase]}",
-                     Fmi2Status.error)
-            return
+            self._reject(f"fmi2ExitInitializationMode: the FMU is {_PHASES[self._phase]}")
         try:
             bad = [f"F[{i + 1}] = {float(x)!r}" for i, x in enumerate(self._F_input)
                    if not math.isfinite(x)]
@@ -828,24 +694,9 @@ class HfdiSlave(Fmi2Slave):
         self.log(message, Fmi2Status.discard)
         return False
 
-    def log(self, msg, status=Fmi2Status.ok, category=None, debug=None):
-        """Queue ``msg`` for the master's logger, with every ``%`` doubled.
-
-        FMI 2.0 defines the logger's message as a printf format, and the
-        native layer passes it as one: a ``%s`` in a user's string (a
-        parameter value, a path) would make the host's logger read arguments
-        that are not there.
-        """
-        super().log(_printf_literal(msg), status, category)
-
     def _reject(self, message):
-        """Log ``message`` and raise :class:`FmuError` into pythonfmu (``fmi2Fatal``)."""
-        self.log(message, Fmi2Status.error)
-        # the C++ layer will release these once more than it holds them
-        for obj in (self, type(self), self.log_queue):
-            _add_reference(obj)
-        # the native layer logs the exception's text as a format too
-        raise FmuError(_printf_literal(message))
+        """Refuse the call: :class:`FmuError`, ``fmi2Error`` with ``message``."""
+        raise FmuError(message)
 
     # -- outputs ----------------------------------------------------------------------
     def _outputs(self):
@@ -939,15 +790,6 @@ class HfdiSlave(Fmi2Slave):
             self._reject(f"fmi2SetBoolean({self._names(vrs)}): {exc!r}")
 
     def set_string(self, vrs, values):
-        # __init__ binds this method in the instance's __dict__: see the module docstring
-        try:
-            _take_pending_exception()
-            undecodable = _has_empty_item(values)
-        except Exception:
-            undecodable = True
-        if undecodable:
-            self._reject(f"fmi2SetString({self._names(vrs)}): a value is not UTF-8 text; "
-                         "no value was set")
         try:
             super().set_string(vrs, values)
         except Exception as exc:

@@ -12,13 +12,12 @@ Properties:
 
 * the process survives (the instances run in this process, and a subprocess
   checks the exit);
-* no call returns ``fmi2Error`` (pythonfmu 0.7 gives it only for functions it
-  does not implement), and only these return ``fmi2Fatal`` (pythonfmu's only
-  status for a refusal outside ``doStep``): ``fmi2ExitInitializationMode``
-  with an invalid parameter (naming it) or a non-finite input,
-  ``fmi2SetFMUstate`` with a corrupt state, ``fmi2SetString`` with bytes that
-  are not UTF-8, a get or set with a wrong value reference; each with an
-  ``fmi2Error`` log message from the slave, and each leaving the FMU as it was;
+* no call returns ``fmi2Fatal``, and only these return ``fmi2Error`` (a
+  refusal, as FMI 2.0 defines it): ``fmi2ExitInitializationMode`` with an
+  invalid parameter (naming it) or a non-finite input, ``fmi2SetFMUstate``
+  with a corrupt state, ``fmi2SetString`` with bytes that are not UTF-8, a get
+  or set with a wrong value reference, an initialization call out of place;
+  each with an ``fmi2Error`` log message, and each leaving the FMU as it was;
 * every status other than ``fmi2OK`` comes with a log message;
 * a discarded ``doStep`` leaves every variable bit-identical; an accepted one
   leaves finite outputs; a ``doStep`` that is invalid (before or after the
@@ -29,7 +28,7 @@ Properties:
   bit-identical statuses, log messages and variables;
 * ``fmi2Reset`` gives back the freshly instantiated FMU, bit for bit.
 
-The FMU is built once per session; pythonfmu runs the slave in this process
+The FMU is built once per session; its native layer runs the slave in this process
 with the ``hfdi`` bundled in the FMU. The file also checks the answer to each
 invalid call of the FMU table of ``docs/robustness.md`` and writes that table
 (``python tests/test_fmu_properties.py --write``).
@@ -201,15 +200,15 @@ class FmuMachine(RuleBasedStateMachine):
         self.unit.close(terminate=False)
 
     # -- helpers --------------------------------------------------------------------
-    def call(self, function, *args, fatal=False):
+    def call(self, function, *args, error=False):
         """Run one FMI call: its status, value and log messages, the common properties checked.
 
         Parameters
         ----------
         function : callable
             A method of fmpy's ``FMU2Slave`` or of :class:`fmu.master.Unit`.
-        fatal : bool
-            Whether ``fmi2Fatal`` is a documented answer here.
+        error : bool
+            Whether ``fmi2Error`` (a refusal) is a documented answer here.
 
         Returns
         -------
@@ -224,13 +223,10 @@ class FmuMachine(RuleBasedStateMachine):
             value, status = None, STATUS[exc.status]
         messages = self.unit.messages[start:]
         where = f"{getattr(function, '__name__', function)}{args!r:.200}"
-        assert status != "ERROR", (where, messages)
-        assert status != "FATAL" or fatal, (where, messages)
+        assert status != "FATAL", (where, messages)
+        assert status != "ERROR" or error, (where, messages)
         if status != "OK":
-            assert any(m[0] == status for m in messages), (where, status, messages)
-        if status == "FATAL":
-            # the reason, from the slave, besides pythonfmu's own fatal message
-            assert any(m[0] == "ERROR" and m[2] for m in messages), (where, messages)
+            assert any(m[0] == status and m[2] for m in messages), (where, status, messages)
         return status, value, messages
 
     def read(self):
@@ -288,15 +284,17 @@ class FmuMachine(RuleBasedStateMachine):
 
     def _begin_initialization(self, start):
         fmu = self.unit.fmu
-        status, _, messages = self.call(fmu.setupExperiment, None, start, None)
-        assert status == "OK"
+        status, _, messages = self.call(fmu.setupExperiment, None, start, None,
+                                        error=not math.isfinite(start))
+        if math.isfinite(start):
+            assert status == "OK"
+            self.track.start = start
+        else:
+            assert status == "ERROR"
+            assert any("not finite" in m[2] for m in messages), messages
         status, _, more = self.call(fmu.enterInitializationMode)
         assert status == "OK"
         messages = messages + more
-        if math.isfinite(start):
-            self.track.start = start
-        else:
-            assert any(m[0] == "WARNING" and "not finite" in m[2] for m in messages), messages
         self.track.phase = "initialization"
         return status, messages
 
@@ -305,8 +303,8 @@ class FmuMachine(RuleBasedStateMachine):
                       if not math.isfinite(x)}
         culprits = self.track.iffy | bad_inputs
         status, _, messages = self.call(self.unit.fmu.exitInitializationMode,
-                                        fatal=bool(culprits))
-        if status == "FATAL":
+                                        error=bool(culprits))
+        if status == "ERROR":
             errors = " ".join(m[2] for m in messages if m[0] == "ERROR")
             assert any(f"{name} = " in errors for name in culprits), (culprits, errors)
         else:
@@ -352,9 +350,9 @@ class FmuMachine(RuleBasedStateMachine):
         before = self.read()
         function = {"enter": self.unit.fmu.enterInitializationMode,
                     "exit": self.unit.fmu.exitInitializationMode}[which]
-        status, _, messages = self.call(function)
-        assert status == "OK"          # pythonfmu has no other status for a call that returns
-        assert any(m[0] == "ERROR" and "ignored" in m[2] for m in messages), messages
+        status, _, messages = self.call(function, error=True)
+        assert status == "ERROR"
+        assert any("the FMU is" in m[2] for m in messages), messages
         assert self.read() == before
         return status, messages
 
@@ -456,7 +454,7 @@ class FmuMachine(RuleBasedStateMachine):
                                                     "shifted"]))
     def restore_corrupt_state(self, k, how):
         """A corrupt serialized state is refused and leaves the FMU as it was."""
-        data = b"hfdi-fmu-state/1\n\x80\x04K"
+        data = b"hfdi-fmu-state/2\n\x80\x04K"
         if self.saves:
             status, data, _ = self.call(self.unit.serialize, self.saves[k % len(self.saves)].state)
             assert status == "OK"
@@ -465,8 +463,8 @@ class FmuMachine(RuleBasedStateMachine):
         before = self.read()
         status, state, _ = self.call(self.unit.deserialize, bad)
         assert status == "OK"
-        status, _, messages = self.call(self.unit.set_state, state, fatal=True)
-        assert status == "FATAL"
+        status, _, messages = self.call(self.unit.set_state, state, error=True)
+        assert status == "ERROR"
         assert any("cannot restore the state" in m[2] for m in messages), messages
         self.call(self.unit.free_state, state)
         assert self.read() == before
@@ -475,8 +473,8 @@ class FmuMachine(RuleBasedStateMachine):
     def set_undecodable_string(self, data):
         """A String value that is not UTF-8 is refused and changes nothing."""
         before = self.read()
-        status, _, messages = self.call(_raw_set_string, self.unit, "scheme", data, fatal=True)
-        assert status == "FATAL"
+        status, _, messages = self.call(_raw_set_string, self.unit, "scheme", data, error=True)
+        assert status == "ERROR"
         assert any("not UTF-8" in m[2] for m in messages), messages
         assert self.read() == before
 
@@ -490,8 +488,8 @@ class FmuMachine(RuleBasedStateMachine):
                           "get as Integer": (fmu.getInteger, ([scheme],)),
                           "set as Real": (fmu.setReal, ([scheme], [1.0]))}[call]
         before = self.read()
-        status, _, messages = self.call(function, *args, fatal=True)
-        assert status == "FATAL"
+        status, _, messages = self.call(function, *args, error=True)
+        assert status == "ERROR"
         assert self.read() == before
 
     @rule()
@@ -550,41 +548,46 @@ def _corrupt(data_of):
 #: (case, mistake or fault, how to make the call: unit -> call, status, text logged)
 DOCUMENTED = [
     ("start-nan", "fmi2SetupExperiment with start time NaN",
-     lambda unit: lambda: unit.fmu.setupExperiment(startTime=NAN), "OK", "is not finite"),
+     lambda unit: lambda: unit.fmu.setupExperiment(startTime=NAN), "ERROR", "is not finite"),
+    ("setup-late", "fmi2SetupExperiment after initialization",
+     _after_initialization(lambda unit: unit.fmu.setupExperiment(startTime=1.0)), "ERROR",
+     "before fmi2EnterInitializationMode"),
     ("scheme", "`scheme` = \"euler\", then fmi2ExitInitializationMode",
-     _exit_with({"scheme": "euler"}), "FATAL", "scheme = 'euler'"),
+     _exit_with({"scheme": "euler"}), "ERROR", "scheme = 'euler'"),
     ("scheme-bytes", "`scheme` set to bytes that are not UTF-8 (fmi2SetString)",
-     lambda unit: lambda: _raw_set_string(unit, "scheme", b"sch\xe8me"), "FATAL",
+     lambda unit: lambda: _raw_set_string(unit, "scheme", b"sch\xe8me"), "ERROR",
      "not UTF-8"),
     ("target-nan", "`target_iterations` = NaN", _exit_with({"target_iterations": NAN}),
-     "FATAL", "target_iterations = nan"),
+     "ERROR", "target_iterations = nan"),
     ("target-huge", "`target_iterations` = 1e6 with `tolerance` = 1e-300 (a step's Newton "
      "solve would run 2e6 corrections)",
-     _exit_with({"target_iterations": 1e6, "tolerance": 1e-300}), "FATAL", "in [1, 100]"),
-    ("tolerance", "`tolerance` = 1.5", _exit_with({"tolerance": 1.5}), "FATAL",
+     _exit_with({"target_iterations": 1e6, "tolerance": 1e-300}), "ERROR", "in [1, 100]"),
+    ("tolerance", "`tolerance` = 1.5", _exit_with({"tolerance": 1.5}), "ERROR",
      "tolerance = 1.5"),
-    ("initial-step", "`initial_step` = -1", _exit_with({"initial_step": -1.0}), "FATAL",
+    ("initial-step", "`initial_step` = -1", _exit_with({"initial_step": -1.0}), "ERROR",
      "initial_step = -1.0"),
-    ("max-step-inf", "`max_step` = inf", _exit_with({"max_step": INF}), "FATAL",
+    ("max-step-inf", "`max_step` = inf", _exit_with({"max_step": INF}), "ERROR",
      "max_step = inf"),
     ("max-step-tiny", "`max_step` = 1e-13, below hfdi's smallest step",
-     _exit_with({"max_step": 1e-13}), "FATAL", "min_step must be < max_step"),
+     _exit_with({"max_step": 1e-13}), "ERROR", "min_step must be < max_step"),
     ("max-internal-steps", "`max_internal_steps` = 0", _exit_with({"max_internal_steps": 0}),
-     "FATAL", "max_internal_steps = 0"),
-    ("A", "`A` = -1", _exit_with({"A": -1.0}), "FATAL", "A = -1.0"),
+     "ERROR", "max_internal_steps = 0"),
+    ("A", "`A` = -1", _exit_with({"A": -1.0}), "ERROR", "A = -1.0"),
     ("sigma-huge", "`sigma` = 1e300 (the model's force overflows)",
-     _exit_with({"sigma": 1e300}), "FATAL", "sigma = 1e+300"),
+     _exit_with({"sigma": 1e300}), "ERROR", "sigma = 1e+300"),
     ("input-nan-init", "input `F[1]` = NaN at fmi2ExitInitializationMode",
-     _exit_with(inputs={"F[1]": NAN}), "FATAL", "F[1] = nan"),
+     _exit_with(inputs={"F[1]": NAN}), "ERROR", "F[1] = nan"),
     ("parameter-late", "parameter `scheme` set after initialization",
      _after_initialization(lambda unit: unit.set({"scheme": "bathe"})), "OK",
      "fixed after initialization"),
     ("output-set", "output `u[1]` set",
      _after_initialization(lambda unit: unit.set({"u[1]": 1.0})), "OK", "outputs cannot be set"),
     ("enter-again", "fmi2EnterInitializationMode after initialization",
-     _after_initialization(lambda unit: unit.fmu.enterInitializationMode()), "OK", "ignored"),
+     _after_initialization(lambda unit: unit.fmu.enterInitializationMode()), "ERROR",
+     "enters initialization mode once"),
     ("exit-again", "fmi2ExitInitializationMode after initialization",
-     _after_initialization(lambda unit: unit.fmu.exitInitializationMode()), "OK", "ignored"),
+     _after_initialization(lambda unit: unit.fmu.exitInitializationMode()), "ERROR",
+     "the FMU is"),
     ("step-early", "fmi2DoStep before initialization",
      lambda unit: lambda: unit.fmu.doStep(0.0, 0.01), "DISCARD",
      "before a successful exitInitializationMode"),
@@ -624,18 +627,18 @@ DOCUMENTED = [
                            then=[lambda unit: unit.fmu.terminate()]),
      "DISCARD", "after fmi2Terminate"),
     ("state-foreign", "fmi2SetFMUstate with deserialized bytes the FMU did not make",
-     _corrupt(lambda unit: b"not a state"), "FATAL", "not a serialized hfdi FMU state"),
+     _corrupt(lambda unit: b"not a state"), "ERROR", "not a serialized hfdi FMU state"),
     ("state-truncated", "fmi2SetFMUstate with a truncated serialized state",
-     _corrupt(lambda unit: unit.serialize(unit.get_state())[:200]), "FATAL", "cannot be read"),
+     _corrupt(lambda unit: unit.serialize(unit.get_state())[:200]), "ERROR", "cannot be read"),
     ("reference-unknown", "fmi2GetReal with a value reference the FMU does not have",
-     _after_initialization(lambda unit: unit.fmu.getReal([10 ** 6])), "FATAL", "#1000000"),
+     _after_initialization(lambda unit: unit.fmu.getReal([10 ** 6])), "ERROR", "#1000000"),
     ("reference-type", "fmi2SetReal on the String parameter `scheme`",
      _after_initialization(lambda unit: unit.fmu.setReal([unit.vr("scheme")], [1.0])),
-     "FATAL", "is not of type Real"),
+     "ERROR", "is not of type Real"),
     ("cancel-step", "fmi2CancelStep (not supported)",
-     _after_initialization(lambda unit: unit.fmu.cancelStep()), "ERROR", "not supported"),
+     _after_initialization(lambda unit: unit.fmu.cancelStep()), "ERROR", "doStep always returns"),
     ("get-status", "fmi2GetStatus (not supported)",
-     _after_initialization(lambda unit: unit.fmu.getStatus(0)), "ERROR", "not supported"),
+     _after_initialization(lambda unit: unit.fmu.getStatus(0)), "DISCARD", "not provided"),
 ]
 
 
@@ -679,8 +682,7 @@ def fmu_table(fmu) -> str:
         status, messages = answer(fmu, make)
         text = f"`{FMI_STATUS[status]}`"
         for logged, _, message in messages:
-            # pythonfmu's own message of a Fatal says nothing the slave's does not
-            if logged == "OK" or message.startswith("Fatal py exception"):
+            if logged == "OK":
                 continue
             text += f": {message}" if logged == status else \
                 f"; logged as {FMI_STATUS[logged]}: {message}"
@@ -689,9 +691,8 @@ def fmu_table(fmu) -> str:
 
 
 def test_process_survives_to_a_clean_exit(dumbbell_fmu):
-    # pythonfmu 0.7 corrupts the heap at exit unless the slave's atexit hook
-    # runs first (fmu/slave.py); an instance left unfreed and one refused with
-    # fmi2Fatal are the usual ways a host exits
+    # an instance left unfreed and one refused with fmi2Error are the usual
+    # ways a host exits
     path, unzip = dumbbell_fmu
     script = textwrap.dedent(f"""
         import sys

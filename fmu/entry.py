@@ -1,0 +1,152 @@
+"""The Python side of the FMU's native layer (``fmu/native/hfdi_fmi2.c``).
+
+:mod:`fmu.build` copies this file into the FMU's resources under a
+build-specific name and writes ``hfdi_fmu.json`` beside it (the slave's
+module and class, the GUID, the build interpreter's ``sys.path``). The native
+layer puts the resources folder first on ``sys.path``, imports this module
+and calls :func:`instantiate`; every later FMI call is a method of the
+:class:`Adapter` it returns.
+
+The contract with the native layer: a method returns plain values (floats,
+ints, bools, str, bytes, lists) or raises. An exception is that call's
+``fmi2Error`` with the exception's text as the log message, and the instance
+is as before the call (the slave checks everything before it changes
+anything). ``do_step`` returning ``False`` is ``fmi2Discard``. Messages the
+slave queued are collected after every call by :meth:`Adapter.take_log`.
+
+This module imports nothing of the project: it must run in any host that
+can load the FMU.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import sys
+
+__all__ = ["instantiate", "Adapter", "CONFIG"]
+
+#: The build's description of the FMU, in its resources folder.
+CONFIG = "hfdi_fmu.json"
+
+
+def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
+                logging_on: bool) -> "Adapter":
+    """``fmi2Instantiate``: check the GUID and the resources, make the slave.
+
+    Raises
+    ------
+    ValueError
+        For a GUID that is not this FMU's, or damaged resources; the message
+        says which, in one line.
+    """
+    path = os.path.join(resources, CONFIG)
+    try:
+        with open(path, encoding="utf-8") as f:
+            config = json.load(f)
+        module_name, class_name, own_guid = config["module"], config["class"], config["guid"]
+        extra_path = [str(p) for p in config.get("path", [])]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"the FMU's resources are damaged: {path} cannot be read "
+                         f"({type(exc).__name__})") from None
+    if guid != own_guid:
+        raise ValueError(f"the GUID {guid!r} is not this FMU's ({own_guid}): the model "
+                         f"description and the binary do not belong together")
+    # the build interpreter's packages (numpy, scipy) for hosts that have none
+    # of their own; after the host's, so that a Python host keeps its own
+    for entry in extra_path:
+        if entry not in sys.path:
+            sys.path.append(entry)
+    try:
+        module = importlib.import_module(module_name)
+        slave_class = getattr(module, class_name)
+    except Exception as exc:
+        raise ValueError(f"the FMU's resources are damaged: its slave {module_name}."
+                         f"{class_name} cannot be loaded ({type(exc).__name__}: {exc})") from None
+    return Adapter(slave_class, resources, instance_name, visible)
+
+
+def _real(value) -> float:
+    return float(value)
+
+
+class Adapter:
+    """One FMU instance: the slave and the calls of the native layer."""
+
+    def __init__(self, slave_class, resources, instance_name, visible):
+        self._make = lambda: slave_class(instance_name=instance_name, resources=resources,
+                                         visible=visible)
+        self._pending = []
+        self.slave = self._make()
+
+    # -- log ------------------------------------------------------------------
+    def take_log(self) -> list:
+        """The slave's queued messages as ``(status, category, text)``, emptied."""
+        queue = self._pending + list(self.slave.log_queue)
+        self._pending = []
+        del self.slave.log_queue[:]
+        return [(int(m.status), str(m.category or ""), str(m.msg)) for m in queue]
+
+    # -- life cycle ---------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time, tolerance):
+        self.slave.setup_experiment(start_time, stop_time, tolerance)
+
+    def enter_initialization_mode(self):
+        self.slave.enter_initialization_mode()
+
+    def exit_initialization_mode(self):
+        self.slave.exit_initialization_mode()
+
+    def terminate(self):
+        self.slave.terminate()
+
+    def reset(self):
+        """``fmi2Reset``: a new slave, as after ``fmi2Instantiate``."""
+        fresh = self._make()
+        self._pending += list(self.slave.log_queue)
+        self.slave = fresh
+
+    def do_step(self, current_time, step_size) -> bool:
+        return bool(self.slave.do_step(current_time, step_size))
+
+    # -- values -------------------------------------------------------------------
+    def get_real(self, refs):
+        return [_real(x) for x in self.slave.get_real(refs)]
+
+    def get_integer(self, refs):
+        return [int(x) for x in self.slave.get_integer(refs)]
+
+    def get_boolean(self, refs):
+        return [bool(x) for x in self.slave.get_boolean(refs)]
+
+    def get_string(self, refs):
+        return [str(x) for x in self.slave.get_string(refs)]
+
+    def set_real(self, refs, values):
+        self.slave.set_real(refs, values)
+
+    def set_integer(self, refs, values):
+        self.slave.set_integer(refs, values)
+
+    def set_boolean(self, refs, values):
+        self.slave.set_boolean(refs, values)
+
+    def set_string(self, refs, values):
+        self.slave.set_string(refs, values)
+
+    # -- FMU states ---------------------------------------------------------------
+    def get_state(self):
+        return self.slave._get_fmu_state()
+
+    def set_state(self, state):
+        self.slave._set_fmu_state(state)
+
+    def serialize(self, state) -> bytes:
+        data = type(self.slave)._fmu_state_to_bytes(state)
+        if not isinstance(data, bytes) or not data:
+            raise ValueError("fmi2SerializeFMUstate: the state cannot be serialized")
+        return data
+
+    def deserialize(self, data: bytes):
+        return type(self.slave)._fmu_state_from_bytes(data)
+

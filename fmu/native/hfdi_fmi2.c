@@ -1,0 +1,877 @@
+/*
+ * The native layer of hfdi's FMI 2.0 co-simulation FMUs.
+ *
+ * Every fmi2 function of the co-simulation interface, written against the
+ * FMI 2.0 headers, calling the FMU's Python slave through the CPython C API.
+ * The API is resolved at run time (dlsym), never linked: in a Python host
+ * (fmpy, a Python master) the interpreter already in the process is used;
+ * in any other host the library named in resources/hfdi_fmu_python.txt is
+ * loaded and initialized once. Nothing here raises or aborts: every failure
+ * becomes a status and one log message.
+ *
+ * Statuses, as FMI 2.0 defines them:
+ *   fmi2Error    a refused call (bad argument, value reference, state, an
+ *                exception of the slave); the instance is as before the call;
+ *   fmi2Discard  a step not taken (doStep returned false), or a status not
+ *                provided;
+ *   fmi2Fatal    only when the interpreter itself cannot be used.
+ * fmi2Instantiate returns NULL after one log message when the FMU cannot be
+ * loaded (damaged resources, wrong GUID, no Python).
+ *
+ * Every message reaches the logger as a printf format that prints the text
+ * itself: each '%' doubled.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+
+/* ---------------------------------------------------------------------------
+ * The CPython C API, by name. Only functions (no macros, no struct layouts)
+ * so that no header of a particular Python version is needed.
+ * ------------------------------------------------------------------------- */
+typedef void PyObject;
+typedef long Py_ssize_t_;
+typedef int PyGILState;
+
+#define API(ret, name, args) static ret(*p_##name) args;
+#define API_LIST                                                                   \
+    API(int, Py_IsInitialized, (void))                                             \
+    API(void, Py_InitializeEx, (int))                                              \
+    API(void, Py_SetPythonHome, (const wchar_t*))                                  \
+    API(wchar_t*, Py_DecodeLocale, (const char*, size_t*))                         \
+    API(void*, PyEval_SaveThread, (void))                                          \
+    API(PyGILState, PyGILState_Ensure, (void))                                     \
+    API(void, PyGILState_Release, (PyGILState))                                    \
+    API(void, Py_IncRef, (PyObject*))                                              \
+    API(void, Py_DecRef, (PyObject*))                                              \
+    API(PyObject*, PyImport_ImportModule, (const char*))                           \
+    API(PyObject*, PyObject_GetAttrString, (PyObject*, const char*))               \
+    API(PyObject*, PyObject_CallObject, (PyObject*, PyObject*))                    \
+    API(PyObject*, PyObject_Str, (PyObject*))                                      \
+    API(int, PyObject_IsTrue, (PyObject*))                                         \
+    API(PyObject*, PyTuple_New, (Py_ssize_t_))                                     \
+    API(int, PyTuple_SetItem, (PyObject*, Py_ssize_t_, PyObject*))                 \
+    API(PyObject*, PyTuple_GetItem, (PyObject*, Py_ssize_t_))                      \
+    API(PyObject*, PyList_New, (Py_ssize_t_))                                      \
+    API(int, PyList_SetItem, (PyObject*, Py_ssize_t_, PyObject*))                  \
+    API(PyObject*, PyList_GetItem, (PyObject*, Py_ssize_t_))                       \
+    API(Py_ssize_t_, PyList_Size, (PyObject*))                                     \
+    API(int, PyList_Insert, (PyObject*, Py_ssize_t_, PyObject*))                   \
+    API(PyObject*, PySys_GetObject, (const char*))                                 \
+    API(PyObject*, PyUnicode_DecodeFSDefault, (const char*))                       \
+    API(PyObject*, PyUnicode_DecodeUTF8, (const char*, Py_ssize_t_, const char*))  \
+    API(const char*, PyUnicode_AsUTF8AndSize, (PyObject*, Py_ssize_t_*))           \
+    API(int, PySequence_Contains, (PyObject*, PyObject*))                          \
+    API(PyObject*, PyLong_FromLong, (long))                                        \
+    API(PyObject*, PyLong_FromUnsignedLong, (unsigned long))                       \
+    API(long, PyLong_AsLong, (PyObject*))                                          \
+    API(PyObject*, PyFloat_FromDouble, (double))                                   \
+    API(double, PyFloat_AsDouble, (PyObject*))                                     \
+    API(PyObject*, PyBool_FromLong, (long))                                        \
+    API(PyObject*, PyBytes_FromStringAndSize, (const char*, Py_ssize_t_))          \
+    API(int, PyBytes_AsStringAndSize, (PyObject*, char**, Py_ssize_t_*))           \
+    API(PyObject*, PyErr_Occurred, (void))                                         \
+    API(void, PyErr_Fetch, (PyObject**, PyObject**, PyObject**))                   \
+    API(void, PyErr_Clear, (void))
+API_LIST
+#undef API
+
+static PyObject* py_none;      /* None */
+static int api_ready = 0;       /* the table is filled and Python initialized */
+static char api_problem[8400];   /* why not, when it is not */
+
+static int resolve(void* handle)
+{
+#define API(ret, name, args)                                                       \
+    p_##name = (ret(*) args)dlsym(handle, #name);                                  \
+    if (!p_##name && strcmp(#name, "Py_SetPythonHome") != 0) {                     \
+        snprintf(api_problem, sizeof api_problem, "the Python C API has no %s", #name); \
+        return 0;                                                                  \
+    }
+    API_LIST
+#undef API
+    py_none = (PyObject*)dlsym(handle, "_Py_NoneStruct");
+    if (!py_none) {
+        snprintf(api_problem, sizeof api_problem, "the Python C API has no _Py_NoneStruct");
+        return 0;
+    }
+    return 1;
+}
+
+/* A new reference to None. */
+static PyObject* none(void)
+{
+    p_Py_IncRef(py_none);
+    return py_none;
+}
+
+/* The first line of `path` into `out` (without its newline); 0 if unreadable. */
+static int read_line(FILE* f, char* out, size_t size)
+{
+    if (!fgets(out, (int)size, f)) return 0;
+    size_t n = strlen(out);
+    while (n && (out[n - 1] == '\n' || out[n - 1] == '\r')) out[--n] = '\0';
+    return n > 0;
+}
+
+/* Make the C API usable: the host's interpreter if it has one, else the
+ * library the FMU was built with (its path and home in resources). */
+static int python_ready(const char* resources)
+{
+    if (api_ready) return 1;
+    void* self = dlopen(NULL, RTLD_LAZY);
+    int (*is_initialized)(void) = self ? (int (*)(void))dlsym(self, "Py_IsInitialized") : NULL;
+    if (is_initialized && is_initialized()) {
+        if (!resolve(self)) return 0;
+        api_ready = 1;
+        return 1;
+    }
+    char path[4096], library[4096], home[4096];
+    snprintf(path, sizeof path, "%s/hfdi_fmu_python.txt", resources);
+    FILE* f = fopen(path, "r");
+    if (!f) {
+        snprintf(api_problem, sizeof api_problem,
+                 "no Python in the host and no readable %s", path);
+        return 0;
+    }
+    int ok = read_line(f, library, sizeof library) && read_line(f, home, sizeof home);
+    fclose(f);
+    if (!ok) {
+        snprintf(api_problem, sizeof api_problem, "%s is malformed", path);
+        return 0;
+    }
+    void* lib = dlopen(library, RTLD_NOW | RTLD_GLOBAL);
+    if (!lib) {
+        snprintf(api_problem, sizeof api_problem, "cannot load the Python library %s: %s",
+                 library, dlerror());
+        return 0;
+    }
+    if (!resolve(lib)) return 0;
+    if (!p_Py_IsInitialized()) {
+        if (p_Py_SetPythonHome) {
+            /* Py_SetPythonHome keeps the pointer: it lives as long as Python */
+            wchar_t* whome = p_Py_DecodeLocale(home, NULL);
+            if (whome) p_Py_SetPythonHome(whome);
+        }
+        p_Py_InitializeEx(0);
+        if (!p_Py_IsInitialized()) {
+            snprintf(api_problem, sizeof api_problem, "Python failed to initialize");
+            return 0;
+        }
+        p_PyEval_SaveThread();   /* every call below takes the GIL itself */
+    }
+    api_ready = 1;
+    return 1;
+}
+
+/* ---------------------------------------------------------------------------
+ * The instance
+ * ------------------------------------------------------------------------- */
+typedef struct {
+    char* name;
+    fmi2CallbackFunctions callbacks;
+    int logging_on;
+    PyObject* adapter;             /* the entry module's Adapter */
+    double last_successful_time;
+    char** strings;                /* what fmi2GetString returned last */
+    size_t n_strings;
+} Instance;
+
+static char* copy_text(const char* text)
+{
+    size_t n = strlen(text ? text : "");
+    char* out = (char*)malloc(n + 1);
+    if (out) memcpy(out, text ? text : "", n + 1);
+    return out;
+}
+
+/* The message as a printf format printing it: every '%' doubled. */
+static void log_text(const fmi2CallbackFunctions* callbacks, const char* name,
+                     fmi2Status status, const char* category, const char* text)
+{
+    if (!callbacks || !callbacks->logger) return;
+    size_t n = strlen(text), extra = 0;
+    for (size_t i = 0; i < n; i++) extra += text[i] == '%';
+    char* safe = (char*)malloc(n + extra + 1);
+    if (!safe) return;
+    char* o = safe;
+    for (size_t i = 0; i < n; i++) {
+        *o++ = text[i];
+        if (text[i] == '%') *o++ = '%';
+    }
+    *o = '\0';
+    callbacks->logger(callbacks->componentEnvironment, name ? name : "", status,
+                      category ? category : "", safe);
+    free(safe);
+}
+
+static void logf_(Instance* inst, fmi2Status status, const char* format, ...)
+{
+    va_list ap, again;
+    va_start(ap, format);
+    va_copy(again, ap);
+    int n = vsnprintf(NULL, 0, format, ap);
+    va_end(ap);
+    char* text = n >= 0 ? (char*)malloc((size_t)n + 1) : NULL;
+    if (!text) {
+        va_end(again);
+        return;
+    }
+    vsnprintf(text, (size_t)n + 1, format, again);
+    va_end(again);
+    const char* category = status == fmi2OK ? "logAll" :
+                           status == fmi2Warning ? "logStatusWarning" :
+                           status == fmi2Discard ? "logStatusDiscard" :
+                           status == fmi2Error ? "logStatusError" : "logStatusFatal";
+    log_text(&inst->callbacks, inst->name, status, category, text);
+    free(text);
+}
+
+/* Text of an object, UTF-8; "" when it has none. Borrowed storage inside `holder`. */
+static const char* text_of(PyObject* obj, PyObject** holder)
+{
+    *holder = obj ? p_PyObject_Str(obj) : NULL;
+    const char* s = *holder ? p_PyUnicode_AsUTF8AndSize(*holder, NULL) : NULL;
+    if (!s) {
+        p_PyErr_Clear();
+        return "";
+    }
+    return s;
+}
+
+/* The pending exception as one log message; fmi2Error. */
+static fmi2Status report_exception(Instance* inst, const char* function)
+{
+    PyObject *type = NULL, *value = NULL, *trace = NULL, *holder = NULL;
+    p_PyErr_Fetch(&type, &value, &trace);
+    const char* text = text_of(value ? value : type, &holder);
+    /* the slave's refusals name the FMI function and the culprit themselves */
+    if (*text) logf_(inst, fmi2Error, "%s", text);
+    else logf_(inst, fmi2Error, "%s failed", function);
+    if (holder) p_Py_DecRef(holder);
+    if (type) p_Py_DecRef(type);
+    if (value) p_Py_DecRef(value);
+    if (trace) p_Py_DecRef(trace);
+    return fmi2Error;
+}
+
+/* Pass on the slave's queued log messages (Adapter.take_log). */
+static void drain_log(Instance* inst)
+{
+    if (!inst->adapter) return;
+    PyObject* take = p_PyObject_GetAttrString(inst->adapter, "take_log");
+    PyObject* items = take ? p_PyObject_CallObject(take, NULL) : NULL;
+    if (take) p_Py_DecRef(take);
+    if (!items) {
+        p_PyErr_Clear();
+        return;
+    }
+    Py_ssize_t_ n = p_PyList_Size(items);
+    for (Py_ssize_t_ i = 0; i < n; i++) {
+        PyObject* item = p_PyList_GetItem(items, i);
+        long status = p_PyLong_AsLong(p_PyTuple_GetItem(item, 0));
+        const char* category = p_PyUnicode_AsUTF8AndSize(p_PyTuple_GetItem(item, 1), NULL);
+        const char* message = p_PyUnicode_AsUTF8AndSize(p_PyTuple_GetItem(item, 2), NULL);
+        if (!category || !message || status < 0 || status > fmi2Pending) {
+            p_PyErr_Clear();
+            continue;
+        }
+        if (status == fmi2OK && !inst->logging_on) continue;
+        log_text(&inst->callbacks, inst->name, (fmi2Status)status, category, message);
+    }
+    p_Py_DecRef(items);
+}
+
+/* adapter.<method>(*args): the result (new reference) or NULL with the
+ * exception reported. `args` is a new reference to a tuple (or NULL), consumed. */
+static PyObject* invoke(Instance* inst, const char* method, PyObject* args, fmi2Status* status)
+{
+    PyObject* bound = p_PyObject_GetAttrString(inst->adapter, method);
+    PyObject* result = bound ? p_PyObject_CallObject(bound, args) : NULL;
+    if (bound) p_Py_DecRef(bound);
+    if (args) p_Py_DecRef(args);
+    if (!result) *status = report_exception(inst, method);
+    drain_log(inst);
+    return result;
+}
+
+#define INSTANCE_OR_ERROR(c)                                                       \
+    Instance* inst = (Instance*)(c);                                               \
+    if (!inst || !api_ready || !inst->adapter) return fmi2Error;
+
+/* A call with no result but its success. */
+static fmi2Status simple(fmi2Component c, const char* method, PyObject* (*make_args)(void*),
+                         void* data)
+{
+    INSTANCE_OR_ERROR(c)
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* args = make_args ? make_args(data) : NULL;
+    PyObject* result = invoke(inst, method, args, &status);
+    if (result) p_Py_DecRef(result);
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+/* ---------------------------------------------------------------------------
+ * Instantiation
+ * ------------------------------------------------------------------------- */
+/* The folder of a file URI (RFC 8089): "file:///a%20b/", "file:/a/",
+ * "file://localhost/a/" give "/a b" etc.; NULL for anything else. */
+static char* folder_of_uri(const char* uri)
+{
+    if (!uri || strncmp(uri, "file:", 5) != 0) return NULL;
+    const char* p = uri + 5;
+    if (strncmp(p, "///", 3) == 0) p += 2;
+    else if (strncmp(p, "//localhost/", 12) == 0) p += 11;
+    else if (strncmp(p, "//", 2) == 0) return NULL;   /* another host */
+    char* out = (char*)malloc(strlen(p) + 1);
+    if (!out) return NULL;
+    char* o = out;
+    for (; *p; p++) {
+        if (*p == '%') {
+            int hi, lo;
+            if (sscanf(p + 1, "%1x%1x", &hi, &lo) != 2) {
+                free(out);
+                return NULL;
+            }
+            *o++ = (char)(hi * 16 + lo);
+            p += 2;
+        } else {
+            *o++ = *p;
+        }
+    }
+    *o = '\0';
+    while (o > out + 1 && o[-1] == '/') *--o = '\0';
+    return out;
+}
+
+static void free_strings(Instance* inst)
+{
+    for (size_t i = 0; i < inst->n_strings; i++) free(inst->strings[i]);
+    free(inst->strings);
+    inst->strings = NULL;
+    inst->n_strings = 0;
+}
+
+static void free_instance(Instance* inst)
+{
+    if (!inst) return;
+    free_strings(inst);
+    free(inst->name);
+    free(inst);
+}
+
+FMI2_Export const char* fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+FMI2_Export const char* fmi2GetVersion(void) { return fmi2Version; }
+
+FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType,
+                                          fmi2String fmuGUID, fmi2String fmuResourceLocation,
+                                          const fmi2CallbackFunctions* functions,
+                                          fmi2Boolean visible, fmi2Boolean loggingOn)
+{
+    Instance* inst = (Instance*)calloc(1, sizeof(Instance));
+    if (!inst) return NULL;
+    inst->name = copy_text(instanceName);
+    if (functions) inst->callbacks = *functions;
+    inst->logging_on = loggingOn != fmi2False;
+    if (!inst->name || !instanceName || !*instanceName) {
+        logf_(inst, fmi2Error, "fmi2Instantiate: the instance name is empty");
+        free_instance(inst);
+        return NULL;
+    }
+    if (fmuType != fmi2CoSimulation) {
+        logf_(inst, fmi2Error, "fmi2Instantiate: this FMU is for co-simulation only");
+        free_instance(inst);
+        return NULL;
+    }
+    char* resources = folder_of_uri(fmuResourceLocation);
+    if (!resources) {
+        logf_(inst, fmi2Error, "fmi2Instantiate: the resource location %s is not a local "
+              "file URI", fmuResourceLocation ? fmuResourceLocation : "(null)");
+        free_instance(inst);
+        return NULL;
+    }
+    if (!python_ready(resources)) {
+        logf_(inst, fmi2Error, "fmi2Instantiate: %s", api_problem);
+        free(resources);
+        free_instance(inst);
+        return NULL;
+    }
+    PyGILState gil = p_PyGILState_Ensure();
+    PyObject *path = NULL, *entry = NULL, *make = NULL, *args = NULL, *folder = NULL;
+    folder = p_PyUnicode_DecodeFSDefault(resources);
+    path = p_PySys_GetObject("path");            /* borrowed */
+    int failed = !folder || !path;
+    if (!failed && p_PySequence_Contains(path, folder) != 1) {
+        p_PyErr_Clear();
+        failed = p_PyList_Insert(path, 0, folder) != 0;
+    }
+    char entry_name[256] = "";
+    if (!failed) {
+        char file[4096];
+        snprintf(file, sizeof file, "%s/hfdi_fmu_python.txt", resources);
+        FILE* f = fopen(file, "r");
+        char skip[4096];
+        failed = !(f && read_line(f, skip, sizeof skip) && read_line(f, skip, sizeof skip)
+                   && read_line(f, entry_name, sizeof entry_name));
+        if (f) fclose(f);
+        if (failed) {
+            logf_(inst, fmi2Error, "fmi2Instantiate: %s is missing or malformed", file);
+            p_PyErr_Clear();
+            goto done;
+        }
+    }
+    if (!failed) entry = p_PyImport_ImportModule(entry_name);
+    if (!failed && entry) make = p_PyObject_GetAttrString(entry, "instantiate");
+    if (!failed && make) {
+        args = p_PyTuple_New(5);
+        p_PyTuple_SetItem(args, 0, folder);
+        folder = NULL;                           /* stolen */
+        p_PyTuple_SetItem(args, 1, p_PyUnicode_DecodeUTF8(instanceName, (Py_ssize_t_)strlen(instanceName), "replace"));
+        p_PyTuple_SetItem(args, 2, p_PyUnicode_DecodeUTF8(fmuGUID ? fmuGUID : "", (Py_ssize_t_)strlen(fmuGUID ? fmuGUID : ""), "replace"));
+        p_PyTuple_SetItem(args, 3, p_PyBool_FromLong(visible != fmi2False));
+        p_PyTuple_SetItem(args, 4, p_PyBool_FromLong(loggingOn != fmi2False));
+        inst->adapter = p_PyObject_CallObject(make, args);
+    }
+    if (!inst->adapter) report_exception(inst, "fmi2Instantiate");
+done:
+    if (folder) p_Py_DecRef(folder);
+    if (args) p_Py_DecRef(args);
+    if (make) p_Py_DecRef(make);
+    if (entry) p_Py_DecRef(entry);
+    if (inst->adapter) drain_log(inst);
+    p_PyGILState_Release(gil);
+    free(resources);
+    if (!inst->adapter) {
+        free_instance(inst);
+        return NULL;
+    }
+    return inst;
+}
+
+FMI2_Export void fmi2FreeInstance(fmi2Component c)
+{
+    Instance* inst = (Instance*)c;
+    if (!inst) return;
+    if (api_ready && inst->adapter) {
+        PyGILState gil = p_PyGILState_Ensure();
+        p_Py_DecRef(inst->adapter);
+        p_PyGILState_Release(gil);
+    }
+    free_instance(inst);
+}
+
+FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn,
+                                           size_t nCategories, const fmi2String categories[])
+{
+    (void)nCategories;
+    (void)categories;
+    Instance* inst = (Instance*)c;
+    if (!inst) return fmi2Error;
+    inst->logging_on = loggingOn != fmi2False;
+    return fmi2OK;
+}
+
+/* ---------------------------------------------------------------------------
+ * Initialization, termination
+ * ------------------------------------------------------------------------- */
+typedef struct { fmi2Boolean tol_defined; double tol; double start; fmi2Boolean stop_defined; double stop; } Setup;
+
+static PyObject* setup_args(void* data)
+{
+    Setup* s = (Setup*)data;
+    PyObject* args = p_PyTuple_New(3);
+    p_PyTuple_SetItem(args, 0, p_PyFloat_FromDouble(s->start));
+    p_PyTuple_SetItem(args, 1, s->stop_defined ? p_PyFloat_FromDouble(s->stop) : none());
+    p_PyTuple_SetItem(args, 2, s->tol_defined ? p_PyFloat_FromDouble(s->tol) : none());
+    return args;
+}
+
+FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
+                                           fmi2Real tolerance, fmi2Real startTime,
+                                           fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+{
+    Setup s = {toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime};
+    return simple(c, "setup_experiment", setup_args, &s);
+}
+
+FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component c)
+{
+    return simple(c, "enter_initialization_mode", NULL, NULL);
+}
+
+FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    return simple(c, "exit_initialization_mode", NULL, NULL);
+}
+
+FMI2_Export fmi2Status fmi2Terminate(fmi2Component c)
+{
+    return simple(c, "terminate", NULL, NULL);
+}
+
+FMI2_Export fmi2Status fmi2Reset(fmi2Component c)
+{
+    fmi2Status status = simple(c, "reset", NULL, NULL);
+    if (status == fmi2OK) ((Instance*)c)->last_successful_time = 0.0;
+    return status;
+}
+
+/* ---------------------------------------------------------------------------
+ * Values
+ * ------------------------------------------------------------------------- */
+static PyObject* references(const fmi2ValueReference vr[], size_t nvr)
+{
+    PyObject* list = p_PyList_New((Py_ssize_t_)nvr);
+    for (size_t i = 0; list && i < nvr; i++)
+        p_PyList_SetItem(list, (Py_ssize_t_)i, p_PyLong_FromUnsignedLong(vr[i]));
+    return list;
+}
+
+typedef enum { REAL, INTEGER, BOOLEAN, STRING } Kind;
+static const char* GETTERS[] = {"get_real", "get_integer", "get_boolean", "get_string"};
+static const char* SETTERS[] = {"set_real", "set_integer", "set_boolean", "set_string"};
+static const char* FMI_GET[] = {"fmi2GetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2GetString"};
+static const char* FMI_SET[] = {"fmi2SetReal", "fmi2SetInteger", "fmi2SetBoolean", "fmi2SetString"};
+
+static fmi2Status get_values(fmi2Component c, Kind kind, const fmi2ValueReference vr[],
+                             size_t nvr, void* out)
+{
+    INSTANCE_OR_ERROR(c)
+    if (nvr == 0) return fmi2OK;
+    if (!vr || !out) {
+        logf_(inst, fmi2Error, "%s: NULL array", FMI_GET[kind]);
+        return fmi2Error;
+    }
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* args = p_PyTuple_New(1);
+    p_PyTuple_SetItem(args, 0, references(vr, nvr));
+    PyObject* values = invoke(inst, GETTERS[kind], args, &status);
+    if (values) {
+        if (kind == STRING) free_strings(inst);
+        if (p_PyList_Size(values) != (Py_ssize_t_)nvr) {
+            p_PyErr_Clear();
+            logf_(inst, fmi2Error, "%s: wrong number of values", FMI_GET[kind]);
+            status = fmi2Error;
+        } else if (kind == STRING) {
+            inst->strings = (char**)calloc(nvr, sizeof(char*));
+            inst->n_strings = inst->strings ? nvr : 0;
+        }
+        for (size_t i = 0; status == fmi2OK && i < nvr; i++) {
+            PyObject* item = p_PyList_GetItem(values, (Py_ssize_t_)i);
+            switch (kind) {
+            case REAL: ((fmi2Real*)out)[i] = p_PyFloat_AsDouble(item); break;
+            case INTEGER: ((fmi2Integer*)out)[i] = (fmi2Integer)p_PyLong_AsLong(item); break;
+            case BOOLEAN: ((fmi2Boolean*)out)[i] = p_PyObject_IsTrue(item) == 1; break;
+            case STRING: {
+                const char* s = p_PyUnicode_AsUTF8AndSize(item, NULL);
+                if (s && inst->strings) inst->strings[i] = copy_text(s);
+                ((fmi2String*)out)[i] = inst->strings && inst->strings[i] ? inst->strings[i] : "";
+                break;
+            }
+            }
+            if (p_PyErr_Occurred()) status = report_exception(inst, FMI_GET[kind]);
+        }
+        p_Py_DecRef(values);
+    }
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+static fmi2Status set_values(fmi2Component c, Kind kind, const fmi2ValueReference vr[],
+                             size_t nvr, const void* in)
+{
+    INSTANCE_OR_ERROR(c)
+    if (nvr == 0) return fmi2OK;
+    if (!vr || !in) {
+        logf_(inst, fmi2Error, "%s: NULL array", FMI_SET[kind]);
+        return fmi2Error;
+    }
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* values = p_PyList_New((Py_ssize_t_)nvr);
+    for (size_t i = 0; values && i < nvr; i++) {
+        PyObject* item = NULL;
+        switch (kind) {
+        case REAL: item = p_PyFloat_FromDouble(((const fmi2Real*)in)[i]); break;
+        case INTEGER: item = p_PyLong_FromLong(((const fmi2Integer*)in)[i]); break;
+        case BOOLEAN: item = p_PyBool_FromLong(((const fmi2Boolean*)in)[i] != fmi2False); break;
+        case STRING: {
+            const char* s = ((const fmi2String*)in)[i];
+            item = s ? p_PyUnicode_DecodeUTF8(s, (Py_ssize_t_)strlen(s), "strict") : NULL;
+            if (!item) {
+                p_PyErr_Clear();
+                logf_(inst, fmi2Error, "fmi2SetString: value %u (reference %u) is %s; no value "
+                      "was set", (unsigned)i + 1, (unsigned)vr[i], s ? "not UTF-8 text" : "NULL");
+                status = fmi2Error;
+            }
+            break;
+        }
+        }
+        if (!item) break;
+        p_PyList_SetItem(values, (Py_ssize_t_)i, item);
+    }
+    if (status == fmi2OK && values) {
+        PyObject* args = p_PyTuple_New(2);
+        p_PyTuple_SetItem(args, 0, references(vr, nvr));
+        p_PyTuple_SetItem(args, 1, values);
+        values = NULL;
+        PyObject* result = invoke(inst, SETTERS[kind], args, &status);
+        if (result) p_Py_DecRef(result);
+    }
+    if (values) p_Py_DecRef(values);
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) { return get_values(c, REAL, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) { return get_values(c, INTEGER, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) { return get_values(c, BOOLEAN, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) { return get_values(c, STRING, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) { return set_values(c, REAL, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) { return set_values(c, INTEGER, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) { return set_values(c, BOOLEAN, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) { return set_values(c, STRING, vr, nvr, value); }
+
+/* ---------------------------------------------------------------------------
+ * FMU states: a new reference to the Python object the slave returns
+ * ------------------------------------------------------------------------- */
+FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* state)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!state) return fmi2Error;
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* saved = invoke(inst, "get_state", NULL, &status);
+    if (saved) {
+        if (*state) p_Py_DecRef((PyObject*)*state);   /* FMI 2.0: overwrite a given state */
+        *state = saved;
+    }
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!state) {
+        logf_(inst, fmi2Error, "fmi2SetFMUstate: the state is NULL");
+        return fmi2Error;
+    }
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    p_Py_IncRef((PyObject*)state);
+    PyObject* args = p_PyTuple_New(1);
+    p_PyTuple_SetItem(args, 0, (PyObject*)state);
+    PyObject* result = invoke(inst, "set_state", args, &status);
+    if (result) p_Py_DecRef(result);
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* state)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!state || !*state) return fmi2OK;
+    PyGILState gil = p_PyGILState_Ensure();
+    p_Py_DecRef((PyObject*)*state);
+    *state = NULL;
+    p_PyGILState_Release(gil);
+    return fmi2OK;
+}
+
+static PyObject* serialized(Instance* inst, fmi2FMUstate state, fmi2Status* status)
+{
+    p_Py_IncRef((PyObject*)state);
+    PyObject* args = p_PyTuple_New(1);
+    p_PyTuple_SetItem(args, 0, (PyObject*)state);
+    return invoke(inst, "serialize", args, status);
+}
+
+FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t* size)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!state || !size) return fmi2Error;
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* bytes = serialized(inst, state, &status);
+    char* data;
+    Py_ssize_t_ n;
+    if (bytes && p_PyBytes_AsStringAndSize(bytes, &data, &n) == 0) *size = (size_t)n;
+    else if (bytes) status = report_exception(inst, "fmi2SerializedFMUstateSize");
+    if (bytes) p_Py_DecRef(bytes);
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte out[], size_t size)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!state || !out) return fmi2Error;
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* bytes = serialized(inst, state, &status);
+    char* data;
+    Py_ssize_t_ n;
+    if (bytes && p_PyBytes_AsStringAndSize(bytes, &data, &n) == 0) {
+        if ((size_t)n != size) {
+            logf_(inst, fmi2Error, "fmi2SerializeFMUstate: the buffer has %zu bytes, the state "
+                  "%zu", size, (size_t)n);
+            status = fmi2Error;
+        } else {
+            memcpy(out, data, size);
+        }
+    } else if (bytes) {
+        status = report_exception(inst, "fmi2SerializeFMUstate");
+    }
+    if (bytes) p_Py_DecRef(bytes);
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte data[], size_t size,
+                                               fmi2FMUstate* state)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!state || (!data && size)) return fmi2Error;
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* args = p_PyTuple_New(1);
+    p_PyTuple_SetItem(args, 0, p_PyBytes_FromStringAndSize(data ? data : "", (Py_ssize_t_)size));
+    PyObject* restored = invoke(inst, "deserialize", args, &status);
+    if (restored) {
+        if (*state) p_Py_DecRef((PyObject*)*state);
+        *state = restored;
+    }
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+/* ---------------------------------------------------------------------------
+ * Stepping and status
+ * ------------------------------------------------------------------------- */
+typedef struct { double t, h; } Step;
+
+static PyObject* step_args(void* data)
+{
+    Step* s = (Step*)data;
+    PyObject* args = p_PyTuple_New(2);
+    p_PyTuple_SetItem(args, 0, p_PyFloat_FromDouble(s->t));
+    p_PyTuple_SetItem(args, 1, p_PyFloat_FromDouble(s->h));
+    return args;
+}
+
+FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
+                                  fmi2Real communicationStepSize,
+                                  fmi2Boolean noSetFMUStatePriorToCurrentPoint)
+{
+    (void)noSetFMUStatePriorToCurrentPoint;
+    INSTANCE_OR_ERROR(c)
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    Step s = {currentCommunicationPoint, communicationStepSize};
+    PyObject* taken = invoke(inst, "do_step", step_args(&s), &status);
+    if (taken) {
+        int ok = p_PyObject_IsTrue(taken);
+        p_Py_DecRef(taken);
+        if (ok == 1) inst->last_successful_time = currentCommunicationPoint + communicationStepSize;
+        else {
+            inst->last_successful_time = currentCommunicationPoint;
+            status = ok == 0 ? fmi2Discard : report_exception(inst, "do_step");
+        }
+    }
+    p_PyGILState_Release(gil);
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c)
+{
+    Instance* inst = (Instance*)c;
+    if (inst) logf_(inst, fmi2Error, "fmi2CancelStep: doStep always returns when done");
+    return fmi2Error;
+}
+
+/* The statuses of an asynchronous doStep: there is none, doStep returns when done. */
+static fmi2Status no_status(fmi2Component c, const char* function)
+{
+    Instance* inst = (Instance*)c;
+    if (!inst) return fmi2Error;
+    logf_(inst, fmi2Discard, "%s: this status is not provided (doStep returns when done)",
+          function);
+    return fmi2Discard;
+}
+
+FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status* value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c, "fmi2GetStatus");
+}
+
+FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real* value)
+{
+    Instance* inst = (Instance*)c;
+    if (!inst || !value) return fmi2Error;
+    if (s != fmi2LastSuccessfulTime) return no_status(c, "fmi2GetRealStatus");
+    *value = inst->last_successful_time;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer* value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c, "fmi2GetIntegerStatus");
+}
+
+FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean* value)
+{
+    Instance* inst = (Instance*)c;
+    if (!inst || !value) return fmi2Error;
+    if (s != fmi2Terminated) return no_status(c, "fmi2GetBooleanStatus");
+    *value = fmi2False;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String* value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c, "fmi2GetStringStatus");
+}
+
+/* Not provided (the model description says so): a refusal, not a crash. */
+FMI2_Export fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
+                                                    const fmi2ValueReference z[], size_t nz,
+                                                    const fmi2Real du[], fmi2Real dz[])
+{
+    (void)u; (void)nu; (void)z; (void)nz; (void)du; (void)dz;
+    Instance* inst = (Instance*)c;
+    if (inst) logf_(inst, fmi2Error, "fmi2GetDirectionalDerivative is not provided");
+    return fmi2Error;
+}
+
+FMI2_Export fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                                   const fmi2Integer order[], const fmi2Real value[])
+{
+    (void)vr; (void)nvr; (void)order; (void)value;
+    Instance* inst = (Instance*)c;
+    if (inst) logf_(inst, fmi2Error, "fmi2SetRealInputDerivatives is not provided");
+    return fmi2Error;
+}
+
+FMI2_Export fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                                    const fmi2Integer order[], fmi2Real value[])
+{
+    (void)vr; (void)nvr; (void)order; (void)value;
+    Instance* inst = (Instance*)c;
+    if (inst) logf_(inst, fmi2Error, "fmi2GetRealOutputDerivatives is not provided");
+    return fmi2Error;
+}
