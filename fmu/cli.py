@@ -195,6 +195,12 @@ def main(argv=None) -> int:
     except OSError as exc:
         print(f"hfdi-fmu: error: {exc}", file=sys.stderr)
         return 1
+    except Exception as exc:
+        from .master import CoSimulationError
+        if not isinstance(exc, CoSimulationError):
+            raise
+        print(f"hfdi-fmu: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("hfdi-fmu: interrupted", file=sys.stderr)
         return 130

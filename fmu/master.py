@@ -77,7 +77,14 @@ class Unit:
         self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=md.coSimulation.modelIdentifier,
                              instanceName=name)
-        self.fmu.instantiate(callbacks=callbacks, loggingOn=True)
+        try:
+            self.fmu.instantiate(callbacks=callbacks, loggingOn=True)
+        except Exception:
+            why = "; ".join(m[2] for m in self.messages if m[0] != "OK") or "no reason logged"
+            self.fmu.freeLibrary()
+            if self._own_dir:
+                shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            raise CoSimulationError(f"{fmu}: fmi2Instantiate failed: {why}") from None
         self._alive = True
 
     def _log(self, env, instance, status, category, message):

@@ -1,0 +1,231 @@
+"""The FMU's native layer (``fmu/native/hfdi_fmi2.c``): hosts that are not
+Python, paths with any character, a damaged FMU, a wrong GUID, atomic
+builds. A damaged FMU is loaded in a fresh process each time: the host
+must survive it, and the bundled ``hfdi`` of a good FMU must not be the one
+cached in the process already.
+"""
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pythonfmu")
+fmpy = pytest.importorskip("fmpy")
+
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+
+from fmu.build import BuildError, build  # noqa: E402
+from fmu.master import CoSimulationError, Unit  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+HOST_SOURCE = Path(__file__).with_name("data") / "fmi2_host.c"
+STEPS = 20                                   # of 0.01 in the C host
+
+
+@pytest.fixture(scope="module")
+def fmu(tmp_path_factory):
+    return build("dumbbell", tmp_path_factory.mktemp("native"))
+
+
+@pytest.fixture(scope="module")
+def host(tmp_path_factory):
+    """A C program that loads an FMU's binary and steps it: a host without Python."""
+    headers = Path(fmpy.__file__).parent / "c-code"
+    program = tmp_path_factory.mktemp("host") / "fmi2_host"
+    done = subprocess.run([os.environ.get("CC", "cc"), "-O1", "-o", str(program),
+                           str(HOST_SOURCE), f"-I{headers}", "-ldl"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return program
+
+
+def in_process_values(fmu, unzip, names, steps=STEPS, h=0.01):
+    unit = Unit(fmu, "reference", unzip_dir=unzip)
+    unit.initialize({}, start_time=0.0)
+    t = 0.0
+    for _ in range(steps):
+        assert unit.step(t, h)
+        t += h
+    values = unit.get(names)
+    unit.close()
+    return values
+
+
+def run_host(host, unzip, guid=None, vrs=(), env=None):
+    md = read_model_description(str(unzip))
+    library = Path(unzip) / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    uri = (Path(unzip) / "resources").as_uri()
+    return subprocess.run([str(host), str(library), uri, guid or md.guid, str(STEPS),
+                           *map(str, vrs)], capture_output=True, text=True, timeout=300,
+                          env=env if env is not None else {"PATH": "/usr/bin:/bin"})
+
+
+def test_a_host_without_python_runs_the_fmu(fmu, host, tmp_path):
+    """A C program with an empty environment: the native layer loads the
+    Python library the FMU was built with, and the run gives the same values
+    as in this Python process, bit for bit."""
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    md = read_model_description(str(fmu))
+    names = ["u[1]", "u[2]", "v[3]"]
+    vrs = [next(v.valueReference for v in md.modelVariables if v.name == n) for n in names]
+    done = run_host(host, unzip, vrs=vrs)
+    assert done.returncode == 0, (done.stdout, done.stderr)
+    values = [float(line.split()[2]) for line in done.stdout.splitlines()
+              if line.startswith("value ")]
+    expected = in_process_values(fmu, unzip, names)
+    assert values == list(expected)
+
+
+@pytest.mark.parametrize("name", ["a b", "ü", "a (b)", "100%", "x#y", "%s%n"])
+def test_paths_with_any_character(fmu, host, tmp_path, name):
+    """Extracted under such a folder, the FMU instantiates and steps, in this
+    process (fmpy) and in the C host."""
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / name / "fmu"))
+    expected = in_process_values(fmu, unzip, ["u[1]"])
+    assert np.isfinite(expected).all()
+    done = run_host(host, unzip)
+    assert done.returncode == 0, (done.stdout, done.stderr)
+
+
+def test_wrong_guid_is_refused_with_one_message(fmu, tmp_path):
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    md = read_model_description(unzip)
+    messages = []
+    slave = FMU2Slave(guid="{not-this-fmu}", unzipDirectory=unzip,
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="g")
+    from fmpy.fmi2 import (fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
+                           fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE)
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(
+        lambda env, name, status, category, message: messages.append((status, message)))
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+    with pytest.raises(Exception, match="instantiate"):
+        slave.instantiate(callbacks=callbacks)
+    slave.freeLibrary()
+    assert len(messages) == 1 and b"GUID" in messages[0][1], messages
+
+
+#: How to damage an extracted FMU (a path relative to it to remove, or a file to cut short).
+DAMAGES = {
+    "no-resources": ("remove", "resources"),
+    "no-description-of-the-slave": ("remove", "resources/hfdi_fmu.json"),
+    "slave-module-missing": ("remove", "resources/{module}.py"),
+    "bundled-hfdi-truncated": ("truncate", "resources/hfdi/__init__.py"),
+    "bundled-hfdi-missing": ("remove", "resources/hfdi"),
+    "no-python-description": ("remove", "resources/hfdi_fmu_python.txt"),
+}
+
+
+def damage(unzip, how):
+    action, relative = DAMAGES[how]
+    config = Path(unzip) / "resources" / "hfdi_fmu.json"
+    module = config.read_text().split('"module": "')[1].split('"')[0]
+    target = Path(unzip) / relative.format(module=module)
+    if action == "remove":
+        shutil.rmtree(target) if target.is_dir() else target.unlink()
+    else:
+        text = target.read_text()
+        target.write_text(text[:len(text) // 3])
+
+
+@pytest.mark.parametrize("how", sorted(DAMAGES))
+def test_damaged_fmu_fails_to_instantiate_and_the_host_survives(fmu, tmp_path, how):
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    damage(unzip, how)
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from fmu.master import CoSimulationError, Unit
+        try:
+            Unit({str(fmu)!r}, "damaged", unzip_dir={str(unzip)!r})
+        except CoSimulationError as exc:
+            print("refused:", exc)
+        else:
+            print("instantiated")
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("refused:"), done.stdout
+    assert "fmi2Instantiate failed" in done.stdout and "\n" not in done.stdout.strip()
+
+
+@pytest.mark.parametrize("how", ["no-resources", "no-python-description",
+                                 "bundled-hfdi-truncated"])
+def test_damaged_fmu_in_a_host_without_python(fmu, host, tmp_path, how):
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    damage(unzip, how)
+    done = run_host(host, unzip)
+    assert done.returncode == 1, (done.stdout, done.stderr)         # NULL, no crash
+    logged = [line for line in done.stdout.splitlines() if line.startswith("log ")]
+    assert len(logged) == 1, done.stdout
+
+
+def test_cli_master_with_a_damaged_fmu_prints_one_line(fmu, tmp_path):
+    broken = tmp_path / "broken.fmu"
+    with zipfile.ZipFile(fmu) as old, zipfile.ZipFile(broken, "w") as new:
+        for item in old.infolist():
+            if item.filename != "resources/hfdi_fmu.json":
+                new.writestr(item, old.read(item.filename))
+    done = subprocess.run([sys.executable, "-m", "fmu", "master", str(broken), "--t-end", "0.1"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert done.returncode == 1
+    assert done.stdout == ""
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hfdi-fmu: error:"), done.stderr
+
+
+def test_cli_master_with_any_character_in_tmpdir(tmp_path):
+    tmpdir = tmp_path / "tmp ü(%#)"
+    tmpdir.mkdir()
+    done = subprocess.run([sys.executable, "-m", "fmu", "master", "--t-end", "0.05"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600,
+                          env={**os.environ, "TMPDIR": str(tmpdir)})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "communication steps" in done.stdout
+
+
+@pytest.mark.parametrize("where", ["while writing", "at the rename"])
+def test_build_is_atomic_when_it_fails(fmu, tmp_path, monkeypatch, where):
+    """A build that fails half-way (the disk full) leaves the good FMU in
+    place and no partial file beside it."""
+    import fmu.build as builder
+    out = tmp_path / "out"
+    out.mkdir()
+    good = build("dumbbell", out)
+    before = good.read_bytes()
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    if where == "while writing":
+        monkeypatch.setattr(builder.json, "dumps", disk_full)
+    else:
+        monkeypatch.setattr(builder.os, "replace", disk_full)
+    with pytest.raises(OSError):
+        build("dumbbell", out)
+    monkeypatch.undo()
+    assert good.read_bytes() == before
+    assert sorted(p.name for p in out.iterdir()) == [good.name]
+
+
+def test_a_missing_compiler_is_one_line(fmu, tmp_path, monkeypatch):
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    with pytest.raises(BuildError) as info:
+        build("dumbbell", tmp_path)
+    assert "C compiler" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_instantiation_failure_is_a_cosimulation_error(fmu, tmp_path):
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    damage(unzip, "no-description-of-the-slave")
+    with pytest.raises(CoSimulationError, match="damaged"):
+        Unit(fmu, "d", unzip_dir=unzip)
