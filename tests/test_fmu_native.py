@@ -229,3 +229,60 @@ def test_instantiation_failure_is_a_cosimulation_error(fmu, tmp_path):
     damage(unzip, "no-description-of-the-slave")
     with pytest.raises(CoSimulationError, match="damaged"):
         Unit(fmu, "d", unzip_dir=unzip)
+
+
+def test_the_fmu_needs_no_sympy_in_its_host(fmu, tmp_path):
+    """The bundled hfdi loads sympy only for symbolic models: a host where
+    sympy cannot be imported runs the FMU."""
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    script = textwrap.dedent(f"""
+        import sys
+        sys.modules["sympy"] = None          # import sympy raises ImportError
+        sys.path.insert(0, {str(ROOT)!r})
+        from fmu.master import Unit
+        unit = Unit({str(fmu)!r}, "no-sympy", unzip_dir={str(unzip)!r})
+        unit.initialize({{}})
+        assert unit.step(0.0, 0.05)
+        print(unit.get(["u[1]"])[0], "sympy" in sys.modules and sys.modules["sympy"] is not None)
+        unit.close()
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    value, loaded = done.stdout.split()
+    assert float(value) != 0.0 and loaded == "False"
+
+
+def test_import_hfdi_loads_neither_sympy_nor_matplotlib():
+    done = subprocess.run([sys.executable, "-c", "import sys, hfdi; print(sorted(m for m in "
+                           "('sympy', 'matplotlib') if m in sys.modules))"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", (done.stdout, done.stderr)
+
+
+def test_a_second_master_ecos_gets_the_same_values(fmu, tmp_path):
+    """Ecos (``ecospy``, a C++ co-simulation engine) runs the FMU through its
+    own FMI 2.0 import: same values as fmpy's, bit for bit. In a subprocess,
+    so that a crash of the host would show as such."""
+    try:
+        import ecospy  # noqa: F401
+    except ImportError as exc:              # ecospy or Debian's libtbb12 missing
+        pytest.skip(f"Ecos is not available here: {exc}")
+    script = textwrap.dedent(f"""
+        from ecospy import EcosSimulation, EcosSimulationStructure
+        structure = EcosSimulationStructure()
+        structure.add_model("a", {str(fmu)!r})
+        sim = EcosSimulation(structure=structure, step_size=0.01)
+        sim.init()
+        sim.step_until(0.2)
+        print(repr(sim.get_time()), repr(sim.get_real("a::u[1]")), repr(sim.get_real("a::v[2]")))
+        sim.terminate()
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=600, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    t, u1, v2 = map(float, done.stdout.split()[-3:])
+    steps = round(t / 0.01)
+    assert 15 <= steps <= 20
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    assert list(in_process_values(fmu, unzip, ["u[1]", "v[2]"], steps=steps)) == [u1, v2]

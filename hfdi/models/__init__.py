@@ -6,7 +6,6 @@ import inspect
 from .articulated import Articulated, articulated
 from .dumbbell import Dumbbell, dumbbell
 from .loads import hat
-from .symbolic import EnergyModel, elastic_pendulum, spring_chain
 from .tetrahedra import Tetrahedra, tetrahedra
 from .toss_rule import TossRule, toss_rule
 
@@ -15,6 +14,17 @@ __all__ = ["Dumbbell", "dumbbell", "Tetrahedra", "tetrahedra", "Articulated", "a
            "hat", "get", "available", "describe", "register"]
 
 _REGISTRY: dict = {}
+
+#: Loaded on first use: they import sympy, which neither the paper's models
+#: nor an FMU host needs (``import hfdi`` stays light).
+_SYMBOLIC = ("EnergyModel", "elastic_pendulum", "spring_chain")
+
+
+def __getattr__(name):
+    if name in _SYMBOLIC:
+        from . import symbolic
+        return getattr(symbolic, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def register(name: str, cls) -> None:
