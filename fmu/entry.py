@@ -31,8 +31,12 @@ CONFIG = "hfdi_fmu.json"
 
 
 def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
-                logging_on: bool) -> "Adapter":
+                logging_on: bool, own_interpreter: bool = False) -> "Adapter":
     """``fmi2Instantiate``: check the GUID and the resources, make the slave.
+
+    ``own_interpreter``: the native layer started this interpreter (a host
+    that is not Python); the build interpreter's package folders are then
+    added to ``sys.path``. A Python host keeps its own environment.
 
     Raises
     ------
@@ -52,11 +56,12 @@ def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
     if guid != own_guid:
         raise ValueError(f"the GUID {guid!r} is not this FMU's ({own_guid}): the model "
                          f"description and the binary do not belong together")
-    # the build interpreter's packages (numpy, scipy) for hosts that have none
-    # of their own; after the host's, so that a Python host keeps its own
-    for entry in extra_path:
-        if entry not in sys.path:
-            sys.path.append(entry)
+    # the build interpreter's packages (numpy, scipy) for a host that has no
+    # Python of its own
+    if own_interpreter:
+        for entry in extra_path:
+            if entry not in sys.path:
+                sys.path.append(entry)
     try:
         module = importlib.import_module(module_name)
         slave_class = getattr(module, class_name)

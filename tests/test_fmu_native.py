@@ -67,6 +67,19 @@ def run_host(host, unzip, guid=None, vrs=(), env=None):
                           env=env if env is not None else {"PATH": "/usr/bin:/bin"})
 
 
+def isolated(script, timeout=300, **kwargs):
+    """Run ``script`` in a fresh Python process with the project importable:
+    a crash of the host fails the test, not the run."""
+    preamble = f"import sys\nsys.path.insert(0, {str(ROOT)!r})\n"
+    return subprocess.run([sys.executable, "-c", preamble + textwrap.dedent(script)],
+                          capture_output=True, text=True, timeout=timeout, **kwargs)
+
+
+def vr_of(fmu, name):
+    return next(v.valueReference for v in read_model_description(str(fmu)).modelVariables
+                if v.name == name)
+
+
 def test_a_host_without_python_runs_the_fmu(fmu, host, tmp_path):
     """A C program with an empty environment: the native layer loads the
     Python library the FMU was built with, and the run gives the same values
@@ -96,21 +109,27 @@ def test_paths_with_any_character(fmu, host, tmp_path, name):
 
 def test_wrong_guid_is_refused_with_one_message(fmu, tmp_path):
     unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
-    md = read_model_description(unzip)
-    messages = []
-    slave = FMU2Slave(guid="{not-this-fmu}", unzipDirectory=unzip,
-                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="g")
-    from fmpy.fmi2 import (fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
-                           fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE)
-    callbacks = fmi2CallbackFunctions()
-    callbacks.logger = fmi2CallbackLoggerTYPE(
-        lambda env, name, status, category, message: messages.append((status, message)))
-    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-    with pytest.raises(Exception, match="instantiate"):
-        slave.instantiate(callbacks=callbacks)
-    slave.freeLibrary()
-    assert len(messages) == 1 and b"GUID" in messages[0][1], messages
+    done = isolated(f"""
+        import fmpy
+        from fmpy import read_model_description
+        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
+                               fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE)
+        md = read_model_description({str(unzip)!r})
+        messages = []
+        slave = FMU2Slave(guid="{{not-this-fmu}}", unzipDirectory={str(unzip)!r},
+                          modelIdentifier=md.coSimulation.modelIdentifier, instanceName="g")
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(
+            lambda env, name, status, category, message: messages.append(message.decode()))
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+        try:
+            slave.instantiate(callbacks=callbacks)
+        except Exception as exc:
+            print("refused", len(messages), messages[0] if messages else "")
+    """)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("refused 1 ") and "GUID" in done.stdout, done.stdout
 
 
 #: How to damage an extracted FMU (a path relative to it to remove, or a file to cut short).
@@ -286,3 +305,118 @@ def test_a_second_master_ecos_gets_the_same_values(fmu, tmp_path):
     assert 15 <= steps <= 20
     unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
     assert list(in_process_values(fmu, unzip, ["u[1]", "v[2]"], steps=steps)) == [u1, v2]
+
+
+@pytest.mark.parametrize("how", ["pickle-after-magic", "object-array", "integrator-pickle"])
+def test_serialized_state_never_runs_code(fmu, tmp_path, how):
+    """Bytes crafted to run code when read (the state's magic line followed by
+    a pickle whose ``__reduce__`` creates a file; an object array inside the
+    .npz; the same as the integrator's part): refused with fmi2Error, nothing
+    runs, the FMU unchanged and usable."""
+    marker = tmp_path / "ran"
+    done = isolated(f"""
+        import io, pickle
+        import numpy as np
+        from fmpy.fmi1 import FMICallException
+        from fmu.master import Unit
+
+        class RunsCode:
+            def __reduce__(self):
+                return (open, ({str(marker)!r}, "w"))
+
+        u = Unit({str(fmu)!r}, "crafted")
+        u.initialize({{}})
+        assert u.step(0.0, 0.05)
+        before = u.get(["u[1]", "v[1]"])
+        magic, body = u.serialize(u.get_state()).split(bytes([10]), 1)
+        with np.load(io.BytesIO(body)) as z:
+            arrays = {{key: z[key] for key in z.files}}
+        if {how!r} == "pickle-after-magic":
+            data = magic + bytes([10]) + pickle.dumps(RunsCode())
+        else:
+            key = "inputs" if {how!r} == "object-array" else "integrator"
+            arrays[key] = np.array([RunsCode()], dtype=object)
+            buffer = io.BytesIO()
+            np.savez(buffer, **arrays)
+            data = magic + bytes([10]) + buffer.getvalue()
+        try:
+            u.set_state(u.deserialize(data))
+        except FMICallException as exc:
+            print("status", exc.status)
+        assert np.array_equal(u.get(["u[1]", "v[1]"]), before)
+        assert u.step(0.05, 0.05)
+        u.close()
+    """)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["status", "3"]          # fmi2Error
+    assert not marker.exists()
+
+
+def test_messages_are_printf_literals_for_a_c_logger(fmu, host, tmp_path):
+    """FMI 2.0's logger formats the message as printf does (as the C host's
+    does). A parameter value full of conversions reaches it as text: the
+    host prints it and survives (unescaped, ``%n`` writes through a stray
+    pointer and ``%s`` reads one)."""
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    value = "%s%p%n" * 16
+    done = run_host(host, unzip, vrs=[f"s{vr_of(fmu, 'scheme')}={value}"])
+    assert done.returncode == 4, (done.returncode, done.stdout[-2000:])  # refused, no crash
+    assert any(value in line and "scheme" in line for line in done.stdout.splitlines()
+               if line.startswith("log ")), done.stdout
+
+
+def test_messages_are_printf_literals_for_fmpy(fmu, tmp_path):
+    """The same through fmpy, reading the raw messages: every '%' doubled."""
+    done = isolated(f"""
+        from fmpy.fmi1 import FMICallException
+        from fmu.master import Unit
+        raw = []
+
+        class RawUnit(Unit):
+            def _log(self, env, instance, status, category, message):
+                raw.append(message.decode("utf-8", "replace") if message else "")
+                super()._log(env, instance, status, category, message)
+
+        u = RawUnit({str(fmu)!r}, "printf")
+        value = "%s%p%n" * 8
+        try:
+            u.initialize({{"scheme": value}})
+        except FMICallException:
+            pass
+        mentions = [m for m in raw if "%" in m]
+        assert mentions
+        assert all("%" not in m.replace("%%", "") for m in mentions), mentions
+        assert any(value in m[2] for m in u.messages)       # the master formats them back
+        print("ok")
+        u.close(terminate=False)
+    """)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
+
+
+def test_a_host_with_only_numpy_and_scipy(fmu, host, tmp_path):
+    """The C host, its Python given nothing but the standard library, numpy
+    and scipy (the FMU's package path pointed at a folder holding only
+    those): the FMU runs and gives the in-process values."""
+    import json
+
+    import numpy
+    import scipy
+    site = tmp_path / "site"
+    site.mkdir()
+    for package in (numpy, scipy):
+        folder = Path(package.__file__).parent
+        for item in folder.parent.iterdir():
+            # the package, its bundled libraries (numpy.libs) and metadata
+            if item.name == folder.name or item.name.startswith(folder.name + "."):
+                (site / item.name).symlink_to(item)
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    config = Path(unzip) / "resources" / "hfdi_fmu.json"
+    data = json.loads(config.read_text())
+    data["path"] = [str(site)]
+    config.write_text(json.dumps(data))
+    names = ["u[1]", "a[4]"]
+    done = run_host(host, unzip, vrs=[vr_of(fmu, n) for n in names])
+    assert done.returncode == 0, (done.stdout, done.stderr)
+    values = [float(line.split()[2]) for line in done.stdout.splitlines()
+              if line.startswith("value ")]
+    assert values == list(in_process_values(fmu, unzip, names))

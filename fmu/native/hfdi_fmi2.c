@@ -83,6 +83,7 @@ API_LIST
 
 static PyObject* py_none;      /* None */
 static int api_ready = 0;       /* the table is filled and Python initialized */
+static int api_started = 0;     /* and this library started the interpreter */
 static char api_problem[8400];   /* why not, when it is not */
 
 static int resolve(void* handle)
@@ -164,6 +165,7 @@ static int python_ready(const char* resources)
             return 0;
         }
         p_PyEval_SaveThread();   /* every call below takes the GIL itself */
+        api_started = 1;
     }
     api_ready = 1;
     return 1;
@@ -430,13 +432,14 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
     if (!failed) entry = p_PyImport_ImportModule(entry_name);
     if (!failed && entry) make = p_PyObject_GetAttrString(entry, "instantiate");
     if (!failed && make) {
-        args = p_PyTuple_New(5);
+        args = p_PyTuple_New(6);
         p_PyTuple_SetItem(args, 0, folder);
         folder = NULL;                           /* stolen */
         p_PyTuple_SetItem(args, 1, p_PyUnicode_DecodeUTF8(instanceName, (Py_ssize_t_)strlen(instanceName), "replace"));
         p_PyTuple_SetItem(args, 2, p_PyUnicode_DecodeUTF8(fmuGUID ? fmuGUID : "", (Py_ssize_t_)strlen(fmuGUID ? fmuGUID : ""), "replace"));
         p_PyTuple_SetItem(args, 3, p_PyBool_FromLong(visible != fmi2False));
         p_PyTuple_SetItem(args, 4, p_PyBool_FromLong(loggingOn != fmi2False));
+        p_PyTuple_SetItem(args, 5, p_PyBool_FromLong(api_started));
         inst->adapter = p_PyObject_CallObject(make, args);
     }
     if (!inst->adapter) report_exception(inst, "fmi2Instantiate");
