@@ -242,8 +242,9 @@ class HfdiSlave(Fmi2Slave):
         self.modelName = "hfdi_" + re.sub(r"\W", "_", name)
         self.description = (
             f"hfdi model {name!r} ({n} DOFs): M u'' + C u' + f(u) = p(t) + F integrated by "
-            "the adaptive Newmark / Bathe / HFDI predictor-corrector with the "
-            "iteration-count step-size rule")
+            "the adaptive Newmark / Bathe / HFDI predictor-corrector, its step size from "
+            "the paper's iteration-count rule and, with a tolerance (rtol or the "
+            "master's), from the local error")
         self.version = str(getattr(hfdi, "__version__", ""))
         self.license = "MIT"
         stop = float(getattr(model, "observation_time", None) or 1.0)
