@@ -147,11 +147,8 @@ class Adapter:
         self.slave._set_fmu_state(state)
 
     def serialize(self, state) -> bytes:
-        data = type(self.slave)._fmu_state_to_bytes(state)
-        if not isinstance(data, bytes) or not data:
-            raise ValueError("fmi2SerializeFMUstate: the state cannot be serialized")
-        return data
+        return bytes(self.slave.serialize_state(state))
 
     def deserialize(self, data: bytes):
-        return type(self.slave)._fmu_state_from_bytes(data)
+        return self.slave.deserialize_state(data)
 

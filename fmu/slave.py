@@ -54,11 +54,8 @@ import importlib.util
 import math
 import numbers
 import os
-import io
-import json
 import re
 import sys
-import zipfile
 from xml.etree.ElementTree import Element, SubElement
 
 import numpy as np
@@ -124,18 +121,6 @@ def _like(what, saved, mine):
         if not ok:
             raise FmuError(f"the state's {what}: {key} must be of type {kind.__name__}")
     return {key: type(mine[key])(value) for key, value in saved.items()}
-
-
-class _InvalidState:
-    """What a serialized state that cannot be read deserializes to.
-
-    ``_fmu_state_from_bytes`` is called on the class, with no instance to log
-    through or to protect, so it must not raise; :meth:`HfdiSlave._set_fmu_state`
-    rejects this marker instead.
-    """
-
-    def __init__(self, reason: str):
-        self.reason = reason
 
 
 def load_bundle(alias: str, resources):
@@ -815,8 +800,6 @@ class HfdiSlave(Fmi2Slave):
         # everything is read and checked before anything changes: a state that
         # is refused leaves the FMU as it was
         try:
-            if isinstance(state, _InvalidState):
-                raise FmuError(state.reason)
             if not isinstance(state, dict) or state.get("model") != self.model_name \
                     or state.get("bundle") != self.bundle:
                 raise FmuError(f"the state was not made by this FMU (model {self.model_name!r}, "
@@ -865,59 +848,47 @@ class HfdiSlave(Fmi2Slave):
         except Exception as exc:
             self._reject(f"fmi2SetFMUstate: cannot restore the state: {exc}")
 
-    @staticmethod
-    def _fmu_state_to_bytes(state) -> bytes:
-        # Data only: the magic line, then numpy's .npz of a JSON header (the
-        # FMU's parameters and phase), the inputs and the integrator's own
-        # bytes (hfdi.IntegratorState.to_bytes). Called on the class, with no
-        # instance to protect, so it must not raise: empty bytes are refused
-        # by fmi2SetFMUstate instead.
+    def serialize_state(self, state) -> bytes:
+        """``fmi2SerializeFMUstate``: the magic line, then data only
+        (:mod:`hfdi.serial`): a JSON header (the FMU's parameters and phase),
+        the inputs and the integrator's own bytes (``IntegratorState.to_bytes``)."""
         try:
             header = {key: state[key] for key in _STATE_HEADER}
             header["built"] = state["built"]
-            arrays = {"header": np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
-                      "inputs": np.asarray(state["inputs"], dtype=np.float64),
+            arrays = {"inputs": np.asarray(state["inputs"], dtype=np.float64),
                       "applied": np.asarray(state["applied"], dtype=np.float64)}
             saved = state["integrator"]
             if saved is not None:
-                # bytes when the state itself came from bytes (_fmu_state_from_bytes)
+                # bytes when the state itself came from bytes (deserialize_state)
                 arrays["integrator"] = np.frombuffer(
                     saved if isinstance(saved, bytes) else saved.to_bytes(), dtype=np.uint8)
-            buffer = io.BytesIO()
-            np.savez(buffer, **arrays)
-            return _MAGIC + buffer.getvalue()
-        except Exception:
-            return b""
-
-    @staticmethod
-    def _fmu_state_from_bytes(data):
-        # Nothing in the bytes is ever run: numpy reads them with
-        # allow_pickle=False and the header is JSON. The integrator's part
-        # stays bytes here; fmi2SetFMUstate decodes and checks it with the
-        # FMU's own hfdi (_set_fmu_state), before anything changes.
-        try:
-            data = bytes(data)
-            if not data.startswith(_MAGIC):
-                return _InvalidState("the bytes are not a serialized hfdi FMU state")
-            body = data[len(_MAGIC):]
-            with zipfile.ZipFile(io.BytesIO(body)) as archive:
-                entries = archive.infolist()
-                if any(e.compress_type != zipfile.ZIP_STORED for e in entries) or \
-                        sum(e.file_size for e in entries) > len(body):
-                    return _InvalidState("the serialized state has compressed entries")
-            with np.load(io.BytesIO(body), allow_pickle=False) as z:
-                arrays = {key: z[key] for key in z.files}
-            header = json.loads(arrays["header"].tobytes().decode("utf-8"))
-            if not isinstance(header, dict) or set(header) != set(_STATE_HEADER) | {"built"}:
-                return _InvalidState("the serialized state's header is malformed")
-            built = header.pop("built")
-            if built is not None:
-                if not (isinstance(built, list) and len(built) == 3
-                        and isinstance(built[0], dict) and isinstance(built[1], dict)):
-                    return _InvalidState("the serialized state's integrator key is malformed")
-                built = (built[0], built[1], built[2])
-            integrator = arrays.get("integrator")
-            return dict(header, built=built, inputs=arrays["inputs"], applied=arrays["applied"],
-                        integrator=None if integrator is None else integrator.tobytes())
+            return _MAGIC + self._hfdi.serial.pack(header, arrays)
         except Exception as exc:
-            return _InvalidState(f"the serialized state cannot be read: {type(exc).__name__}")
+            self._reject(f"fmi2SerializeFMUstate: the state cannot be serialized: {exc!r}")
+
+    def deserialize_state(self, data):
+        """``fmi2DeSerializeFMUstate``: the state of :meth:`serialize_state`'s
+        bytes. Nothing in them is ever run; the integrator's part stays bytes
+        here, decoded and checked by ``fmi2SetFMUstate`` (:meth:`_set_fmu_state`)
+        before anything changes."""
+        data = bytes(data)
+        if not data.startswith(_MAGIC):
+            self._reject("fmi2DeSerializeFMUstate: the bytes are not a serialized hfdi FMU "
+                         "state")
+        try:
+            header, arrays = self._hfdi.serial.unpack(data[len(_MAGIC):])
+        except ValueError as exc:
+            self._reject(f"fmi2DeSerializeFMUstate: the serialized state cannot be read: {exc}")
+        if set(header) != set(_STATE_HEADER) | {"built"} or \
+                set(arrays) - {"integrator"} != {"inputs", "applied"}:
+            self._reject("fmi2DeSerializeFMUstate: the serialized state is malformed")
+        built = header.pop("built")
+        if built is not None:
+            if not (isinstance(built, list) and len(built) == 3
+                    and isinstance(built[0], dict) and isinstance(built[1], dict)):
+                self._reject("fmi2DeSerializeFMUstate: the serialized state's integrator key "
+                             "is malformed")
+            built = (built[0], built[1], built[2])
+        integrator = arrays.get("integrator")
+        return dict(header, built=built, inputs=arrays["inputs"], applied=arrays["applied"],
+                    integrator=None if integrator is None else integrator.tobytes())

@@ -16,16 +16,13 @@ import copy
 import dataclasses
 import enum
 import inspect
-import io
-import json
 import math
 import time
-import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import checks
+from . import checks, serial
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import local_error, predict, solve_step
@@ -121,9 +118,8 @@ class IntegratorState:
     :meth:`Integrator.get_state`).
 
     :meth:`to_bytes` and :meth:`from_bytes` write and read it as data only
-    (numpy's ``.npz`` with a JSON header, read with ``allow_pickle=False``),
-    so that bytes from elsewhere can never run code; the round trip is
-    bit-exact.
+    (:mod:`hfdi.serial`), so that bytes from elsewhere can never run code;
+    the round trip is bit-exact.
     """
 
     current: State
@@ -164,10 +160,7 @@ class IntegratorState:
                       previous=one("previous", self.previous),
                       statistics={k: type(getattr(Statistics, k))(getattr(self.statistics, k))
                                   for k in _STATISTICS_FIELDS})
-        text = json.dumps(header, allow_nan=True).encode()
-        buffer = io.BytesIO()
-        np.savez(buffer, header=np.frombuffer(text, dtype=np.uint8), **arrays)
-        return buffer.getvalue()
+        return serial.pack(header, arrays)
 
     @classmethod
     def from_bytes(cls, data) -> IntegratorState:
@@ -180,21 +173,10 @@ class IntegratorState:
             another format version, or with a field of the wrong type).
         """
         try:
-            data = bytes(data)
-            with zipfile.ZipFile(io.BytesIO(data)) as archive:
-                # what to_bytes writes is stored, not compressed: a compressed
-                # entry could expand far beyond the bytes given (a zip bomb)
-                entries = archive.infolist()
-                if any(e.compress_type != zipfile.ZIP_STORED for e in entries) or \
-                        sum(e.file_size for e in entries) > len(data):
-                    raise ValueError("compressed entries")
-            with np.load(io.BytesIO(data), allow_pickle=False) as z:
-                arrays = {key: z[key] for key in z.files}
-            header = json.loads(arrays.pop("header").tobytes().decode())
-        except Exception as exc:
-            raise ValueError(f"not a serialized integrator state ({type(exc).__name__})") \
-                from None
-        if not isinstance(header, dict) or header.get("format") != STATE_FORMAT:
+            header, arrays = serial.unpack(data)
+        except ValueError:
+            raise ValueError("not a serialized integrator state") from None
+        if header.get("format") != STATE_FORMAT:
             raise ValueError(f"not a serialized integrator state of format {STATE_FORMAT!r}")
         n = _field(header, "n_dof", int)
 
