@@ -482,6 +482,7 @@ class HfdiSlave(Fmi2Slave):
                 raise FmuError(f"input {', '.join(bad)} is not finite")
             self._F_applied = self._F_input.copy()
             model, itg = self._make_integrator(self._params, self._mparams, self._start_time)
+            self._check_outputs_finite(itg)
         except FmuError as exc:
             self._reject(f"initialization rejected: {exc}")
         except Exception as exc:
@@ -493,6 +494,27 @@ class HfdiSlave(Fmi2Slave):
         self.log(f"{self.model_name}: scheme {self._params['scheme']}, controller "
                  f"{itg.controller!r}, t0 = {self._start_time}, first trial "
                  f"step {itg.proposed_step:.6g}", Fmi2Status.ok)
+
+    def _check_outputs_finite(self, itg):
+        """Refuse parameters whose initial outputs are not finite (a length
+        scale of 5e-324 puts an infinite stretch among them): a master would
+        read them as the state it starts from."""
+        state = itg.state
+        values = {"W": float(itg.total_energy)}
+        try:
+            quantities = itg.system.quantities(np.array([state.t]), state.u[None, :],
+                                               state.v[None, :])
+        except Exception:
+            quantities = {}
+        for qname, _, _ in self._zlayout:
+            if qname in quantities:
+                values[qname] = float(np.max(np.abs(np.asarray(quantities[qname], float))))
+        bad = [f"{name} = {value!r}" for name, value in values.items() if not math.isfinite(value)]
+        if bad:
+            changed = [f"{key} = {value!r}" for key, value in self._mparams.items()
+                       if value != self._defaults.get(key)]
+            raise FmuError(f"the model parameters ({', '.join(changed) or 'defaults'}) give "
+                           f"outputs that are not finite at t0: {', '.join(bad)}")
 
     def terminate(self):
         self._phase = "terminated"

@@ -570,6 +570,8 @@ DOCUMENTED = [
     ("max-internal-steps", "`max_internal_steps` = 0", _exit_with({"max_internal_steps": 0}),
      "ERROR", "max_internal_steps = 0"),
     ("A", "`A` = -1", _exit_with({"A": -1.0}), "ERROR", "A = -1.0"),
+    ("sigma-tiny", "`sigma` = 5e-324 (the stretch output overflows at t0)",
+     _exit_with({"sigma": 5e-324}), "ERROR", "sigma = 5e-324"),
     ("sigma-huge", "`sigma` = 1e300 (the model's force overflows)",
      _exit_with({"sigma": 1e300}), "ERROR", "sigma = 1e+300"),
     ("input-nan-init", "input `F[1]` = NaN at fmi2ExitInitializationMode",
