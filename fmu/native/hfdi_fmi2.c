@@ -111,13 +111,32 @@ static PyObject* none(void)
     return py_none;
 }
 
-/* The first line of `path` into `out` (without its newline); 0 if unreadable. */
+/* The next line of `f` into `out`, without its newline; 0 at the end of the file. */
 static int read_line(FILE* f, char* out, size_t size)
 {
     if (!fgets(out, (int)size, f)) return 0;
     size_t n = strlen(out);
     while (n && (out[n - 1] == '\n' || out[n - 1] == '\r')) out[--n] = '\0';
-    return n > 0;
+    return 1;
+}
+
+/* resources/hfdi_fmu_python.txt: the Python library (empty when the build's
+ * Python has none, a static one), its home, the entry module; 0 with the
+ * reason in api_problem when the file is missing or malformed. */
+typedef struct { char library[4096], home[4096], entry[256]; } Description;
+
+static int read_description(const char* resources, Description* d)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/hfdi_fmu_python.txt", resources);
+    FILE* f = fopen(path, "r");
+    int ok = f && read_line(f, d->library, sizeof d->library)
+             && read_line(f, d->home, sizeof d->home) && read_line(f, d->entry, sizeof d->entry)
+             && d->entry[0];
+    if (f) fclose(f);
+    if (!ok) snprintf(api_problem, sizeof api_problem, "the FMU's resources are damaged: %s is "
+                      "missing or malformed", path);
+    return ok;
 }
 
 /* Make the C API usable: the host's interpreter if it has one, else the
@@ -132,20 +151,15 @@ static int python_ready(const char* resources)
         api_ready = 1;
         return 1;
     }
-    char path[4096], library[4096], home[4096];
-    snprintf(path, sizeof path, "%s/hfdi_fmu_python.txt", resources);
-    FILE* f = fopen(path, "r");
-    if (!f) {
-        snprintf(api_problem, sizeof api_problem,
-                 "no Python in the host and no readable %s", path);
+    Description d;
+    if (!read_description(resources, &d)) return 0;
+    if (!d.library[0]) {
+        snprintf(api_problem, sizeof api_problem, "no Python in the host, and the FMU was built "
+                 "with a Python that has no shared library to load");
         return 0;
     }
-    int ok = read_line(f, library, sizeof library) && read_line(f, home, sizeof home);
-    fclose(f);
-    if (!ok) {
-        snprintf(api_problem, sizeof api_problem, "%s is malformed", path);
-        return 0;
-    }
+    const char* library = d.library;
+    const char* home = d.home;
     void* lib = dlopen(library, RTLD_NOW | RTLD_GLOBAL);
     if (!lib) {
         snprintf(api_problem, sizeof api_problem, "cannot load the Python library %s: %s",
@@ -158,6 +172,8 @@ static int python_ready(const char* resources)
             /* Py_SetPythonHome keeps the pointer: it lives as long as Python */
             wchar_t* whome = p_Py_DecodeLocale(home, NULL);
             if (whome) p_Py_SetPythonHome(whome);
+        } else if (home[0]) {
+            setenv("PYTHONHOME", home, 0);   /* Pythons without Py_SetPythonHome (3.13) */
         }
         p_Py_InitializeEx(0);
         if (!p_Py_IsInitialized()) {
@@ -414,21 +430,12 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
         p_PyErr_Clear();
         failed = p_PyList_Insert(path, 0, folder) != 0;
     }
-    char entry_name[256] = "";
-    if (!failed) {
-        char file[4096];
-        snprintf(file, sizeof file, "%s/hfdi_fmu_python.txt", resources);
-        FILE* f = fopen(file, "r");
-        char skip[4096];
-        failed = !(f && read_line(f, skip, sizeof skip) && read_line(f, skip, sizeof skip)
-                   && read_line(f, entry_name, sizeof entry_name));
-        if (f) fclose(f);
-        if (failed) {
-            logf_(inst, fmi2Error, "fmi2Instantiate: %s is missing or malformed", file);
-            p_PyErr_Clear();
-            goto done;
-        }
+    Description d;
+    if (!failed && !read_description(resources, &d)) {
+        logf_(inst, fmi2Error, "fmi2Instantiate: %s", api_problem);
+        goto done;
     }
+    const char* entry_name = d.entry;
     if (!failed) entry = p_PyImport_ImportModule(entry_name);
     if (!failed && entry) make = p_PyObject_GetAttrString(entry, "instantiate");
     if (!failed && make) {
