@@ -276,3 +276,35 @@ def test_nan_from_the_model_raises_rather_than_hangs(where):
         if has_alarm:
             signal.alarm(0)
             signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.mark.parametrize("damage", ["nan-u", "nan-v", "nan-a", "reversed-t"])
+def test_cache_entry_with_damaged_data_is_recomputed(tmp_path, damage):
+    """A cache file whose key matches but whose data are NaN, or whose times
+    run backwards, is recomputed, not used (it printed NaN error norms with
+    exit status 0)."""
+    kwargs = dict(t_end=0.2, cache_dir=tmp_path)
+    good = cached_reference("dumbbell", {"A": 1e3}, **kwargs)
+    with np.load(good.cache_path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    field = damage.split("-")[1]
+    values = data[field].copy()
+    if damage == "reversed-t":
+        values = values[::-1].copy()
+    else:
+        values.flat[values.size // 2] = np.nan
+    data[field] = values
+    np.savez(good.cache_path, **data)
+    again = cached_reference("dumbbell", {"A": 1e3}, **kwargs)
+    assert not again.from_cache
+    for name in ("t", "u", "v", "a"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(good, name))
+
+
+def test_cache_key_covers_the_helpers_a_model_uses():
+    """Editing the loads or the pair potential the tetrahedra use must miss
+    the cache: the key hashes every module of hfdi.models and the model
+    protocol, not only the model's own module."""
+    from validation.reference import model_sources
+    names = {p.name for p in model_sources(hfdi.models.tetrahedra())}
+    assert {"tetrahedra.py", "pair.py", "loads.py", "system.py"} <= names

@@ -87,3 +87,33 @@ def test_table_rtol_out_of_range_is_one_line(bad, capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rtol" in err[0]
+
+
+@pytest.mark.parametrize("args", [["table", "dumbbell", "--t-end", "1e300"],
+                                  ["bench", "--problems", "dumbbell", "--t-end", "1e9"],
+                                  ["all", "--problems", "dumbbell", "--long-t-end", "1e9"]])
+def test_absurd_t_end_is_refused_before_any_work(tmp_path, capsys, args):
+    """--t-end = 1e300 used to be accepted; the IDA reference then ran without
+    end, memory growing."""
+    assert main([*args, "--out", str(tmp_path / "out")] if args[0] != "table" else args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is too long for dumbbell: at most 100" in err[0], err
+    assert not (tmp_path / "out").exists()
+
+
+def test_table_json_is_written_atomically(tmp_path, monkeypatch, capsys):
+    """A failure while writing (the disk full) leaves the previous file."""
+    import os
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "runs.json"
+    out.write_text("previous")
+
+    def disk_full(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", disk_full)
+    assert main(["table", "dumbbell", "--schemes", "hfdi", "--targets", "3.3", "--t-end", "0.2",
+                 "--no-eps", "--json", str(out)]) != 0
+    assert out.read_text() == "previous"
+    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["runs.json"]
+

@@ -12,6 +12,7 @@ from pathlib import Path
 import hfdi
 
 from . import parallel
+from .atomic import write_atomic
 from .bench import add_bench_parser, run_bench_command
 from .reference import IDAError
 from .tables import SCHEME_ORDER, format_table, records_to_csv, run_tables
@@ -222,8 +223,8 @@ def _table(args):
         print(format_table(tables[problem]))
         records += tables[problem]
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump([r.as_dict() for r in records], fh, indent=1)
+        # atomic: a full disk or a kill leaves the previous file, not half of one
+        write_atomic(args.json, json.dumps([r.as_dict() for r in records], indent=1).encode())
     if args.csv:
         records_to_csv(records, args.csv)
 
@@ -298,11 +299,22 @@ def _check_problem(name):
                     f"{', '.join(hfdi.models.available())}")
 
 
-def _check_runs(problems, schemes, targets, t_end, rtols=None):
+#: The longest --t-end accepted, in multiples of a model's longest observation time.
+LONGEST_RUN = 10.0
+
+
+def _check_runs(problems, schemes, targets, t_end, rtols=None, option="--t-end"):
     """Let the library refuse the run settings (say a --t-end below its
     smallest step) before the reference and the runs take their time."""
     for name in problems:
         model = hfdi.models.get(name)
+        longest = LONGEST_RUN * max(model.observation_time,
+                                    getattr(model, "long_observation_time", None) or 0.0)
+        if t_end is not None and t_end > longest:
+            # the IDA reference (rtol 1e-12, every step kept) grows with t_end:
+            # 1e300 ran without end, memory growing
+            raise _Exit(f"{option} = {t_end:g} is too long for {name}: at most {longest:g} "
+                        f"({LONGEST_RUN:g} times its longest observation time)")
         for scheme in schemes:
             for target in targets or ([None] if rtols else
                                       model.paper_targets.get(scheme) or [3.0]):
@@ -321,7 +333,8 @@ def _check_runs(problems, schemes, targets, t_end, rtols=None):
 def _figures(args):
     from .figures import Progress, ProblemRuns, write_figures
     _check_problem(args.problem)
-    _check_runs([args.problem], args.schemes, args.targets, args.t_end)
+    for option, t_end in (("--t-end", args.t_end), ("--long-t-end", args.long_t_end)):
+        _check_runs([args.problem], args.schemes, args.targets, t_end, option=option)
     out = _out_dir(args.out)
     progress = Progress()
     ctx = ProblemRuns(args.problem, args.schemes, args.targets, args.t_end, args.long_t_end,
@@ -349,7 +362,9 @@ def _all(args):
     from .figures import Progress
     from .report import FIGURE_DIR, SettingsMismatch, run_all
     from .stability import DEFAULT_RATIOS
-    _check_runs(args.problems or hfdi.models.available(), args.schemes, args.targets, args.t_end)
+    for option, t_end in (("--t-end", args.t_end), ("--long-t-end", args.long_t_end)):
+        _check_runs(args.problems or hfdi.models.available(), args.schemes, args.targets,
+                    t_end, option=option)
     # --dask: the extra and the scheduler are checked before --out is made
     with parallel.runner_from_args(args) as runner:
         out = _out_dir(args.out)

@@ -876,10 +876,27 @@ def _digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def model_sources(model) -> list:
+    """The source files a model's forces come from: its module, every module
+    of the package it lives in (for hfdi.models: the pair potential and the
+    loads its models share) and hfdi's model protocol, checks and linear
+    algebra. The reference cache's key hashes them all, so that an edited
+    model, or an edited helper of it, misses the cache."""
+    module = Path(inspect.getsourcefile(inspect.getmodule(type(model))))
+    files = {module}
+    if (module.parent / "__init__.py").is_file():
+        files.update(module.parent.glob("*.py"))
+    core = Path(hfdi.__file__).parent
+    files.update(core / name for name in ("system.py", "checks.py", "linalg.py"))
+    return sorted(files)
+
+
 def _model_source_digest(model):
-    """Hash of the source of the model's module: an edited model misses the cache."""
     try:
-        return _digest(inspect.getsource(inspect.getmodule(type(model))).encode())
+        h = hashlib.sha256()
+        for path in model_sources(model):
+            h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+        return h.hexdigest()
     except (OSError, TypeError):
         return None
 
@@ -926,8 +943,12 @@ def _load(path, key):
         # Unreadable (truncated, corrupt, foreign): the caller recomputes it.
         return None
     n = ref.t.size
+    # a matching key with damaged data (NaN, reversed times) is recomputed, not
+    # used: it would print NaN error norms with exit status 0
     if not (n >= 1 and ref.u.shape[0] == n and ref.v.shape == ref.u.shape
-            and ref.a.shape == ref.u.shape and np.isfinite(ref.u).all()):
+            and ref.a.shape == ref.u.shape and np.isfinite(ref.t).all()
+            and np.isfinite(ref.u).all() and np.isfinite(ref.v).all()
+            and np.isfinite(ref.a).all() and np.all(np.diff(ref.t) > 0)):
         return None
     return ref
 
