@@ -278,14 +278,6 @@ class Evaluator:
         p = self.load(t) if p is None else p
         return self.mass_solve(p - f - self.damping_times(v))
 
-    def state(self, t, u, v):
-        """A consistent :class:`State` at ``t`` (computes f, p and a)."""
-        u = np.array(u, dtype=float)
-        v = np.array(v, dtype=float)
-        f = self.force(u)
-        p = self.load(t)
-        return State(t, u, v, self.acceleration(t, u, v, f, p), f, p)
-
     def kinetic_energy(self, v):
         return 0.5 * float(v @ self.mass_times(v))
 
@@ -293,7 +285,3 @@ class Evaluator:
     def solve(self, a, b):
         self.nlu += 1
         return solve(a, b)
-
-    def counters(self):
-        return {"nfev": self.nfev, "njev": self.njev, "ntev": self.ntev,
-                "nlu": self.nlu, "npev": self.npev}

@@ -20,7 +20,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["normalise_matrix", "matvec", "combine", "Factorization", "SingularMatrixError",
+__all__ = ["normalise_matrix", "combine", "Factorization", "SingularMatrixError",
            "all_finite", "solve", "banded_from_sparse"]
 
 _F64 = np.empty(1)
@@ -73,15 +73,6 @@ def normalise_matrix(a, n: int, name: str):
     if np.count_nonzero(arr - np.diag(np.diag(arr))) == 0:
         return np.diag(arr).copy()
     return np.ascontiguousarray(arr)
-
-
-def matvec(a, x):
-    """``a @ x`` for a diagonal (1-D), dense or sparse ``a``; ``None`` is zero."""
-    if a is None:
-        return np.zeros_like(x)
-    if isinstance(a, np.ndarray) and a.ndim == 1:
-        return a * x
-    return a @ x
 
 
 def diagonal_csr(d):
@@ -212,15 +203,6 @@ def _offsets(a):
     return _rows_and_offsets(a)[1]
 
 
-def bandwidths(a):
-    """Lower and upper bandwidth ``(l, u)`` of a sparse matrix."""
-    a = a.tocsr()
-    if a.nnz == 0:
-        return 0, 0
-    diff = _offsets(a)
-    return int(max(diff.max(), 0)), int(max(-diff.min(), 0))
-
-
 #: Patterns of the last sparse matrices put into band storage: the model's
 #: tangent and its derivative keep one pattern from iteration to iteration,
 #: so their band positions are found once and then only checked (two
@@ -305,16 +287,6 @@ def solve_band(ab, lower, upper, b):
     if info < 0:
         raise ValueError(f"illegal value in argument {-info} of gbsv")
     return x
-
-
-def solve_banded_sparse(a, b, lower=None, upper=None):
-    """Solve ``a x = b`` for a sparse ``a`` with a narrow band (``lower``,
-    ``upper`` are recomputed; kept for compatibility)."""
-    band = banded_from_sparse(a, max_width=2 * a.shape[0], extra_lower=True)
-    ab, lower, upper = band
-    if not all_finite(ab):
-        raise SingularMatrixError("matrix has non-finite entries")
-    return solve_band(ab, lower, upper, b)
 
 
 def solve(a, b):

@@ -38,7 +38,7 @@ __all__ = ["profile_run", "main"]
 
 SCHEMES = ("newmark", "bathe", "hfdi")
 _HFDI = Path(hfdi.__file__).resolve().parent
-_LINALG_METHODS = {"solve", "band", "solve_band", "solve_banded_sparse"}
+_LINALG_METHODS = {"solve", "band", "solve_band"}
 
 
 def _file(key) -> Path | None:
