@@ -58,13 +58,20 @@ def in_process_values(fmu, unzip, names, steps=STEPS, h=0.01):
     return values
 
 
+#: BLAS settings of this process (OPENBLAS_CORETYPE picks OpenBLAS's kernels):
+#: the host gets them too, so that "bit for bit" compares the same arithmetic.
+BLAS_ENV = {k: v for k, v in os.environ.items()
+            if k.startswith(("OPENBLAS_", "OMP_", "MKL_", "GOTO_"))}
+
+
 def run_host(host, unzip, guid=None, vrs=(), env=None):
+    """Run the C host with no Python in its environment (only PATH and BLAS settings)."""
     md = read_model_description(str(unzip))
     library = Path(unzip) / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
     uri = (Path(unzip) / "resources").as_uri()
     return subprocess.run([str(host), str(library), uri, guid or md.guid, str(STEPS),
                            *map(str, vrs)], capture_output=True, text=True, timeout=300,
-                          env=env if env is not None else {"PATH": "/usr/bin:/bin"})
+                          env=env if env is not None else {"PATH": "/usr/bin:/bin", **BLAS_ENV})
 
 
 def isolated(script, timeout=300, **kwargs):
