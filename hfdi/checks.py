@@ -92,15 +92,40 @@ def callable_or_none(name: str, value, signature: str):
     return value
 
 
-def square_matrix(name: str, value):
+def square_matrix(name: str, value, n: int | None = None, *, to_match: str = ""):
     """``value`` as a float ndarray of shape (N,) (a diagonal) or (N, N), or a
-    scipy sparse (N, N) matrix, with finite entries and ``N >= 1``."""
+    scipy sparse (N, N) matrix, with finite real entries and ``N >= 1``.
+
+    The one check of a mass, damping or stiffness matrix given by a user
+    (:class:`~hfdi.system.System`, :func:`hfdi.linalg.normalise_matrix`,
+    the symbolic models).
+
+    Parameters
+    ----------
+    name : str
+        The parameter, named in the messages.
+    value : array_like (N,) or (N, N), or scipy sparse (N, N)
+    n : int, optional
+        The size ``N`` must be this when given.
+    to_match : str, optional
+        Appended to the wrong-size message to say why ``N`` must be ``n``
+        (e.g. ``" to match the mass"``).
+
+    Returns
+    -------
+    ndarray (N,) or (N, N), or the scipy sparse ``value`` itself
+        A dense ``value`` that is already a float array is not copied.
+    """
+    shape = "(N,) (diagonal) or (N, N)" if n is None else f"({n},) (diagonal) or ({n}, {n})"
     if sp.issparse(value):
         if complex_values(value):
             raise ValueError(f"{name} must be real, got a complex sparse matrix")
         if value.ndim != 2 or value.shape[0] != value.shape[1] or value.shape[0] < 1:
             raise ValueError(f"{name} must be square (N, N) with N >= 1, got sparse shape "
                              f"{value.shape}")
+        if n is not None and value.shape != (n, n):
+            raise ValueError(f"{name} must have shape ({n}, {n}){to_match}, got a sparse "
+                             f"matrix of shape {value.shape}")
         if not np.all(np.isfinite(value.data)):
             raise ValueError(f"{name} must have finite entries, got a sparse matrix with "
                              f"{np.count_nonzero(~np.isfinite(value.data))} non-finite entries")
@@ -110,11 +135,13 @@ def square_matrix(name: str, value):
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of numbers of shape (N,) (diagonal) or "
-                         f"(N, N), or a scipy sparse matrix, got {value!r}") from None
+        raise ValueError(f"{name} must be an array of numbers of shape {shape}, or a scipy "
+                         f"sparse matrix, got {value!r}") from None
     if arr.ndim not in (1, 2) or arr.shape[0] < 1 or arr.shape != arr.shape[:1] * arr.ndim:
-        raise ValueError(f"{name} must have shape (N,) (diagonal) or (N, N) with N >= 1, "
-                         f"got shape {arr.shape}")
+        raise ValueError(f"{name} must have shape {shape}"
+                         f"{' with N >= 1' if n is None else to_match}, got shape {arr.shape}")
+    if n is not None and arr.shape[0] != n:
+        raise ValueError(f"{name} must have shape {shape}{to_match}, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise ValueError(f"{name} must have finite entries, got {float(arr[tuple(bad)])!r} at "

@@ -129,15 +129,11 @@ class Evaluator:
         # A mass that is not positive definite has no acceleration (or an
         # unbounded one); a damping that is not semi-definite feeds energy in.
         # Both are mistakes in a model, cheaper to report here than as a
-        # diverging run later.
+        # diverging run later. (normalise_matrix has checked them finite.)
         for name, matrix, semi in (("system.mass", self.mass, False),
                                    ("system.damping", self.damping, True)):
             if matrix is None:
                 continue
-            values = matrix.data if sp.issparse(matrix) else matrix
-            if not np.all(np.isfinite(values)):
-                raise ValueError(f"{name} must have finite entries, got "
-                                 f"{_first_bad(matrix)}")
             checks.symmetric_definite(
                 name, matrix, semi=semi,
                 what=" (negative damping is not allowed)" if semi else "")

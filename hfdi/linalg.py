@@ -20,6 +20,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import checks
+
 __all__ = ["normalise_matrix", "combine", "Factorization", "SingularMatrixError",
            "all_finite", "solve", "banded_from_sparse"]
 
@@ -47,32 +49,23 @@ def all_finite(x) -> bool:
 def normalise_matrix(a, n: int, name: str):
     """Return ``a`` as a 1-D diagonal, a 2-D ndarray or CSR sparse, checked to be ``n``×``n``.
 
-    ``None`` stays ``None``. A sparse or dense matrix that is exactly diagonal
-    is stored as its diagonal.
+    ``None`` stays ``None``. The checks (real, finite, the shape) and their
+    messages naming ``name`` are :func:`hfdi.checks.square_matrix`'s. A sparse
+    or dense matrix that is exactly diagonal is stored as its diagonal.
     """
     if a is None:
         return None
+    a = checks.square_matrix(name, a, n)
     if sp.issparse(a):
-        if a.shape != (n, n):
-            raise ValueError(f"{name} must have shape ({n}, {n}), got {a.shape}")
         a = sp.csr_matrix(a, dtype=float)
         if a.nnz == 0 or (a - sp.diags(a.diagonal())).count_nonzero() == 0:
             return np.asarray(a.diagonal(), dtype=float)
         return a
-    try:
-        arr = np.asarray(a, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of numbers of shape ({n},) (diagonal) or "
-                         f"({n}, {n}), or a scipy sparse matrix, got {a!r}") from None
-    if arr.ndim == 1:
-        if arr.shape != (n,):
-            raise ValueError(f"{name} given as a diagonal must have shape ({n},), got {arr.shape}")
-        return arr.copy()
-    if arr.shape != (n, n):
-        raise ValueError(f"{name} must have shape ({n}, {n}), got {arr.shape}")
-    if np.count_nonzero(arr - np.diag(np.diag(arr))) == 0:
-        return np.diag(arr).copy()
-    return np.ascontiguousarray(arr)
+    if a.ndim == 1:
+        return a.copy()
+    if np.count_nonzero(a - np.diag(np.diag(a))) == 0:
+        return np.diag(a).copy()
+    return np.ascontiguousarray(a)
 
 
 def diagonal_csr(d):

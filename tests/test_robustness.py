@@ -431,6 +431,32 @@ def test_model_functions_are_checked_before_any_step():
     assert len(calls) == 1
 
 
+@pytest.mark.parametrize("value, message", [
+    (np.ones(3), "must have shape (2,) (diagonal) or (2, 2)"),
+    (np.ones((2, 3)), "must have shape (2,) (diagonal) or (2, 2)"),
+    (sparse.identity(3, format="csr"), "must have shape (2, 2)"),
+    ([1.0, np.nan], "must have finite entries, got nan at index (1,)"),
+    ([1.0, 1.0 + 1e-3j], "must be real"),
+    ("heavy", "must be an array of numbers"),
+])
+def test_every_matrix_input_has_the_same_check(value, message):
+    """The matrix an integrator is given (``normalise_matrix``) and a symbolic
+    model's mass go through one check (``checks.square_matrix``, as
+    ``System``'s do): the same refusal, naming each its parameter."""
+    import sympy
+    from hfdi.linalg import normalise_matrix
+    from hfdi.models.symbolic import EnergyModel
+    x, y = sympy.symbols("x y")
+    for name, make in (
+            ("system.mass", lambda: normalise_matrix(value, 2, "system.mass")),
+            ("mass", lambda: EnergyModel((x, y), x ** 2 + y ** 2, value))):
+        with pytest.raises(ValueError) as info:
+            make()
+        assert str(info.value).startswith(name + " ") and message in str(info.value), \
+            str(info.value)
+
+
+
 @pytest.mark.parametrize("damping", [
     np.zeros(2), np.zeros((2, 2)), [[1.0, -1.0], [-1.0, 1.0]],          # semi-definite
     sparse.csr_matrix([[1.0, -1.0], [-1.0, 1.0]]),

@@ -35,6 +35,7 @@ import scipy.sparse as sp
 import sympy
 from sympy.core.function import AppliedUndef
 
+from .. import checks
 from ..system import SecondOrderSystem
 
 __all__ = ["EnergyModel", "elastic_pendulum", "spring_chain"]
@@ -96,28 +97,14 @@ def _real(value, what):
 
 
 def _square_or_diagonal(value, n, what, positive_diagonal=False):
-    """A mass or damping matrix: 1-D diagonal (n,), dense (n, n) or sparse (n, n)."""
-    if sp.issparse(value):
-        if value.shape != (n, n):
-            raise ValueError(f"{what} must be ({n}, {n}) to match the {n} degrees of "
-                             f"freedom, got a sparse matrix of shape {value.shape}")
-        out = sp.csr_matrix(value, dtype=float)
-        if not np.all(np.isfinite(out.data)):
-            raise ValueError(f"{what} must be finite")
-        return out
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a numeric array or a sparse matrix, "
-                         f"got {value!r}") from None
-    if arr.shape not in ((n,), (n, n)):
-        raise ValueError(f"{what} must have shape ({n},) (diagonal) or ({n}, {n}) to match "
-                         f"the {n} degrees of freedom, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite")
-    if positive_diagonal and arr.ndim == 1 and not np.all(arr > 0):
-        raise ValueError(f"{what} given as a diagonal must be positive, got {arr}")
-    return arr
+    """A mass or damping matrix: 1-D diagonal (n,), dense (n, n) or sparse (n, n),
+    checked by :func:`hfdi.checks.square_matrix`; a copy, in CSR form when sparse."""
+    out = checks.square_matrix(what, value, n, to_match=f" to match the {n} degrees of freedom")
+    if sp.issparse(out):
+        return sp.csr_matrix(out, dtype=float, copy=True)
+    if positive_diagonal and out.ndim == 1 and not np.all(out > 0):
+        raise ValueError(f"{what} given as a diagonal must be positive, got {out}")
+    return np.array(out)
 
 
 def _vector(value, n, what):
