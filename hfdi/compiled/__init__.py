@@ -1,0 +1,133 @@
+"""Compiled (numba) model kernels and a compiled step attempt for dense systems.
+
+Nothing here imports numba until it is used: ``import hfdi`` stays light, and
+a model without compiled kernels, or a Python without numba, runs on the
+Python path. See docs/compiled.md for the protocol a model follows to provide
+compiled kernels (:meth:`compiled_kernels` returning :class:`CompiledKernels`)
+and for the measured speed.
+"""
+from __future__ import annotations
+
+import logging
+import warnings
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+__all__ = ["CompiledKernels", "numba_available", "kernels_of", "CompiledUnavailable"]
+
+_log = logging.getLogger("hfdi.compiled")
+
+
+class CompiledKernels(NamedTuple):
+    """A model's compiled kernels and the data they read.
+
+    Attributes
+    ----------
+    force : numba function ``(u, params) -> f (N,)``
+    stiffness : numba function ``(u, params) -> K (N, N)``
+    stiffness_derivative : numba function ``(u, w, params) -> T(u)[w] (N, N)``
+    potential_energy : numba function ``(u, params) -> V`` (float)
+    params : ndarray (P,), float64, C-contiguous
+        The model's data, read by the kernels and never written.
+
+    Each function is compiled with the signature of
+    :mod:`hfdi.compiled.signatures` (``FORCE``, ``STIFFNESS``,
+    ``STIFFNESS_DERIVATIVE``, ``POTENTIAL_ENERGY``).
+    """
+
+    force: Callable
+    stiffness: Callable
+    stiffness_derivative: Callable
+    potential_energy: Callable
+    params: np.ndarray
+
+
+class CompiledUnavailable(RuntimeError):
+    """``compiled=True`` was asked for but the compiled path cannot run (the
+    message says why)."""
+
+
+_NUMBA = None          # None: not tried yet; else (ok, reason)
+
+
+def numba_available() -> tuple[bool, str]:
+    """``(True, "")`` when numba imports, else ``(False, why)``; tried once per process."""
+    global _NUMBA
+    if _NUMBA is None:
+        try:
+            import numba  # noqa: F401
+            _NUMBA = (True, "")
+        except Exception as exc:     # ImportError, or a broken llvmlite
+            _NUMBA = (False, f"numba cannot be imported ({type(exc).__name__}: {exc})")
+    return _NUMBA
+
+
+_METHODS = ("internal_force", "stiffness", "stiffness_derivative")
+
+#: The paper's models: class (module, name) -> factory in hfdi.compiled.models.
+_BUILTIN = {("hfdi.models.dumbbell", "Dumbbell"): "dumbbell_kernels",
+            ("hfdi.models.tetrahedra", "Tetrahedra"): "tetrahedra_kernels",
+            ("hfdi.models.articulated", "Articulated"): "articulated_kernels",
+            ("hfdi.models.toss_rule", "TossRule"): "toss_rule_kernels"}
+
+
+def _provider(cls):
+    """The class of ``cls``'s MRO that provides kernels and how: ``(owner, factory)``.
+
+    ``factory`` is the name of a function of :mod:`hfdi.compiled.models` for
+    the paper's models, ``None`` for a ``compiled_kernels()`` method.
+    """
+    for c in cls.__mro__:
+        if "compiled_kernels" in vars(c):
+            return c, None
+        factory = _BUILTIN.get((c.__module__, c.__qualname__))
+        if factory is not None:
+            return c, factory
+    return None, None
+
+
+def kernels_of(system):
+    """``(kernels, "")`` for a model whose compiled kernels describe its
+    Python methods, else ``(None, why)``.
+
+    A model offers kernels through a ``compiled_kernels()`` method returning
+    :class:`CompiledKernels`; the paper's four models have theirs in
+    :mod:`hfdi.compiled.models`. A subclass that overrides ``internal_force``,
+    ``stiffness`` or ``stiffness_derivative`` but not ``compiled_kernels``
+    would have kernels that compute another model: it runs on the Python path.
+    """
+    cls = type(system)
+    owner, factory = _provider(cls)
+    if owner is None:
+        return None, f"model {cls.__name__} has no compiled kernels"
+    for name in _METHODS:
+        method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
+        if not issubclass(owner, method_owner):
+            return None, (f"{cls.__name__}.{name} overrides the method of {owner.__name__}, "
+                          f"whose compiled kernels compute another model")
+    ok, why = numba_available()
+    if not ok:
+        return None, why
+    if factory is None:
+        kernels = system.compiled_kernels()
+    else:
+        from . import models
+        kernels = getattr(models, factory)(system)
+    if not isinstance(kernels, CompiledKernels):
+        raise TypeError(f"{cls.__name__}.compiled_kernels() must return a "
+                        f"hfdi.compiled.CompiledKernels, got {type(kernels).__name__}")
+    return kernels, ""
+
+
+_SAID = set()
+
+
+def say_once(reason: str) -> None:
+    """Warn once per process and reason that the Python path runs instead."""
+    if reason in _SAID:
+        return
+    _SAID.add(reason)
+    message = f"hfdi: the compiled step is not used ({reason}); the Python path runs"
+    _log.info(message)
+    warnings.warn(message, RuntimeWarning, stacklevel=3)

@@ -1,0 +1,529 @@
+"""Compiled kernels (numba) of the four paper models: ``f``, ``K``, ``T[w]`` and ``V``.
+
+Each kernel reproduces the model's Python method expression for expression
+(loops over pairs and elements instead of vectorised arrays), so the two agree
+to rounding; ``tests/test_compiled_kernels.py`` checks both that and the
+kernels' derivatives against finite differences. The model data travel in one
+float64 vector ``params``, built by the ``*_kernels`` functions from a model
+object; its layout is stated at each of them.
+
+Importing this module imports numba and loads (or, the first time, compiles
+and caches) every kernel; :meth:`compiled_kernels` of the models imports it
+only when called.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from . import CompiledKernels
+from .signatures import FORCE, JIT_OPTIONS, POTENTIAL_ENERGY, STIFFNESS, STIFFNESS_DERIVATIVE
+
+__all__ = ["dumbbell_kernels", "tetrahedra_kernels", "articulated_kernels",
+           "toss_rule_kernels"]
+
+
+# -- pair potentials -----------------------------------------------------------
+# For a pair (i, j) of particles in ``dim`` dimensions with d = x_j − x_i the
+# pair's vector q goes to +j and −i, its dim × dim block H to +(i,i), +(j,j),
+# −(i,j), −(j,i) (see hfdi/models/pair.py for the formulas).
+
+@njit(**JIT_OPTIONS)
+def _relative(u, i, j, dim, out):
+    r2 = 0.0
+    for k in range(dim):
+        out[k] = u[j * dim + k] - u[i * dim + k]
+        r2 += out[k] * out[k]
+    return math.sqrt(r2)
+
+
+@njit(**JIT_OPTIONS)
+def _scatter_vector(f, i, j, dim, q):
+    for k in range(dim):
+        f[j * dim + k] += q[k]
+        f[i * dim + k] -= q[k]
+
+
+@njit(**JIT_OPTIONS)
+def _scatter_block(K, i, j, dim, H):
+    for a in range(dim):
+        for b in range(dim):
+            h = H[a, b]
+            K[i * dim + a, i * dim + b] += h
+            K[j * dim + a, j * dim + b] += h
+            K[i * dim + a, j * dim + b] -= h
+            K[j * dim + a, i * dim + b] -= h
+
+
+@njit(**JIT_OPTIONS)
+def _pair_force_add(f, i, j, dim, d, r, dphi):
+    """``f += (φ'/r) d`` at j, minus at i."""
+    c = dphi / r
+    q = np.empty(dim)
+    for k in range(dim):
+        q[k] = c * d[k]
+    _scatter_vector(f, i, j, dim, q)
+
+
+@njit(**JIT_OPTIONS)
+def _pair_stiffness_add(K, i, j, dim, d, r, dphi, ddphi):
+    """``K += scatter(a I + b d dᵀ)``, ``a = φ'/r``, ``b = (φ'' − a)/r²``."""
+    a = dphi / r
+    b = (ddphi - a) / (r * r)
+    H = np.empty((dim, dim))
+    for p in range(dim):
+        for q in range(dim):
+            H[p, q] = (b * d[p]) * d[q]
+        H[p, p] += a
+    _scatter_block(K, i, j, dim, H)
+
+
+@njit(**JIT_OPTIONS)
+def _pair_derivative_add(T, i, j, dim, d, r, wd, dphi, ddphi, dddphi):
+    """``T += scatter(x dᵀ + d yᵀ + b s I)`` (see PairPotential.stiffness_derivative)."""
+    s = 0.0
+    for k in range(dim):
+        s += d[k] * wd[k]
+    r2 = r * r
+    t = ddphi - dphi / r
+    b = t / r2
+    db = (dddphi - ddphi / r + dphi / r2) / r2 - 2.0 * t / (r2 * r)
+    c = db * s / r
+    H = np.empty((dim, dim))
+    for p in range(dim):
+        xp = b * wd[p]
+        for q in range(dim):
+            yq = b * wd[q] + c * d[q]
+            H[p, q] = xp * d[q] + d[p] * yq
+        H[p, p] += b * s
+    _scatter_block(T, i, j, dim, H)
+
+
+# -- dumbbell: params = (A, sigma) ---------------------------------------------
+
+@njit(**JIT_OPTIONS)
+def _bond(u):
+    dx = u[2] - u[0]
+    dy = u[3] - u[1]
+    return dx, dy, math.sqrt(dx * dx + dy * dy)
+
+
+@njit(**JIT_OPTIONS)
+def _bond_derivatives(A, s, r):
+    s3 = s ** 3
+    s5 = s ** 5
+    r4 = r ** 4
+    r6 = r ** 6
+    return (A * (-5 * s5 / r6 + 3 * s3 / r4), A * (30 * s5 / r ** 7 - 12 * s3 / r ** 5),
+            A * (-210 * s5 / r ** 8 + 60 * s3 / r6))
+
+
+@njit(**JIT_OPTIONS)
+def _bond_blocks(hxx, hxy, hyy):
+    out = np.empty((4, 4))
+    H = ((hxx, hxy), (hxy, hyy))
+    for a in range(2):
+        for b in range(2):
+            out[a, b] = H[a][b]
+            out[a + 2, b + 2] = H[a][b]
+            out[a, b + 2] = -H[a][b]
+            out[a + 2, b] = -H[a][b]
+    return out
+
+
+@njit(FORCE, **JIT_OPTIONS)
+def dumbbell_force(u, params):
+    A, s = params[0], params[1]
+    dx, dy, r = _bond(u)
+    q = A * (-5 * s ** 5 / r ** 6 + 3 * s ** 3 / r ** 4) / r
+    f = np.empty(4)
+    f[0] = -(q * dx)
+    f[1] = -(q * dy)
+    f[2] = q * dx
+    f[3] = q * dy
+    return f
+
+
+@njit(STIFFNESS, **JIT_OPTIONS)
+def dumbbell_stiffness(u, params):
+    dx, dy, r = _bond(u)
+    d1, d2, _ = _bond_derivatives(params[0], params[1], r)
+    a = d1 / r
+    b = (d2 - a) / (r * r)
+    return _bond_blocks(a + b * dx * dx, b * dx * dy, a + b * dy * dy)
+
+
+@njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+def dumbbell_stiffness_derivative(u, w, params):
+    dx, dy, r = _bond(u)
+    wx = w[2] - w[0]
+    wy = w[3] - w[1]
+    d1, d2, d3 = _bond_derivatives(params[0], params[1], r)
+    s = dx * wx + dy * wy
+    b = (d2 - d1 / r) / (r * r)
+    db = (d3 - d2 / r + d1 / (r * r)) / (r * r) - 2.0 * (d2 - d1 / r) / (r * r * r)
+    c = db * s / r
+    bs = b * s
+    return _bond_blocks(2.0 * b * wx * dx + c * dx * dx + bs,
+                        b * (wx * dy + dx * wy) + c * dx * dy,
+                        2.0 * b * wy * dy + c * dy * dy + bs)
+
+
+@njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+def dumbbell_potential_energy(u, params):
+    A, s = params[0], params[1]
+    r = _bond(u)[2]
+    return A * (s ** 5 / r ** 5 - s ** 3 / r ** 3)
+
+
+def dumbbell_kernels(model) -> CompiledKernels:
+    """Kernels of a :class:`~hfdi.models.dumbbell.Dumbbell`; ``params = (A, σ)``."""
+    return CompiledKernels(dumbbell_force, dumbbell_stiffness, dumbbell_stiffness_derivative,
+                           dumbbell_potential_energy,
+                           np.array([model.A, model.sigma], dtype=np.float64))
+
+
+# -- tetrahedra: params = (r0³, k/3, −2k, k, r0), six entries each -------------
+
+_TET_I = (0, 0, 0, 1, 1, 2)
+_TET_J = (1, 2, 3, 2, 3, 3)
+
+
+@njit(FORCE, **JIT_OPTIONS)
+def tetrahedra_force(u, params):
+    f = np.zeros(12)
+    d = np.empty(3)
+    for p in range(6):
+        i, j = _TET_I[p], _TET_J[p]
+        r = _relative(u, i, j, 3, d)
+        q = params[p] / r
+        _pair_force_add(f, i, j, 3, d, r, params[6 + p] * (r - q / r))
+    return f
+
+
+@njit(STIFFNESS, **JIT_OPTIONS)
+def tetrahedra_stiffness(u, params):
+    K = np.zeros((12, 12))
+    d = np.empty(3)
+    for p in range(6):
+        i, j = _TET_I[p], _TET_J[p]
+        r = _relative(u, i, j, 3, d)
+        q = params[p] / r
+        k3 = params[6 + p]
+        _pair_stiffness_add(K, i, j, 3, d, r, k3 * (r - q / r), k3 * (1.0 + 2.0 * q / (r * r)))
+    return K
+
+
+@njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+def tetrahedra_stiffness_derivative(u, w, params):
+    T = np.zeros((12, 12))
+    d = np.empty(3)
+    wd = np.empty(3)
+    for p in range(6):
+        i, j = _TET_I[p], _TET_J[p]
+        r = _relative(u, i, j, 3, d)
+        _relative(w, i, j, 3, wd)
+        q = params[p] / r
+        k3 = params[6 + p]
+        _pair_derivative_add(T, i, j, 3, d, r, wd, k3 * (r - q / r),
+                             k3 * (1.0 + 2.0 * q / (r * r)), params[12 + p] * q / (r * r * r))
+    return T
+
+
+@njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+def tetrahedra_potential_energy(u, params):
+    d = np.empty(3)
+    V = 0.0
+    for p in range(6):
+        r = _relative(u, _TET_I[p], _TET_J[p], 3, d)
+        k, r0 = params[18 + p], params[24 + p]
+        q = r0 ** 3 / r
+        V += k / 6.0 * (r ** 2 + 2.0 * q - 3.0 * r0 ** 2)
+    return V
+
+
+def tetrahedra_kernels(model) -> CompiledKernels:
+    """Kernels of a :class:`~hfdi.models.tetrahedra.Tetrahedra`;
+    ``params = (r0³, k/3, −2k, k, r0)`` per pair 12, 13, 14, 23, 24, 34 (30 entries)."""
+    r03, k3, m2k = model._constants
+    params = np.concatenate([r03, k3, m2k, model.spring_constant, model.rest_length])
+    return CompiledKernels(tetrahedra_force, tetrahedra_stiffness,
+                           tetrahedra_stiffness_derivative, tetrahedra_potential_energy,
+                           np.ascontiguousarray(params, dtype=np.float64))
+
+
+# -- articulated: params = (k_e, k_f, h) ---------------------------------------
+# Links 0 (mass 1 → 2) and 1 (mass 2 → 3) in the plane; the hinge's Δα and its
+# derivatives through the complex link vectors z = d_x + i d_y (see the
+# model's notes): ∇α = (Im 1/z, Re 1/z), blocks s_k Im(c e_a e_b).
+
+@njit(**JIT_OPTIONS)
+def _hinge(u):
+    ax, ay = u[2] - u[0], u[3] - u[1]
+    bx, by = u[4] - u[2], u[5] - u[3]
+    delta = -math.atan2(ax * by - ay * bx, ax * bx + ay * by)
+    return delta, complex(ax, ay), complex(bx, by)
+
+
+@njit(**JIT_OPTIONS)
+def _hinge_gradient(za, zb):
+    """``g = ∂Δα/∂u`` (6,)."""
+    ga = 1.0 / za
+    gb = 1.0 / zb
+    grads = np.empty((2, 2))
+    grads[0, 0], grads[0, 1] = ga.imag, ga.real
+    grads[1, 0], grads[1, 1] = -gb.imag, -gb.real
+    g = np.zeros(6)
+    _scatter_vector(g, 0, 1, 2, grads[0])
+    _scatter_vector(g, 1, 2, 2, grads[1])
+    return g
+
+
+@njit(**JIT_OPTIONS)
+def _link_blocks(ca, cb):
+    """``scatter(s_k Im(c_k e_a e_b))`` (6, 6) for complex ``c_0 = ca``, ``c_1 = cb``."""
+    out = np.zeros((6, 6))
+    H = np.empty((2, 2))
+    H[0, 0], H[0, 1], H[1, 0], H[1, 1] = ca.imag, ca.real, ca.real, -ca.imag
+    _scatter_block(out, 0, 1, 2, H)
+    H[0, 0], H[0, 1], H[1, 0], H[1, 1] = -cb.imag, -cb.real, -cb.real, cb.imag
+    _scatter_block(out, 1, 2, 2, H)
+    return out
+
+
+@njit(FORCE, **JIT_OPTIONS)
+def articulated_force(u, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    f = np.zeros(6)
+    d = np.empty(2)
+    for link in range(2):
+        r = _relative(u, link, link + 1, 2, d)
+        _pair_force_add(f, link, link + 1, 2, d, r, k_e * (r - h))
+    delta, za, zb = _hinge(u)
+    g = _hinge_gradient(za, zb)
+    c = k_f * delta
+    for i in range(6):
+        f[i] += c * g[i]
+    return f
+
+
+@njit(STIFFNESS, **JIT_OPTIONS)
+def articulated_stiffness(u, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    K = np.zeros((6, 6))
+    d = np.empty(2)
+    for link in range(2):
+        r = _relative(u, link, link + 1, 2, d)
+        _pair_stiffness_add(K, link, link + 1, 2, d, r, k_e * (r - h), k_e)
+    delta, za, zb = _hinge(u)
+    g = _hinge_gradient(za, zb)
+    G = _link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2)
+    for i in range(6):
+        for j in range(6):
+            K[i, j] += k_f * (g[i] * g[j] + delta * G[i, j])
+    return K
+
+
+@njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+def articulated_stiffness_derivative(u, w, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    T = np.zeros((6, 6))
+    d = np.empty(2)
+    wd = np.empty(2)
+    for link in range(2):
+        r = _relative(u, link, link + 1, 2, d)
+        _relative(w, link, link + 1, 2, wd)
+        _pair_derivative_add(T, link, link + 1, 2, d, r, wd, k_e * (r - h), k_e, 0.0)
+    delta, za, zb = _hinge(u)
+    g = _hinge_gradient(za, zb)
+    G = _link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2)
+    oa = complex(w[2] - w[0], w[3] - w[1])
+    ob = complex(w[4] - w[2], w[5] - w[3])
+    D = _link_blocks(2.0 * oa / za ** 3, 2.0 * ob / zb ** 3)
+    Gw = G @ w
+    gw = 0.0
+    for i in range(6):
+        gw += g[i] * w[i]
+    for i in range(6):
+        for j in range(6):
+            T[i, j] += k_f * (gw * G[i, j] + g[i] * Gw[j] + Gw[i] * g[j] + delta * D[i, j])
+    return T
+
+
+@njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+def articulated_potential_energy(u, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    d = np.empty(2)
+    stretch = 0.0
+    for link in range(2):
+        r = _relative(u, link, link + 1, 2, d)
+        stretch += (r - h) ** 2
+    delta = _hinge(u)[0]
+    return 0.5 * k_e * stretch + 0.5 * k_f * delta ** 2
+
+
+def articulated_kernels(model) -> CompiledKernels:
+    """Kernels of an :class:`~hfdi.models.articulated.Articulated`; ``params = (k_e, k_f, h)``."""
+    return CompiledKernels(articulated_force, articulated_stiffness,
+                           articulated_stiffness_derivative, articulated_potential_energy,
+                           np.array([model.k_e, model.k_f, model.h], dtype=np.float64))
+
+
+# -- toss rule: params = (N_el, EA, GA, EJ, h_e, 1/h_e, α̂_e) -------------------
+# Element e joins nodes e and e + 1 (DOFs 3e … 3e + 5). Its reduced
+# coordinates y = (u_ξ, v_ξ, α_o, χ) = L_e d_e with L_e = D_e B (see the
+# model's notes); f_e = h_e L_eᵀ ∇W, K_e = h_e L_eᵀ ∇²W L_e and
+# T_e = h_e L_eᵀ ∇³W[L_e w_e] L_e, the reduced derivatives of
+# W = ½ (EA ε² + GA γ² + EJ χ²) from ∂ε/∂α_o = γ, ∂γ/∂α_o = −(1 + ε).
+
+@njit(**JIT_OPTIONS)
+def _beam_map(inv_h):
+    """``L_e`` (4, 6)."""
+    L = np.zeros((4, 6))
+    L[0, 0], L[0, 3] = -inv_h, inv_h
+    L[1, 1], L[1, 4] = -inv_h, inv_h
+    L[2, 2], L[2, 5] = 0.5, 0.5
+    L[3, 2], L[3, 5] = -inv_h, inv_h
+    return L
+
+
+@njit(**JIT_OPTIONS)
+def _beam_reduced(x, e, inv_h):
+    """``(u_ξ, v_ξ, α_o, χ)`` of element ``e`` for the nodal vector ``x``."""
+    i, j = 3 * e, 3 * e + 3
+    return ((x[j] - x[i]) * inv_h, (x[j + 1] - x[i + 1]) * inv_h,
+            0.5 * (x[j + 2] + x[i + 2]), (x[j + 2] - x[i + 2]) * inv_h)
+
+
+@njit(**JIT_OPTIONS)
+def _beam_strains(p, q, a, alpha_hat):
+    """``ε``, their gradients ``∇ε = (cb, sb, γ)``, ``∇γ = (−sb, cb, −(1 + ε))``."""
+    beta = a + alpha_hat
+    cb, sb = math.cos(beta), math.sin(beta)
+    eps = math.cos(a) - 1.0 + cb * p + sb * q
+    gam = -math.sin(a) - sb * p + cb * q
+    g_eps = np.array((cb, sb, gam))
+    g_gam = np.array((-sb, cb, -(1.0 + eps)))
+    return eps, gam, g_eps, g_gam
+
+
+@njit(**JIT_OPTIONS)
+def _beam_hessian(g_other, sign):
+    """``∇²k`` (3, 3): non-zero in the α_o row and column only, that row being
+    ``r = sign · g_other`` (``r_ε = ∇γ``, ``r_γ = −∇ε``)."""
+    H = np.zeros((3, 3))
+    for a in range(3):
+        H[a, 2] = sign * g_other[a]
+        H[2, a] = sign * g_other[a]
+    return H
+
+
+@njit(**JIT_OPTIONS)
+def _beam_add(out, e, h, L, red):
+    """``out[dofs_e, dofs_e] += h L_eᵀ red L_e`` for a reduced (4, 4) ``red``."""
+    LtR = L.T @ red
+    block = LtR @ L
+    base = 3 * e
+    for a in range(6):
+        for b in range(6):
+            out[base + a, base + b] += h * block[a, b]
+
+
+@njit(FORCE, **JIT_OPTIONS)
+def toss_rule_force(u, params):
+    n_el = int(params[0])
+    EA, GA, EJ = params[1], params[2], params[3]
+    f = np.zeros(3 * (n_el + 1))
+    for e in range(n_el):
+        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+        p, q, a, chi = _beam_reduced(u, e, inv_h)
+        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+        EA_eps, GA_gam = EA * eps, GA * gam
+        grad = np.empty(4)
+        for k in range(3):
+            grad[k] = EA_eps * g_eps[k] + GA_gam * g_gam[k]
+        grad[3] = EJ * chi
+        L = _beam_map(inv_h)
+        for k in range(6):
+            s = 0.0
+            for r in range(4):
+                s += L[r, k] * grad[r]
+            f[3 * e + k] += h * s
+    return f
+
+
+@njit(STIFFNESS, **JIT_OPTIONS)
+def toss_rule_stiffness(u, params):
+    n_el = int(params[0])
+    EA, GA, EJ = params[1], params[2], params[3]
+    n = 3 * (n_el + 1)
+    K = np.zeros((n, n))
+    for e in range(n_el):
+        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+        p, q, a, chi = _beam_reduced(u, e, inv_h)
+        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+        H_eps = _beam_hessian(g_gam, 1.0)
+        H_gam = _beam_hessian(g_eps, -1.0)
+        red = np.zeros((4, 4))
+        for i in range(3):
+            for j in range(3):
+                red[i, j] = (EA * (g_eps[i] * g_eps[j] + eps * H_eps[i, j])
+                             + GA * (g_gam[i] * g_gam[j] + gam * H_gam[i, j]))
+        red[3, 3] = EJ
+        _beam_add(K, e, h, _beam_map(inv_h), red)
+    return K
+
+
+@njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+def toss_rule_stiffness_derivative(u, w, params):
+    n_el = int(params[0])
+    EA, GA = params[1], params[2]
+    n = 3 * (n_el + 1)
+    T = np.zeros((n, n))
+    for e in range(n_el):
+        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+        p, q, a, _ = _beam_reduced(u, e, inv_h)
+        zp, zq, za, _ = _beam_reduced(w, e, inv_h)
+        z = np.array((zp, zq, za))
+        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+        red = np.zeros((4, 4))
+        for R, k, g, H, t in ((EA, eps, g_eps, _beam_hessian(g_gam, 1.0), -g_eps),
+                              (GA, gam, g_gam, _beam_hessian(g_eps, -1.0), -g_gam)):
+            Hz = H @ z
+            gz = g[0] * z[0] + g[1] * z[1] + g[2] * z[2]
+            # ∇³k[z]: α_o row and column (t_p z_α, t_q z_α, t·z)
+            third = np.zeros((3, 3))
+            third[0, 2] = third[2, 0] = t[0] * za
+            third[1, 2] = third[2, 1] = t[1] * za
+            third[2, 2] = t[0] * zp + t[1] * zq + t[2] * za
+            for i in range(3):
+                for j in range(3):
+                    red[i, j] += R * (Hz[i] * g[j] + g[i] * Hz[j] + gz * H[i, j]
+                                      + k * third[i, j])
+        _beam_add(T, e, h, _beam_map(inv_h), red)
+    return T
+
+
+@njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+def toss_rule_potential_energy(u, params):
+    n_el = int(params[0])
+    EA, GA, EJ = params[1], params[2], params[3]
+    V = 0.0
+    for e in range(n_el):
+        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+        p, q, a, chi = _beam_reduced(u, e, inv_h)
+        eps, gam, _, _ = _beam_strains(p, q, a, alpha_hat)
+        V += h * (EA * eps ** 2 + GA * gam ** 2 + EJ * chi ** 2)
+    return 0.5 * V
+
+
+def toss_rule_kernels(model) -> CompiledKernels:
+    """Kernels of a :class:`~hfdi.models.toss_rule.TossRule` (dense ``K`` and ``T``);
+    ``params = (N_el, EA, GA, EJ, h_e …, 1/h_e …, α̂_e …)`` (4 + 3 N_el entries)."""
+    params = np.concatenate([[model.n_elements, model.EA, model.GA, model.EJ],
+                             model._h, model._inv_h, model._alpha_hat])
+    return CompiledKernels(toss_rule_force, toss_rule_stiffness,
+                           toss_rule_stiffness_derivative, toss_rule_potential_energy,
+                           np.ascontiguousarray(params, dtype=np.float64))

@@ -1,0 +1,44 @@
+"""The numba types of the compiled model kernels (imports numba).
+
+A compiled model gives four functions with exactly these signatures, so that
+the compiled attempt (:mod:`hfdi.compiled.attempt`), compiled once for these
+types, calls any model's kernels through function pointers and is cached on
+disk once for all models (see docs/compiled.md):
+
+- ``force(u, params) -> f``                      :data:`FORCE`
+- ``stiffness(u, params) -> K``                  :data:`STIFFNESS`
+- ``stiffness_derivative(u, w, params) -> T``    :data:`STIFFNESS_DERIVATIVE`
+- ``potential_energy(u, params) -> V``           :data:`POTENTIAL_ENERGY`
+
+``u``, ``w`` and ``params`` are C-contiguous float64 vectors, ``f`` a new
+C-contiguous (N,) vector, ``K`` and ``T`` new C-contiguous (N, N) arrays.
+"""
+from __future__ import annotations
+
+from numba import types
+
+__all__ = ["VECTOR", "MATRIX", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
+           "POTENTIAL_ENERGY", "FORCE_TYPE", "STIFFNESS_TYPE", "STIFFNESS_DERIVATIVE_TYPE",
+           "JIT_OPTIONS"]
+
+VECTOR = types.float64[::1]
+MATRIX = types.float64[:, ::1]
+INDEX_VECTOR = types.int64[::1]
+
+#: ``f(u, params)``
+FORCE = VECTOR(VECTOR, VECTOR)
+#: ``K(u, params)``
+STIFFNESS = MATRIX(VECTOR, VECTOR)
+#: ``T(u, params)[w]``, called as ``stiffness_derivative(u, w, params)``
+STIFFNESS_DERIVATIVE = MATRIX(VECTOR, VECTOR, VECTOR)
+#: ``V(u, params)``
+POTENTIAL_ENERGY = types.float64(VECTOR, VECTOR)
+
+FORCE_TYPE = types.FunctionType(FORCE)
+STIFFNESS_TYPE = types.FunctionType(STIFFNESS)
+STIFFNESS_DERIVATIVE_TYPE = types.FunctionType(STIFFNESS_DERIVATIVE)
+
+#: Options of every compiled function here: cached on disk; division by zero
+#: gives inf/NaN as in numpy (a non-finite value fails the attempt, as a
+#: model returning NaN does on the Python path) instead of raising.
+JIT_OPTIONS = dict(cache=True, error_model="numpy")

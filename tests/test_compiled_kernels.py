@@ -1,0 +1,118 @@
+"""The compiled (numba) kernels of the paper's models: against the models' Python
+f, K, T and V, against finite differences, and the rules of when they are used."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import hfdi
+from hfdi.compiled import CompiledKernels, kernels_of
+from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
+from hfdi.models.dumbbell import Dumbbell
+
+numba = pytest.importorskip("numba")
+
+MODELS = {"dumbbell": dumbbell, "tetrahedra": tetrahedra, "articulated": articulated,
+          "toss_rule": toss_rule}
+
+
+def _dense(a):
+    return a.toarray() if hasattr(a, "toarray") else np.asarray(a)
+
+
+def _relative(a, b):
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def _states(model, rng, n=6):
+    """Random states around the initial one (5 % of the model's length), with
+    random velocities for the directions of T."""
+    u0 = model.initial_displacement
+    return [(u0 + 0.05 * model.u_scale * rng.standard_normal(model.n_dof),
+             rng.standard_normal(model.n_dof)) for _ in range(n)]
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_kernels_reproduce_the_python_model(name):
+    model = MODELS[name]()
+    kernels, why = kernels_of(model)
+    assert isinstance(kernels, CompiledKernels), why
+    p = kernels.params
+    for u, w in _states(model, np.random.default_rng(7)):
+        f = kernels.force(u, p)
+        assert f.shape == (model.n_dof,)
+        assert _relative(f, model.internal_force(u)) < 1e-13
+        assert _relative(kernels.stiffness(u, p), _dense(model.stiffness(u))) < 1e-13
+        assert _relative(kernels.stiffness_derivative(u, w, p),
+                         _dense(model.stiffness_derivative(u, w))) < 1e-13
+        V = model.potential_energy(u)
+        assert abs(kernels.potential_energy(u, p) - V) <= 1e-13 * abs(V)
+
+
+class _KernelModel(hfdi.SecondOrderSystem):
+    """The compiled kernels alone as a model, for the finite-difference check."""
+
+    def __init__(self, model, kernels):
+        self.n_dof, self.mass, self.u_scale = model.n_dof, model.mass, model.u_scale
+        self.initial_displacement = model.initial_displacement
+        self.k = kernels
+
+    def internal_force(self, u):
+        return self.k.force(np.ascontiguousarray(u, dtype=float), self.k.params)
+
+    def stiffness(self, u):
+        return self.k.stiffness(np.ascontiguousarray(u, dtype=float), self.k.params)
+
+    def stiffness_derivative(self, u, w):
+        return self.k.stiffness_derivative(np.ascontiguousarray(u, dtype=float),
+                                           np.ascontiguousarray(w, dtype=float), self.k.params)
+
+    def potential_energy(self, u):
+        return self.k.potential_energy(np.ascontiguousarray(u, dtype=float), self.k.params)
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_kernels_are_exact_derivatives(name):
+    """f = ∂V/∂u, K = ∂f/∂u and T[w] = ∂(K w)/∂u by central differences
+    (hfdi.check_derivatives), at states away from the initial one."""
+    model = MODELS[name]()
+    kernels, _ = kernels_of(model)
+    check = hfdi.check_derivatives(_KernelModel(model, kernels), samples=6, spread=0.1)
+    assert check.ok(1e-7), check
+
+
+def test_a_wrong_kernel_fails_the_finite_difference_check():
+    model = dumbbell()
+    kernels, _ = kernels_of(model)
+    wrong = kernels._replace(params=kernels.params * np.array([1.0, 1.0 + 1e-3]))
+    mixed = _KernelModel(model, kernels)
+    mixed.stiffness = lambda u: wrong.stiffness(np.ascontiguousarray(u), wrong.params)
+    assert not hfdi.check_derivatives(mixed, samples=3, spread=0.1).ok(1e-6)
+
+
+def test_a_subclass_that_changes_the_model_has_no_kernels():
+    class Softer(Dumbbell):
+        def internal_force(self, u):
+            return 0.5 * super().internal_force(u)
+
+    kernels, why = kernels_of(Softer())
+    assert kernels is None and "internal_force" in why
+    # a subclass that changes only data keeps them
+    class Renamed(Dumbbell):
+        name = "renamed"
+
+    assert kernels_of(Renamed())[0] is not None
+
+
+def test_a_model_without_kernels_says_why():
+    model = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]])
+    kernels, why = kernels_of(model)
+    assert kernels is None and "no compiled kernels" in why
+
+
+def test_importing_hfdi_does_not_import_numba():
+    code = "import hfdi, hfdi.compiled, sys; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
