@@ -203,6 +203,7 @@ def test_combined_mode_takes_the_smaller_proposal():
     assert relative_error(both, exact) < relative_error(count, exact)
 
 
+@pytest.mark.slow
 def test_controller_objects_are_injectable():
     model, _ = exact_problems.duffing()
     by_name = hfdi.integrate(model, "bathe", 10.0, target_iterations=3.0)
@@ -217,6 +218,7 @@ def test_controller_objects_are_injectable():
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.slow
 def test_fixed_step_takes_exactly_n_steps(scheme):
     """``t_end/n`` takes n steps: no sliver at the end, whose velocity
     ``Δu/h`` would lose most of its digits."""
@@ -231,6 +233,7 @@ def test_fixed_step_takes_exactly_n_steps(scheme):
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.slow
 def test_landing_never_leaves_a_sliver(scheme):
     """Error control landing on many times: the steps that land are no
     shorter than about half of what error control takes anyway (the smallest
@@ -294,6 +297,7 @@ def test_dense_output_is_as_accurate_as_the_steps():
         result.sol(7.0)
 
 
+@pytest.mark.slow
 def test_save_steps_false_keeps_only_the_outputs():
     model, _ = exact_problems.duffing()
     t_eval = np.linspace(0.0, 10.0, 11)
@@ -306,6 +310,7 @@ def test_save_steps_false_keeps_only_the_outputs():
         lean.sol(1.0)
 
 
+@pytest.mark.slow
 def test_save_steps_false_memory_does_not_grow_with_the_steps():
     model, _ = exact_problems.duffing()
     peaks = []

@@ -81,6 +81,7 @@ def test_a_wrong_energy_model_fails_the_check():
     assert check.stiffness > 1e-5
 
 
+@pytest.mark.slow
 def test_dumbbell_energy_equals_hand_written_dumbbell():
     model, _ = symbolic_dumbbell()
     reference = hfdi.models.dumbbell()
@@ -94,6 +95,7 @@ def test_dumbbell_energy_equals_hand_written_dumbbell():
             <= 1e-10 * abs(reference.potential_energy(u))
 
 
+@pytest.mark.slow
 def test_matrices_are_symmetric_and_hessian_is_exposed():
     model, _ = symbolic_dumbbell()
     u = dumbbell_states(np.random.default_rng(7), 1)[0]
@@ -357,6 +359,7 @@ def test_symbol_names_that_are_not_python_identifiers_work():
 
 # -- integration --------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_newmark_conserves_the_pendulum_energy_to_second_order():
     """The average-acceleration rule keeps ``W = V + T`` to ``O(h²)`` without drift."""
     model = elastic_pendulum()
@@ -397,6 +400,7 @@ def test_hfdi_runs_the_sparse_chain():
 
 # -- the user guide ----------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_the_user_guide_examples_run():
     guide = Path(__file__).resolve().parents[1] / "docs" / "user-models.md"
     blocks = re.findall(r"```python\n(.*?)```", guide.read_text(encoding="utf-8"), re.S)

@@ -138,6 +138,7 @@ def test_simulate_fmu_reproduces_integrator_advance(fmus, scheme):
     (dict(parameters={"target_iterations": 0.0, "rtol": 1e-7}), dict(rtol=1e-7)),
     (dict(parameters={"target_iterations": 0.0}, tolerance=1e-5), dict(rtol=1e-5)),
 ])
+@pytest.mark.slow
 def test_tolerances_give_error_control_as_in_process(dumbbell, how, in_process):
     """The master's tolerance (fmi2SetupExperiment) or the rtol parameter put
     the FMU under error control, with the same steps as in-process."""
@@ -385,6 +386,7 @@ def test_coupled_dumbbells_conserve_momentum(fmus):
     assert result["spring_energy"].max() > 0
 
 
+@pytest.mark.slow
 def test_demo_command_matches_in_process(tmp_path, capsys):
     from fmu.cli import main
     assert main(["demo", "dumbbell", "--out", str(tmp_path)]) == 0
@@ -393,6 +395,7 @@ def test_demo_command_matches_in_process(tmp_path, capsys):
     assert (tmp_path / "hfdi_dumbbell.fmu").is_file()
 
 
+@pytest.mark.slow
 def test_bench_runs_and_reports_a_ratio():
     from fmu.bench import benchmark
     result = benchmark("dumbbell", "hfdi", t_end=0.2, repeats=1)

@@ -87,6 +87,7 @@ def vr_of(fmu, name):
                 if v.name == name)
 
 
+@pytest.mark.slow
 def test_a_host_without_python_runs_the_fmu(fmu, host, tmp_path):
     """A C program with an empty environment: the native layer loads the
     Python library the FMU was built with, and the run gives the same values
@@ -104,6 +105,7 @@ def test_a_host_without_python_runs_the_fmu(fmu, host, tmp_path):
 
 
 @pytest.mark.parametrize("name", ["a b", "ü", "a (b)", "100%", "x#y", "%s%n"])
+@pytest.mark.slow
 def test_paths_with_any_character(fmu, host, tmp_path, name):
     """Extracted under such a folder, the FMU instantiates and steps, in this
     process (fmpy) and in the C host."""
@@ -186,6 +188,7 @@ def test_damaged_fmu_fails_to_instantiate_and_the_host_survives(fmu, tmp_path, h
 
 @pytest.mark.parametrize("how", ["no-resources", "no-python-description",
                                  "bundled-hfdi-truncated"])
+@pytest.mark.slow
 def test_damaged_fmu_in_a_host_without_python(fmu, host, tmp_path, how):
     unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
     damage(unzip, how)
@@ -209,6 +212,7 @@ def test_cli_master_with_a_damaged_fmu_prints_one_line(fmu, tmp_path):
     assert len(lines) == 1 and lines[0].startswith("hfdi-fmu: error:"), done.stderr
 
 
+@pytest.mark.slow
 def test_cli_master_with_any_character_in_tmpdir(tmp_path):
     tmpdir = tmp_path / "tmp ü(%#)"
     tmpdir.mkdir()
@@ -220,6 +224,7 @@ def test_cli_master_with_any_character_in_tmpdir(tmp_path):
 
 
 @pytest.mark.parametrize("where", ["while writing", "at the rename"])
+@pytest.mark.slow
 def test_build_is_atomic_when_it_fails(fmu, tmp_path, monkeypatch, where):
     """A build that fails half-way (the disk full) leaves the good FMU in
     place and no partial file beside it."""
@@ -257,6 +262,7 @@ def test_instantiation_failure_is_a_cosimulation_error(fmu, tmp_path):
         Unit(fmu, "d", unzip_dir=unzip)
 
 
+@pytest.mark.slow
 def test_the_fmu_needs_no_sympy_in_its_host(fmu, tmp_path):
     """The bundled hfdi loads sympy only for symbolic models: a host where
     sympy cannot be imported runs the FMU."""
@@ -286,6 +292,7 @@ def test_import_hfdi_loads_neither_sympy_nor_matplotlib():
     assert done.returncode == 0 and done.stdout.strip() == "[]", (done.stdout, done.stderr)
 
 
+@pytest.mark.slow
 def test_a_second_master_ecos_gets_the_same_values(fmu, tmp_path):
     """Ecos (``ecospy``, a C++ co-simulation engine) runs the FMU through its
     own FMI 2.0 import: same values as fmpy's, bit for bit. In a subprocess,
@@ -315,6 +322,7 @@ def test_a_second_master_ecos_gets_the_same_values(fmu, tmp_path):
 
 
 @pytest.mark.parametrize("how", ["pickle-after-magic", "object-array", "integrator-pickle"])
+@pytest.mark.slow
 def test_serialized_state_never_runs_code(fmu, tmp_path, how):
     """Bytes crafted to run code when read (the state's magic line followed by
     a pickle whose ``__reduce__`` creates a file; an object array inside the
@@ -359,6 +367,7 @@ def test_serialized_state_never_runs_code(fmu, tmp_path, how):
     assert not marker.exists()
 
 
+@pytest.mark.slow
 def test_messages_are_printf_literals_for_a_c_logger(fmu, host, tmp_path):
     """FMI 2.0's logger formats the message as printf does (as the C host's
     does). A parameter value full of conversions reaches it as text: the
@@ -372,6 +381,7 @@ def test_messages_are_printf_literals_for_a_c_logger(fmu, host, tmp_path):
                if line.startswith("log ")), done.stdout
 
 
+@pytest.mark.slow
 def test_messages_are_printf_literals_for_fmpy(fmu, tmp_path):
     """The same through fmpy, reading the raw messages: every '%' doubled."""
     done = isolated(f"""
@@ -400,6 +410,7 @@ def test_messages_are_printf_literals_for_fmpy(fmu, tmp_path):
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
 
 
+@pytest.mark.slow
 def test_a_host_with_only_numpy_and_scipy(fmu, host, tmp_path):
     """The C host, its Python given nothing but the standard library, numpy
     and scipy (the FMU's package path pointed at a folder holding only

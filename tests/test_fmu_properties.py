@@ -500,6 +500,7 @@ class FmuMachine(RuleBasedStateMachine):
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.slow
 def test_fmu_answers_every_call_sequence(dumbbell_fmu):
     FmuMachine.fmu = dumbbell_fmu
     run_state_machine_as_test(FmuMachine, settings=settings(
@@ -689,6 +690,7 @@ def fmu_table(fmu) -> str:
     return "\n".join(lines)
 
 
+@pytest.mark.slow
 def test_process_survives_to_a_clean_exit(dumbbell_fmu):
     # an instance left unfreed and one refused with fmi2Error are the usual
     # ways a host exits

@@ -103,7 +103,8 @@ def test_scalar_dumbbell_gives_the_counts_of_the_generic_pair_code(scheme):
     np.testing.assert_allclose(fast.u, slow.u, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["dumbbell", "tetrahedra", "articulated", "toss_rule"])
+@pytest.mark.parametrize("name", ["dumbbell", "tetrahedra", "articulated",
+                                  pytest.param("toss_rule", marks=pytest.mark.slow)])
 def test_lapack_solves_give_the_counts_of_numpy_solve(name, monkeypatch):
     model = hfdi.models.get(name)
     fast = run(model, "hfdi")
@@ -267,7 +268,7 @@ def test_block_form_is_more_accurate_than_the_explicit_schur_complement():
         block.solve)
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+@pytest.mark.parametrize("scheme", ["newmark", pytest.param("hfdi", marks=pytest.mark.slow)])
 def test_beam_memory_is_linear_in_the_size(scheme):
     peaks = {}
     for n_elements in (2000, 20000):

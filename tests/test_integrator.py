@@ -228,7 +228,7 @@ def chain(mass, damping=None, n=3):
 # below hfdi.evaluation.DENSE_BELOW DOFs sparse input is handled densely; 150
 # DOFs exercise the sparse paths (diagonal B, and the block system for a
 # non-diagonal B)
-SIZES = [3, 150]
+SIZES = [3, pytest.param(150, marks=pytest.mark.slow)]
 
 
 @pytest.mark.parametrize("n", SIZES)
@@ -374,7 +374,8 @@ def test_a_run_shorter_than_the_default_minimum_step_says_what_to_do():
 
 
 @pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-@pytest.mark.parametrize("mode", [dict(rtol=1e-6), dict(target_iterations=3.0),
+@pytest.mark.parametrize("mode", [pytest.param(dict(rtol=1e-6), marks=pytest.mark.slow),
+                                  dict(target_iterations=3.0),
                                   dict(step=1e-3)])
 def test_state_bytes_round_trip_is_exact(scheme, mode):
     """IntegratorState.to_bytes / from_bytes: data only, and the run continues

@@ -351,6 +351,7 @@ def spring_chains(draw, tau_range=(1e-2, 1.0)):
 
 @PROPERTY
 @given(case=spring_chains())
+@pytest.mark.slow
 def test_nonlinear_energy_growth_is_bounded(case):
     system, u0, v0, h, tau, _ = case
     W = {s: energy_steps(system, s, u0, v0, h, 40) for s in SCHEMES}
@@ -395,6 +396,7 @@ def stop_times(draw, t_end):
 @PROPERTY
 @given(case=spring_chains(tau_range=(0.1, 1.0)), scheme=st.sampled_from(SCHEMES),
        target=st.floats(2.0, 5.0), periods=st.floats(0.5, 3.0), data=st.data())
+@pytest.mark.slow
 def test_advance_in_pieces_is_bit_identical_with_and_without_restores(case, scheme, target,
                                                                      periods, data):
     system, u0, v0, _, _, omega = case
