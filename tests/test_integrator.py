@@ -1,5 +1,6 @@
-"""The driver: landing on times, carrying the proposal over, state copy and restore,
-guards, matrix forms, energy balance and input errors."""
+"""The driver: landing on times, carrying the proposal over, state copy and restore
+(and advance at arbitrary times, property-based), guards, matrix forms and input
+errors. The energy balance is tested in test_energy.py."""
 import dataclasses
 import math
 import pickle
@@ -7,11 +8,14 @@ import pickle
 import numpy as np
 import pytest
 import scipy.sparse as sparse
+from hypothesis import given
+from hypothesis import strategies as st
 
 import hfdi
 from hfdi.corrector import predict
 from hfdi.evaluation import State
 from problems import coupled_duffing
+from strategies import PROPERTY, spring_chains
 
 DUMBBELL = hfdi.models.dumbbell()
 
@@ -203,15 +207,6 @@ def test_model_exception_becomes_a_status():
     assert result.t[-1] <= 0.5
 
 
-def test_energy_growth_guard():
-    """Explicit-like Newmark (β small, γ > 1/2 would damp; γ < 1/2 amplifies)."""
-    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[100.0]], initial_displacement=[1.0])
-    result = hfdi.integrate(system, hfdi.Newmark(gamma=0.3, beta=0.25), 20.0, step=0.05,
-                            energy_limit=0.5)
-    assert result.status == hfdi.Status.ENERGY_GROWTH
-    assert "energy" in result.message
-
-
 # -- matrix forms ---------------------------------------------------------------------------
 def chain(mass, damping=None, n=3):
     """A fixed-free chain of n masses; matrices given in the form of ``mass``."""
@@ -251,38 +246,6 @@ def test_consistent_sparse_mass_matches_dense(scheme, n):
     sp_ = hfdi.integrate(chain(sparse.csr_matrix(M), sparse.csr_matrix(C), n=n), scheme, 0.5,
                          step=0.01)
     np.testing.assert_allclose(sp_.u, dense.u, rtol=1e-10, atol=1e-13)
-
-
-# -- energy balance ---------------------------------------------------------------------------
-def test_newmark_conserves_energy_on_a_linear_problem():
-    system = hfdi.LinearSystem(mass=[1.0, 1.0], stiffness=[[5.0, -2.0], [-2.0, 3.0]],
-                               initial_displacement=[1.0, -0.5], initial_velocity=[0.2, 0.0])
-    result = hfdi.integrate(system, "newmark", 50.0, step=0.37)
-    np.testing.assert_allclose(result.total_energy, result.total_energy[0], rtol=1e-12)
-    np.testing.assert_allclose(result.energy_increment, 0, atol=1e-12)
-
-
-def test_dissipative_schemes_lose_energy_step_by_step_on_a_linear_problem():
-    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[400.0]], initial_displacement=[1.0],
-                               initial_velocity=[3.0])
-    final = {}
-    for scheme in ("bathe", "hfdi"):
-        result = hfdi.integrate(system, scheme, 5.0, step=0.05)     # Δt/T = 0.16
-        W = result.total_energy
-        assert np.all(np.diff(W) <= 1e-13 * W[0])
-        final[scheme] = W[-1] / W[0]
-    # HFDI's amplitude decay is the larger of the two (paper, Section 3)
-    assert final["hfdi"] < final["bathe"] < 0.9
-
-
-def test_energy_balance_includes_the_external_work():
-    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[4.0]],
-                               load=lambda t: np.array([1.0 if t < 1 else 0.0]))
-    result = hfdi.integrate(system, "newmark", 3.0, step=0.01)
-    # W − W0 − L summed over steps is Σ ΔE
-    np.testing.assert_allclose(result.total_energy - result.total_energy[0]
-                               - result.external_work, np.cumsum(result.energy_increment),
-                               atol=1e-12)
 
 
 # -- bad input ----------------------------------------------------------------------------------
@@ -333,21 +296,6 @@ def test_scheme_parameters_are_checked():
         hfdi.Bathe(gamma=1.0)
     with pytest.raises(ValueError, match="HFDI load_rate"):
         hfdi.HFDI(load_rate="spline")
-
-
-def test_bathe_work_counts_the_load_at_its_mid_step():
-    """A pulse that only Bathe's mid-step sees: its work is in ΔL (Eq. 41 over the
-    sub-steps), so the energy balance shows no spurious gain; the one-stage
-    schemes sample the load only at the step's ends and see no pulse at all."""
-    system = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]],
-                               load=lambda t: np.array([hfdi.models.hat(t, 100.0, 0.5)]))
-    bathe = hfdi.integrate(system, "bathe", 3.0, step=1.0)
-    assert bathe.total_energy[1] > 100
-    assert bathe.external_work[1] > 0
-    assert np.all(bathe.energy_increment <= 0)
-    for scheme in ("newmark", "hfdi"):
-        result = hfdi.integrate(system, scheme, 3.0, step=1.0)
-        np.testing.assert_array_equal(result.total_energy, 0.0)
 
 
 def test_load_changed_recomputes_the_current_load_and_acceleration():
@@ -423,3 +371,72 @@ def test_state_bytes_are_data_only():
         with pytest.raises(ValueError):
             hfdi.IntegratorState.from_bytes(data)
     assert zipfile.is_zipfile(io.BytesIO(good))
+
+
+# -- advance at arbitrary times, with and without restores --------------------------
+
+@st.composite
+def stop_times(draw, t_end):
+    """1–12 distinct increasing times in ``(0, t_end)`` and, for each, whether
+    to continue on a copy restored from ``get_state``."""
+    fractions = draw(st.lists(st.floats(1e-6, 1.0 - 1e-6), min_size=1, max_size=12,
+                              unique=True))
+    times = np.unique(np.asarray(fractions) * t_end)
+    restore = draw(st.lists(st.booleans(), min_size=len(times), max_size=len(times)))
+    return times, restore
+
+
+@PROPERTY
+@given(case=spring_chains(tau_range=(0.1, 1.0)), scheme=st.sampled_from(tuple(hfdi.SCHEMES)),
+       target=st.floats(2.0, 5.0), periods=st.floats(0.5, 3.0), data=st.data())
+@pytest.mark.slow
+def test_advance_in_pieces_is_bit_identical_with_and_without_restores(case, scheme, target,
+                                                                     periods, data):
+    system, u0, v0, _, _, omega = case
+    t_end = periods * 2.0 * math.pi / omega
+    times, restore = data.draw(stop_times(t_end))
+
+    # the same run, stopping at each time (the integrator does not know them
+    # in advance), once straight through and once sometimes continued by a
+    # fresh integrator from a saved state
+    def fresh():
+        return hfdi.Integrator(system, scheme, target_iterations=target, u0=u0, v0=v0,
+                               t_bound=t_end)
+
+    def run(restores):
+        itg = fresh()
+        rows = [(itg.t, itg.state.u, itg.state.v, itg.state.a)]
+
+        def record(i):
+            rows.append((i.t, i.state.u, i.state.v, i.state.a))
+
+        ok = True
+        for t, restart in zip([*times, t_end], [*restores, False]):
+            ok = itg.advance(t, callback=record)
+            if not ok:
+                break
+            assert itg.t == t
+            assert itg.advance(t)                      # a second call is a no-op
+            if restart:
+                saved = itg.get_state()
+                itg = fresh()
+                itg.set_state(saved)
+        return ok, [np.array(x) for x in zip(*rows)]
+
+    ok, (t, u, v, a) = run(restore)
+    ok_straight, (t2, u2, v2, a2) = run([False] * len(restore))
+    assert ok == ok_straight
+    # bit for bit: the same steps, the same arithmetic
+    assert np.array_equal(t, t2)
+    assert np.array_equal(u, u2) and np.array_equal(v, v2) and np.array_equal(a, a2)
+    if ok:
+        assert set(times) <= set(t)                   # advance lands on every stop
+        # integrate with t_eval at those times: the steps of one uninterrupted
+        # run, and the outputs from its dense output
+        whole = hfdi.integrate(system, scheme, t_end, target_iterations=target, u0=u0, v0=v0,
+                               t_eval=times)
+        plain = hfdi.integrate(system, scheme, t_end, target_iterations=target, u0=u0, v0=v0)
+        assert np.array_equal(whole.t, plain.t) and np.array_equal(whole.u, plain.u)
+        if whole.success:
+            np.testing.assert_allclose(whole.u_eval, plain.sol(times)[0], rtol=0,
+                                       atol=1e-12 * (1.0 + np.abs(plain.u).max()))
