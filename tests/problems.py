@@ -95,6 +95,17 @@ def pleiades():
                        initial_velocity=v0.astype(float), name="pleiades")
 
 
+def dumbbell_states(rng, n):
+    """``n`` random dumbbell configurations ``(n, 4)``: the first particle
+    anywhere in [-5, 5]², the bond of length 0.8–1.3 in any direction (the
+    repulsive wall and the attractive tail of the bond potential, Eq. 44)."""
+    x1 = rng.uniform(-5, 5, (n, 2))
+    angle = rng.uniform(-np.pi, np.pi, n)
+    r = rng.uniform(0.8, 1.3, n)
+    return np.column_stack([x1, x1 + r[:, None] * np.column_stack([np.cos(angle),
+                                                                  np.sin(angle)])])
+
+
 def reference_solution(system, t_end, rtol=1e-13):
     """The end state from scipy's DOP853 on the first-order form, at tight tolerance."""
     from scipy.integrate import solve_ivp

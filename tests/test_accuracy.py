@@ -18,9 +18,8 @@ from scipy.integrate import solve_ivp
 import hfdi
 from hfdi.corrector import local_error, predict
 
-sys.path.insert(0, str(Path(__file__).parent))
-import exact_problems  # noqa: E402
-import problems  # noqa: E402
+import exact_problems
+import problems
 
 SCHEMES = ["newmark", "bathe", "hfdi"]
 PROBLEMS = {"duffing": (exact_problems.duffing, 10.0),

@@ -2,18 +2,7 @@
 import numpy as np
 
 import hfdi
-from problems import coupled_duffing
-
-
-def dumbbell_states(rng, n):
-    """Random dumbbell configurations: positions anywhere, bond length 0.8–1.3."""
-    states = []
-    for _ in range(n):
-        x1 = rng.uniform(-5, 5, 2)
-        angle = rng.uniform(-np.pi, np.pi)
-        r = rng.uniform(0.8, 1.3)
-        states.append(np.concatenate([x1, x1 + r * np.array([np.cos(angle), np.sin(angle)])]))
-    return np.array(states)
+from problems import coupled_duffing, dumbbell_states
 
 
 def test_dumbbell_derivatives_match_finite_differences():

@@ -2,12 +2,12 @@
 ``hfdi.Integrator``, rollback, discards, communication step sizes, bad
 parameters, the CLI and the example master.
 
-The FMUs are built once per session. Their native layer runs the slaves
-inside this Python process, so the slaves import the ``hfdi`` bundled in each FMU, not the
-one under test here; both are the same sources.
+The FMUs are built once per session (``fmus`` and ``dumbbell_fmu`` of
+conftest.py). Their native layer runs the slaves inside this Python process,
+so the slaves import the ``hfdi`` bundled in each FMU, not the one under test
+here; both are the same sources.
 """
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,13 +15,12 @@ import pytest
 pytest.importorskip("pythonfmu")
 fmpy = pytest.importorskip("fmpy")
 
-from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
+from fmpy import read_model_description, simulate_fmu  # noqa: E402
 from fmpy.fmi1 import FMICallException  # noqa: E402
 from fmpy.fmi2 import fmi2Error  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
 import hfdi  # noqa: E402
-from fmu.build import build_all  # noqa: E402
 from fmu.cli import main  # noqa: E402
 from fmu.master import Unit, coupled_dumbbells, cosimulate  # noqa: E402
 
@@ -34,24 +33,8 @@ OBSERVED = STATE + ["stretch", "W", "dE", "internal_steps", "newton_iterations"]
 HUGE = 1.7e308
 
 
-@pytest.fixture(scope="session")
-def fmus(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fmus")
-    built = build_all(out)
-    failed = {name: str(r) for name, r in built.items() if not isinstance(r, Path)}
-    assert not failed, failed
-    return built
-
-
-@pytest.fixture(scope="session")
-def dumbbell(fmus, tmp_path_factory):
-    """One extraction of the dumbbell FMU, shared by the units of the session."""
-    return fmus["dumbbell"], extract(str(fmus["dumbbell"]),
-                                     unzipdir=str(tmp_path_factory.mktemp("dumbbell")))
-
-
-def unit(dumbbell, parameters=None, name="unit"):
-    path, unzip = dumbbell
+def unit(dumbbell_fmu, parameters=None, name="unit"):
+    path, unzip = dumbbell_fmu
     u = Unit(path, name, unzip_dir=unzip)
     u.initialize(parameters or {}, start_time=0.0)
     return u
@@ -139,10 +122,10 @@ def test_simulate_fmu_reproduces_integrator_advance(fmus, scheme):
     (dict(parameters={"target_iterations": 0.0}, tolerance=1e-5), dict(rtol=1e-5)),
 ])
 @pytest.mark.slow
-def test_tolerances_give_error_control_as_in_process(dumbbell, how, in_process):
+def test_tolerances_give_error_control_as_in_process(dumbbell_fmu, how, in_process):
     """The master's tolerance (fmi2SetupExperiment) or the rtol parameter put
     the FMU under error control, with the same steps as in-process."""
-    path, unzip = dumbbell
+    path, unzip = dumbbell_fmu
     u = Unit(path, "tol", unzip_dir=unzip)
     u.initialize(**how)
     itg = hfdi.Integrator(hfdi.models.get("dumbbell"), "hfdi", **in_process)
@@ -177,10 +160,10 @@ def test_other_models_reproduce_integrator_advance(fmus, name):
 
 
 @pytest.mark.parametrize("step", [2.5e-4, 1.0])
-def test_communication_steps_far_below_and_above_the_internal_step(dumbbell, step):
+def test_communication_steps_far_below_and_above_the_internal_step(dumbbell_fmu, step):
     # the internal steps of the dumbbell are about 0.016 with HFDI
     t_end = 0.05 if step < 0.01 else 2.0
-    u = unit(dumbbell)
+    u = unit(dumbbell_fmu)
     itg = hfdi.Integrator(hfdi.models.get("dumbbell"), "hfdi", target_iterations=3.0)
     t, rows, refs = 0.0, [], []
     while t < t_end - 1e-12:
@@ -200,10 +183,10 @@ def test_communication_steps_far_below_and_above_the_internal_step(dumbbell, ste
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
-def test_input_step_moves_the_centre_of_mass_exactly(dumbbell, scheme):
+def test_input_step_moves_the_centre_of_mass_exactly(dumbbell_fmu, scheme):
     # M_tot x_cm'' = F_x: every scheme integrates the constant acceleration after
     # the jump exactly, provided the step after the jump starts from its right limit
-    u = unit(dumbbell, {"scheme": scheme})
+    u = unit(dumbbell_fmu, {"scheme": scheme})
     x0 = u.get(["u[1]", "u[3]", "v[1]", "v[3]"])
     t, h, t_jump, force = 0.0, 0.03, 0.09, 600.0
     while t < 0.3 - 1e-12:
@@ -220,8 +203,8 @@ def test_input_step_moves_the_centre_of_mass_exactly(dumbbell, scheme):
 
 # -- FMU state -------------------------------------------------------------------------------
 @pytest.mark.parametrize("scheme", ["bathe", "hfdi"])
-def test_rollback_and_serialization_are_bit_identical(dumbbell, scheme):
-    u = unit(dumbbell, {"scheme": scheme})
+def test_rollback_and_serialization_are_bit_identical(dumbbell_fmu, scheme):
+    u = unit(dumbbell_fmu, {"scheme": scheme})
     t, h = 0.0, 0.03
     for k in range(5):
         u.set({"F[1]": 100.0 * k})
@@ -248,7 +231,7 @@ def test_rollback_and_serialization_are_bit_identical(dumbbell, scheme):
     restored = ten_steps(u, t_saved)
     u.free_state(saved)
     u.close()
-    fresh = unit(dumbbell, {"scheme": scheme}, name="fresh")   # another instance, same FMU
+    fresh = unit(dumbbell_fmu, {"scheme": scheme}, name="fresh")   # another instance, same FMU
     fresh.set_state(fresh.deserialize(data))
     elsewhere = ten_steps(fresh, t_saved)
     fresh.close()
@@ -257,8 +240,8 @@ def test_rollback_and_serialization_are_bit_identical(dumbbell, scheme):
     assert np.array_equal(first, elsewhere)
 
 
-def test_corrupt_state_is_refused_not_a_crash(dumbbell):
-    u = unit(dumbbell)
+def test_corrupt_state_is_refused_not_a_crash(dumbbell_fmu):
+    u = unit(dumbbell_fmu)
     with pytest.raises(FMICallException) as info:
         u.set_state(u.deserialize(b"not a state"))
     assert info.value.status == fmi2Error
@@ -269,8 +252,8 @@ def test_corrupt_state_is_refused_not_a_crash(dumbbell):
 # -- failures ----------------------------------------------------------------------------------
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 @pytest.mark.parametrize("scheme", SCHEMES)
-def test_rejected_step_is_discarded_at_the_last_communication_point(dumbbell, scheme):
-    u, clean = unit(dumbbell, {"scheme": scheme}), unit(dumbbell, {"scheme": scheme}, "clean")
+def test_rejected_step_is_discarded_at_the_last_communication_point(dumbbell_fmu, scheme):
+    u, clean = unit(dumbbell_fmu, {"scheme": scheme}), unit(dumbbell_fmu, {"scheme": scheme}, "clean")
     t, h = 0.0, 0.05
     for v in (u, clean):
         assert v.step(t, h)
@@ -296,8 +279,8 @@ def test_rejected_step_is_discarded_at_the_last_communication_point(dumbbell, sc
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
-def test_master_halves_and_repeats_a_discarded_step(dumbbell):
-    path, unzip = dumbbell
+def test_master_halves_and_repeats_a_discarded_step(dumbbell_fmu):
+    path, unzip = dumbbell_fmu
     glitch_at, glitches = 0.1, []
 
     def run(exchange, times=None):
@@ -342,8 +325,8 @@ def test_master_halves_and_repeats_a_discarded_step(dumbbell):
     ({"max_step": -1.0}, "max_step"),
     ({"A": -1.0}, "A"),
 ])
-def test_bad_parameter_is_an_error_status_not_a_crash(dumbbell, parameters, named):
-    path, unzip = dumbbell
+def test_bad_parameter_is_an_error_status_not_a_crash(dumbbell_fmu, parameters, named):
+    path, unzip = dumbbell_fmu
     u = Unit(path, "bad", unzip_dir=unzip)
     with pytest.raises(FMICallException) as info:
         u.initialize(parameters)
@@ -351,7 +334,7 @@ def test_bad_parameter_is_an_error_status_not_a_crash(dumbbell, parameters, name
     errors = [m[2] for m in u.messages if m[0] == "ERROR"]
     assert errors and (f"parameter {named} = " in errors[0] or f"{named} = " in errors[0])
     u.close(terminate=False)
-    again = unit(dumbbell, name="after")     # the process and the FMU are still usable
+    again = unit(dumbbell_fmu, name="after")     # the process and the FMU are still usable
     assert again.step(0.0, 0.01)
     again.close()
 

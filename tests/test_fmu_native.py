@@ -29,9 +29,10 @@ HOST_SOURCE = Path(__file__).with_name("data") / "fmi2_host.c"
 STEPS = 20                                   # of 0.01 in the C host
 
 
-@pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    return build("dumbbell", tmp_path_factory.mktemp("native"))
+@pytest.fixture
+def fmu(dumbbell_fmu):
+    """The dumbbell FMU of the session (conftest.py); a test extracts its own copy."""
+    return dumbbell_fmu[0]
 
 
 @pytest.fixture(scope="module")

@@ -80,13 +80,6 @@ NAN, INF = math.nan, math.inf
 SCHEMES = tuple(hfdi.SCHEMES)
 
 
-@pytest.fixture(scope="session")
-def dumbbell_fmu(tmp_path_factory):
-    """The dumbbell FMU and one extraction of it, shared by the session's units."""
-    path = build("dumbbell", tmp_path_factory.mktemp("property_fmu"))
-    return path, extract(str(path), unzipdir=str(tmp_path_factory.mktemp("property_unzip")))
-
-
 # -- what a master may send ---------------------------------------------------------------
 def _valid_scheme(value: str) -> bool:
     return value.strip().lower() in SCHEMES

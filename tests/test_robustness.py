@@ -18,8 +18,7 @@ import scipy.sparse as sparse
 import hfdi
 from hfdi.checks import symmetric_definite
 
-sys.path.insert(0, str(pathlib.Path(__file__).parent))
-from problems import write_doc_table, coupled_duffing  # noqa: E402
+from problems import coupled_duffing, write_doc_table
 
 DUMBBELL = hfdi.models.dumbbell()
 DUFFING = coupled_duffing()

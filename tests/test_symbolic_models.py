@@ -12,6 +12,7 @@ import sympy
 
 import hfdi
 from hfdi.models.symbolic import EnergyModel, elastic_pendulum, spring_chain
+from problems import dumbbell_states
 
 
 def rel(a, b):
@@ -26,15 +27,6 @@ def pendulum_states(rng, n):
     r = rng.uniform(0.5, 2.0, n)
     angle = rng.uniform(-np.pi, np.pi, n)
     return np.column_stack([r * np.sin(angle), -r * np.cos(angle)])
-
-
-def dumbbell_states(rng, n):
-    """Dumbbell configurations: first particle anywhere, bond length 0.8–1.3."""
-    x1 = rng.uniform(-5, 5, (n, 2))
-    angle = rng.uniform(-np.pi, np.pi, n)
-    r = rng.uniform(0.8, 1.3, n)
-    return np.column_stack([x1, x1 + r[:, None] * np.column_stack([np.cos(angle),
-                                                                  np.sin(angle)])])
 
 
 def symbolic_dumbbell(**kwargs):

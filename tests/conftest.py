@@ -1,0 +1,41 @@
+"""Fixtures shared by the test modules, and how the suite is split by speed.
+
+``pytest`` runs everything (``make test``). ``pytest -m "not slow"`` is the
+inner loop: the tests marked ``@pytest.mark.slow`` (each taking more than
+about 0.2 s: long runs, subprocesses, FMU hosts, the CLI as a user runs it)
+are left out, the rest run in seconds.
+
+Shared helpers that are not fixtures live in modules beside this one:
+:mod:`problems` (small test problems, the DOP853 reference, the writer of
+the generated tables in ``docs/``), :mod:`exact_problems` (problems with
+exact solutions) and :mod:`strategies` (hypothesis strategies). This
+directory is on ``sys.path`` when pytest runs, so they import by name.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+#: The repository's root (its ``docs/`` hold the generated tables).
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def fmus(tmp_path_factory):
+    """Every registered model built as an FMU once per session: ``{name: Path}``."""
+    from fmu.build import build_all
+    out = tmp_path_factory.mktemp("fmus")
+    built = build_all(out)
+    failed = {name: str(r) for name, r in built.items() if not isinstance(r, Path)}
+    assert not failed, failed
+    return built
+
+
+@pytest.fixture(scope="session")
+def dumbbell_fmu(fmus, tmp_path_factory):
+    """The dumbbell FMU and one extraction of it, shared by the session's units:
+    ``(path, unzip_dir)``. Tests that damage an FMU extract their own copy."""
+    from fmpy import extract
+    path = fmus["dumbbell"]
+    return path, extract(str(path), unzipdir=str(tmp_path_factory.mktemp("dumbbell_fmu")))
