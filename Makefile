@@ -23,10 +23,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 
-# work-precision against IDA, Radau and BDF, and the beam's scaling (docs/performance.md)
+# work-precision against IDA, Radau and BDF, and the beam's scaling (docs/performance.md);
+# benchmarks/ is not installed: run from the repository's root
 bench: $(STAMP)
-	$(PY) -m validation bench --out docs/performance-data
-	$(PY) -m validation.scale --out docs/performance-data --no-full-run
+	$(PY) -m benchmarks precision --out docs/performance-data
+	$(PY) -m benchmarks scale --out docs/performance-data --no-full-run
 
 fmu: $(STAMP)
 	$(PY) -m fmu build all --out out/fmu

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import tempfile
 import zipfile
@@ -25,37 +24,6 @@ class _Parser(argparse.ArgumentParser):
 
 class _Refused(Exception):
     """An argument that parsed but cannot be used (one line on stderr, status 2)."""
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
-
-
-def _output_file(text):
-    """A file written at the end of the command: checked before the work starts."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("must be a file name, got ''")
-    path = Path(text).expanduser()
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r} is a directory")
-    if not path.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{str(path.parent)!r} " + ("is not a directory"
-                                         if path.parent.exists() else "does not exist"))
-    try:
-        # a file made and removed: os.access says yes to root, and to read-only mounts
-        with tempfile.TemporaryFile(dir=path.parent):
-            pass
-    except OSError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not writable") from None
-    if path.exists() and not os.access(path, os.W_OK):
-        raise argparse.ArgumentTypeError(f"{text!r} is not writable")
-    return str(path)
 
 
 def _out_dir(text) -> str:
@@ -141,12 +109,6 @@ def build_parser():
     demo.add_argument("problem", nargs="?", default="dumbbell")
     demo.add_argument("--out", default="out/fmu", metavar="DIR")
     demo.add_argument("--scheme", choices=("newmark", "bathe", "hfdi"), default="hfdi")
-    bench = sub.add_parser("bench", help="time the FMU through fmpy against in-process "
-                                         "advance, communication step ≈ 10 internal steps")
-    bench.add_argument("problem", nargs="?", default="dumbbell")
-    bench.add_argument("--scheme", choices=("newmark", "bathe", "hfdi"), default="hfdi")
-    bench.add_argument("--repeats", type=_positive_int, default=5)
-    bench.add_argument("--json", metavar="FILE", type=_output_file)
     return parser
 
 
@@ -176,10 +138,6 @@ def main(argv=None) -> int:
         elif args.command == "build":
             check_problem(args.problem, " (or 'all')")
             print(build(args.problem, _out_dir(args.out)))
-        elif args.command == "bench":
-            check_problem(args.problem)
-            from .bench import main as bench_main
-            return bench_main(args.problem, args.scheme, args.repeats, args.json)
         elif args.command == "demo":
             check_problem(args.problem)
             from .demo import run_demo

@@ -16,14 +16,16 @@ __all__ = ["run_demo"]
 def run_demo(problem: str = "dumbbell", out_dir: str = "out/fmu", scheme: str = "hfdi",
              target_iterations: float = 3.0, points: int = 50) -> int:
     """Build the FMU of ``problem``, simulate it with ``fmpy.simulate_fmu`` over the
-    model's ``T_o`` with ``points`` communication steps, and print its end state
+    model's default experiment (``stop_time`` of its
+    :mod:`fmu.metadata` table, the paper's ``T_o``) with ``points`` communication steps, and print its end state
     beside :meth:`hfdi.Integrator.advance` called in-process at the same times."""
     from fmpy import simulate_fmu
 
+    from . import metadata
     from .build import build
 
     model = hfdi.models.get(problem)
-    t_end = model.observation_time
+    t_end = metadata.resolve(problem, type(model))["stop_time"]
     started = time.perf_counter()
     path = build(problem, out_dir)
     print(f"built {path} in {time.perf_counter() - started:.1f} s")

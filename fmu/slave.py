@@ -232,7 +232,7 @@ class HfdiSlave(Fmi2Slave):
             "master's), from the local error")
         self.version = str(getattr(hfdi, "__version__", ""))
         self.license = "MIT"
-        stop = float(getattr(model, "observation_time", None) or 1.0)
+        stop = float(meta.get("stop_time") or 1.0)
         self.default_experiment = DefaultExperiment(start_time=0.0, stop_time=stop,
                                                     step_size=stop / 100.0)
 

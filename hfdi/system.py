@@ -14,7 +14,7 @@ build one from plain callables with :class:`System`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,11 +52,6 @@ class SecondOrderSystem:
         Damping matrix, ``None`` for an undamped model.
     initial_displacement, initial_velocity : ndarray (N,)
         Default initial conditions ``u(t0)`` and ``u'(t0)``.
-    observation_time : float or None
-        The paper's observation time ``T_o`` of the model's experiment.
-    paper_targets : dict
-        The paper's target iteration counts per scheme name (per sub-step for
-        Bathe, which the paper writes ``2·N``).
     u_scale : float
         A length of the model, the absolute floor of the Newton convergence
         test (see :func:`hfdi.integrate`).
@@ -68,8 +63,6 @@ class SecondOrderSystem:
     damping = None
     initial_displacement = None
     initial_velocity = None
-    observation_time: float | None = None
-    paper_targets: Mapping[str, tuple] = {}
     u_scale: float = 1.0
 
     # -- mechanics ---------------------------------------------------------
@@ -161,8 +154,7 @@ class System(SecondOrderSystem):
     def __init__(self, mass, internal_force, stiffness, stiffness_derivative, *,
                  damping=None, load=None, load_rate=None, potential_energy=None,
                  quantities=None, initial_displacement=None,
-                 initial_velocity=None, name="system", u_scale=1.0,
-                 observation_time=None, paper_targets=None):
+                 initial_velocity=None, name="system", u_scale=1.0):
         self.mass = checks.square_matrix("System mass", mass)
         self.n_dof = n = self.mass.shape[0]
         self.damping = None if damping is None else \
@@ -193,8 +185,6 @@ class System(SecondOrderSystem):
                                                      initial_velocity, (n,)))
         self.name = name
         self.u_scale = checks.positive("System u_scale", u_scale)
-        self.observation_time = observation_time
-        self.paper_targets = paper_targets or {}
 
     def internal_force(self, u):
         return self._f(u)

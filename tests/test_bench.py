@@ -1,14 +1,23 @@
-"""``hfdi-validate bench``: work–precision of our schemes against IDA, Radau and BDF."""
+"""``python -m benchmarks precision``: work–precision of our schemes against IDA, Radau and BDF."""
 import json
 import math
 import os
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from validation.bench import (_mark_inaccurate, bench_problem, goal, interpolate_wall,
-                              pareto_front, speedups)
-from validation.cli import main
+# benchmarks/ is not installed: it is imported from the repository's root
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.__main__ import main as benchmarks_main  # noqa: E402
+from benchmarks.precision import (_mark_inaccurate, bench_problem, goal,  # noqa: E402
+                                  interpolate_wall, pareto_front, speedups)
+
+
+def main(argv):
+    """``python -m benchmarks precision ARGS`` in this process."""
+    return benchmarks_main(["precision", *argv])
 
 TINY = ["--t-end", "0.05", "--rtols", "1e-4,1e-7", "--targets", "3", "--rtol", "1e-5",
         "--repeats", "1"]
@@ -35,7 +44,7 @@ def cache_dir(tmp_path_factory):
 def tiny(cache_dir, tmp_path_factory):
     """One serial bench of two tiny problems through the command line."""
     out = tmp_path_factory.mktemp("bench1")
-    code = main(["bench", "--problems", "dumbbell,articulated", "--out", str(out),
+    code = main(["--problems", "dumbbell,articulated", "--out", str(out),
                  "--jobs", "1", *TINY])
     assert code == 0
     return out
@@ -112,7 +121,7 @@ def test_speedup_rows_refer_to_the_runs(tiny):
 
 
 def test_jobs_give_the_same_numbers(tiny, tmp_path):
-    assert main(["bench", "--problems", "dumbbell,articulated", "--out", str(tmp_path),
+    assert main(["--problems", "dumbbell,articulated", "--out", str(tmp_path),
                  "--jobs", "2", *TINY]) == 0
     for name in ("dumbbell", "articulated"):
         a, b = _load(tiny, name), _load(tmp_path, name)
@@ -132,7 +141,7 @@ def test_blas_threads_do_not_change_the_numbers(cache_dir, tmp_path, monkeypatch
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     monkeypatch.setattr(parallel, "_start_method", lambda: "spawn")
-    args = ["bench", "--problems", "dumbbell", "--schemes", "hfdi", "--competitors",
+    args = ["--problems", "dumbbell", "--schemes", "hfdi", "--competitors",
             "radau,bdf", "--t-end", "0.05", "--rtols", "1e-4", "--targets", "3",
             "--repeats", "1"]
     from threadpoolctl import threadpool_limits
@@ -258,7 +267,18 @@ def test_a_false_success_is_marked_inaccurate():
 ])
 def test_bad_options_are_one_line(args, words, capsys):
     with pytest.raises(SystemExit) as exc:
-        main(["bench", *args])
+        main([*args])
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
+
+
+def test_cosim_runs_and_reports_a_ratio():
+    """``python -m benchmarks cosim``: the FMU through fmpy and the library
+    in-process take the same internal steps."""
+    pytest.importorskip("fmpy")
+    from benchmarks.cosim import benchmark
+    result = benchmark("dumbbell", "hfdi", t_end=0.2, repeats=1)
+    assert result["internal_steps_fmu"] == result["internal_steps_in_process"]
+    assert result["communication_steps"] >= 1
+    assert result["ratio"] > 0 and result["in_process_s"] > 0 and result["fmu_s"] > 0

@@ -1,9 +1,12 @@
-"""Bad arguments and interruptions of ``hfdi-validate`` and ``hfdi-fmu``,
-run as the user runs them: in a subprocess, ``python -m validation|fmu``.
+"""Bad arguments and interruptions of ``hfdi-validate``, ``hfdi-fmu`` and
+``python -m benchmarks``.
 
 * Every bad argument exits non-zero with exactly one line on stderr that
   says what is wrong, no traceback, nothing on stdout, and nothing written
-  to the working directory.
+  to the working directory. The cases call each command's ``main`` in this
+  process (a Python start with hfdi's imports costs about a second a case);
+  those that reach a Dask scheduler, whose client leaves threads behind, run
+  as the user runs them, in a subprocess ``python -m ...``.
 * ``hfdi-validate all`` interrupted (SIGINT, SIGKILL) after it has written
   some outputs keeps them and the reference cache intact, leaves no
   temporary file in the output directory (SIGINT at once; SIGKILL after the
@@ -16,6 +19,8 @@ the line each prints; with ``--write`` it puts the table in
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
+import io
 import json
 import os
 import re
@@ -24,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import traceback
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +39,8 @@ import pytest
 from problems import sigint_as_in_a_terminal, write_doc_table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+# benchmarks/ is not installed: it is imported from the repository's root
+sys.path.insert(0, str(ROOT))
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 # write_atomic's and the reference cache's temporary files: ".<name>.<random>.tmp"
@@ -46,7 +54,7 @@ class Case:
     Attributes
     ----------
     module : str
-        ``validation`` or ``fmu``.
+        ``validation``, ``fmu`` or ``benchmarks``.
     args : tuple of str
         Arguments; ``{FILE}`` (a regular file), ``{RO}`` (a directory that
         cannot be written), ``{DIR}`` (a fresh directory), ``{ZIP}`` (a zip
@@ -63,7 +71,8 @@ class Case:
     @property
     def command(self) -> str:
         """The command as the user types it, placeholders kept."""
-        prog = {"validation": "hfdi-validate", "fmu": "hfdi-fmu"}[self.module]
+        prog = {"validation": "hfdi-validate", "fmu": "hfdi-fmu",
+                "benchmarks": "python -m benchmarks"}[self.module]
         return " ".join([prog, *(a if a.strip() else repr(a) for a in self.args)])
 
 
@@ -77,12 +86,16 @@ def F(*args, expect):
     return Case("fmu", args, expect)
 
 
+def B(*args, expect):
+    """A bad ``python -m benchmarks`` command line (see :class:`Case`)."""
+    return Case("benchmarks", args, expect)
+
+
 BAD_TARGETS = ("0", "-1", "nan", "inf", "1e300", "text")
 BAD_T_END = ("0", "-1", "nan", "inf", "text", "1e-13")
 # figures and all take the same --targets and --t-end as table (one parser
 # type each, and the same check of the runs): every value goes through
-# table, some through figures and all, as each case costs a Python start
-# with hfdi's imports (about a second).
+# table, some through figures and all.
 SOME_TARGETS = ("0", "nan", "1e300", "text")
 SOME_T_END = ("-1", "inf", "1e-13")
 
@@ -148,8 +161,9 @@ CASES = [
       expect="unknown problem(s) 'pendulum'"),
     V("all", "--out", "{DIR}/x", "--schemes", "euler", expect="unknown scheme(s) 'euler'"),
     *[V("all", "--out", "{DIR}/x", "--targets", t, expect="--targets") for t in SOME_TARGETS],
-    # every problem is checked before the first run: the first to refuse is named
-    *[V("all", "--out", "{DIR}/x", "--t-end", t, expect=t_end_complaint(t, "articulated"))
+    # every problem is checked before the first run, in the paper's order: the
+    # first to refuse is named
+    *[V("all", "--out", "{DIR}/x", "--t-end", t, expect=t_end_complaint(t, "dumbbell"))
       for t in SOME_T_END],
     V("all", "--out", "{DIR}/x", "--ratios", "-1", expect="--ratios"),
     V("all", "--out", "{FILE}", expect="exists and is not a directory"),
@@ -173,11 +187,6 @@ CASES = [
     F("demo", "dumbbell", "--scheme", "euler", expect="invalid choice: 'euler'"),
     F("demo", "dumbbell", "--out", "{FILE}", expect="exists and is not a directory"),
     F("demo", "dumbbell", "--out", "{RO}", expect="is not a writable directory"),
-    F("bench", "pendulum", expect="unknown problem 'pendulum'"),
-    F("bench", "dumbbell", "--scheme", "euler", expect="invalid choice: 'euler'"),
-    *[F("bench", "dumbbell", "--repeats", r, expect="--repeats") for r in ("0", "-1", "text")],
-    F("bench", "dumbbell", "--json", "{FILE}/bench.json", expect="is not a directory"),
-    F("bench", "dumbbell", "--json", "{DIR}", expect="is a directory"),
     F("master", "{DIR}/missing.fmu", expect="does not exist"),
     F("master", "{FILE}", expect="is not an FMU"),
     F("master", "{ZIP}", expect="no modelDescription.xml"),
@@ -188,6 +197,21 @@ CASES = [
     F("master", "--stiffness", "-1", expect="--stiffness"),
     F("master", "--damping", "nan", expect="--damping"),
     F("master", "--scheme", "euler", expect="invalid choice: 'euler'"),
+    # -- python -m benchmarks
+    B(expect="a command is required"),
+    B("frobnicate", expect="unknown command 'frobnicate'"),
+    B("precision", "--problems", "pendulum", expect="unknown problem(s) 'pendulum'"),
+    B("precision", "--competitors", "cvode", expect="unknown competitor(s) cvode"),
+    B("precision", "--problems", "dumbbell", "--t-end", "1e9", "--out", "{DIR}/x",
+      expect="is too long for dumbbell"),
+    B("scale", "--out", "{DIR}/x", "--sizes", "a", expect="--sizes"),
+    B("profile", "--targets", "3", expect="unrecognized arguments: --targets"),
+    B("profile", "--target", "0", expect="--target"),
+    B("cosim", "pendulum", expect="unknown problem(s) 'pendulum'"),
+    B("cosim", "dumbbell", "--scheme", "euler", expect="invalid choice: 'euler'"),
+    *[B("cosim", "dumbbell", "--repeats", r, expect="--repeats") for r in ("0", "-1", "text")],
+    B("cosim", "dumbbell", "--json", "{FILE}/bench.json", expect="is not a directory"),
+    B("cosim", "dumbbell", "--json", "{DIR}", expect="is a directory"),
 ]
 
 
@@ -235,6 +259,46 @@ def fixtures(base: Path) -> dict:
             "RO": unwritable_directory(base)}
 
 
+def _in_subprocess(case: Case) -> bool:
+    """Whether ``case`` runs as a subprocess: a Dask client left behind (its
+    threads) would change how later tests of this process fork."""
+    return any(a.startswith("tcp://") for a in case.args)
+
+
+def _main(module: str):
+    if module == "validation":
+        from validation.cli import main
+    elif module == "fmu":
+        from fmu.cli import main
+    else:
+        from benchmarks.__main__ import main
+    return main
+
+
+def _call(module: str, args: list, cwd: Path, env: dict) -> tuple:
+    """``main(args)`` of ``module`` in this process, in ``cwd`` with ``env``:
+    ``(exit status, stdout, stderr)``; an exception escaping ``main`` is a
+    traceback on stderr, as the command would print it."""
+    out, err = io.StringIO(), io.StringIO()
+    old_cwd, old_env = os.getcwd(), dict(os.environ)
+    os.chdir(cwd)
+    os.environ.update(env)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = _main(module)(args)
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+            except BaseException:
+                traceback.print_exc()
+                code = 1
+    finally:
+        os.chdir(old_cwd)
+        os.environ.clear()
+        os.environ.update(old_env)
+    return code, out.getvalue(), err.getvalue()
+
+
 def run_case(case: Case, index: int, base: Path, files: dict) -> dict:
     """Run one bad command line in a fresh working directory.
 
@@ -252,25 +316,34 @@ def run_case(case: Case, index: int, base: Path, files: dict) -> dict:
     cwd.mkdir()
     scratch.mkdir()
     args = [a.format(DIR=scratch, **files) for a in case.args]
-    env = dict(os.environ, HFDI_CACHE_DIR=str(base / "cache"), PYTHONPATH=str(ROOT))
-    proc = subprocess.run([sys.executable, "-m", case.module, *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
-    shown = proc.stderr.strip()
+    env = {"HFDI_CACHE_DIR": str(base / "cache")}
+    if _in_subprocess(case):
+        proc = subprocess.run([sys.executable, "-m", case.module, *args], cwd=cwd,
+                              env=dict(os.environ, PYTHONPATH=str(ROOT), **env),
+                              capture_output=True, text=True, timeout=300)
+        code, stdout, stderr = proc.returncode, proc.stdout, proc.stderr
+    else:
+        code, stdout, stderr = _call(case.module, args, cwd, env)
+    shown = stderr.strip()
     for name, path in [("DIR", scratch), *files.items()]:
         if path is not None:
             shown = shown.replace(str(path), "{%s}" % name)
-    return {"returncode": proc.returncode, "stdout": proc.stdout, "stderr": proc.stderr,
-            "cwd": cwd, "shown": shown}
+    return {"returncode": code, "stdout": stdout, "stderr": stderr, "cwd": cwd, "shown": shown}
 
 
 def run_all_cases(base: Path) -> dict:
-    """Run every case of :data:`CASES`, a few at a time (each pays Python's
-    start and the imports, about a second)."""
+    """Run every case of :data:`CASES`: the subprocesses in the background,
+    the others meanwhile in this process, one after the other (they change
+    the working directory)."""
     files = fixtures(base)
-    with concurrent.futures.ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
+    indexed = list(enumerate(CASES))
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
         futures = {case: pool.submit(run_case, case, i, base, files)
-                   for i, case in enumerate(CASES)}
-        return {case: future.result() for case, future in futures.items()}
+                   for i, case in indexed if _in_subprocess(case)}
+        done = {case: run_case(case, i, base, files)
+                for i, case in indexed if not _in_subprocess(case)}
+        done.update({case: future.result() for case, future in futures.items()})
+    return {case: done[case] for case in CASES}
 
 
 @pytest.fixture(scope="module")
@@ -278,6 +351,7 @@ def results(tmp_path_factory):
     return run_all_cases(tmp_path_factory.mktemp("bad-arguments"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.command)
 def test_bad_argument_is_one_clear_line(case, results):
     result = results[case]
@@ -390,6 +464,7 @@ def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("cache")
 
 
+@pytest.mark.slow
 def test_sigint_keeps_the_outputs_and_resumes(tmp_path, cache):
     out = tmp_path / "out"
     proc = start_all(out, cache)
@@ -413,6 +488,7 @@ def test_sigint_keeps_the_outputs_and_resumes(tmp_path, cache):
     resume(out, cache, before)
 
 
+@pytest.mark.slow
 def test_sigkill_keeps_the_outputs_and_resumes(tmp_path, cache):
     out = tmp_path / "out"
     proc = start_all(out, cache)

@@ -3,15 +3,18 @@ import numpy as np
 import pytest
 
 import hfdi
+from validation.experiments import experiment
 
 MODEL = hfdi.models.dumbbell()
-RUNS = [(s, n) for s, targets in MODEL.paper_targets.items() for n in targets]
+TABLE_2 = experiment("dumbbell")
+T_O = TABLE_2.observation_time
+RUNS = [(s, n) for s, targets in TABLE_2.targets.items() for n in targets]
 _cache = {}
 
 
 def run(scheme, target):
     if (scheme, target) not in _cache:
-        _cache[scheme, target] = hfdi.integrate(MODEL, scheme, MODEL.observation_time,
+        _cache[scheme, target] = hfdi.integrate(MODEL, scheme, T_O,
                                                 target_iterations=target)
     return _cache[scheme, target]
 
@@ -20,7 +23,7 @@ def run(scheme, target):
 def test_run_completes_or_reports_divergence(scheme, target):
     result = run(scheme, target)
     if result.success:
-        assert result.t[-1] == MODEL.observation_time
+        assert result.t[-1] == T_O
     else:
         assert result.status < 0 and result.message
     st = result.stats

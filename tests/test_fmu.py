@@ -23,6 +23,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 import hfdi  # noqa: E402
 from fmu.cli import main  # noqa: E402
 from fmu.master import Unit, coupled_dumbbells, cosimulate  # noqa: E402
+from validation.experiments import experiment  # noqa: E402
 
 MODELS = hfdi.models.available()
 SCHEMES = ("newmark", "bathe", "hfdi")
@@ -144,7 +145,7 @@ def test_tolerances_give_error_control_as_in_process(dumbbell_fmu, how, in_proce
 @pytest.mark.parametrize("name", [m for m in MODELS if m != "dumbbell"])
 def test_other_models_reproduce_integrator_advance(fmus, name):
     model = hfdi.models.get(name)
-    stop = 0.1 * float(model.observation_time or 1.0)
+    stop = 0.1 * experiment(name).observation_time
     result = simulate_fmu(str(fmus[name]), stop_time=stop, output_interval=stop / 10,
                           output=[f"u[{i}]" for i in range(1, model.n_dof + 1)] + ["W"])
     itg = hfdi.Integrator(model, "hfdi", target_iterations=3.0)
@@ -376,12 +377,3 @@ def test_demo_command_matches_in_process(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "largest relative difference 0.00e+00" in printed
     assert (tmp_path / "hfdi_dumbbell.fmu").is_file()
-
-
-@pytest.mark.slow
-def test_bench_runs_and_reports_a_ratio():
-    from fmu.bench import benchmark
-    result = benchmark("dumbbell", "hfdi", t_end=0.2, repeats=1)
-    assert result["internal_steps_fmu"] == result["internal_steps_in_process"]
-    assert result["communication_steps"] >= 1
-    assert result["ratio"] > 0 and result["in_process_s"] > 0 and result["fmu_s"] > 0

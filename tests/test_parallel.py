@@ -82,7 +82,7 @@ def test_runner_orders_results_and_uses_processes():
     seen = []
     with Runner(2) as runner:
         first = runner.map(square, [(i,) for i in range(8)], on_result=lambda i, r: seen.append(i))
-        second = runner.map(square, [(i,) for i in range(8, 12)], ordered=False)
+        second = runner.map(square, [(i,) for i in range(8, 12)])        # the same pool
     assert [r for r, _ in first] == [r for r, _ in serial] == [i * i for i in range(8)]
     assert [r for r, _ in second] == [i * i for i in range(8, 12)]
     assert seen == list(range(8))
@@ -233,8 +233,8 @@ def test_a_worker_exception_is_the_serial_one_line_error(tmp_path, capsys, cache
     if parallel._start_method() != "fork":
         # (spawned workers: not on Linux, or a thread left by an earlier test)
         pytest.skip("the patched function reaches the workers by fork only")
-    import validation.tables as tables
-    monkeypatch.setattr(tables, "run_experiment", raise_value_error)
+    import validation.runs as runs
+    monkeypatch.setattr(runs, "run_experiment", raise_value_error)
     lines = []
     for jobs in ("1", "2"):
         assert main(["table", PROBLEMS, *SHORT, "--no-eps", "--jobs", jobs]) == 1

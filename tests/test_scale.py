@@ -1,18 +1,24 @@
-"""The scale measurement (validation.scale) and the band IDA path without a dense matrix.
+"""The scale measurement (benchmarks.scale) and the band IDA path without a dense matrix.
 
 No wall-clock asserts: the timings depend on the machine; only their presence,
 finiteness and the files are checked.
 """
 import json
 import math
+import sys
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import hfdi
-from validation import reference, scale
+from validation import reference
 from validation.reference import _FirstOrderForm, ida_dense_reference, ida_march
+
+# benchmarks/ is not installed: it is imported from the repository's root
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks import scale  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,10 @@ import sys
 
 import pytest
 
+import hfdi
+
 from validation.cli import main
-from validation.paper import PAPER_TABLES, paper_row
+from validation.experiments import EXPERIMENTS, paper_row
 
 FIELDS = {"problem", "scheme", "target", "steps", "mean_iterations", "mean_step", "cpu_time",
           "status", "message", "t_reached", "eps"}
@@ -58,10 +60,26 @@ def test_bad_arguments_exit_nonzero_without_traceback(args):
 
 
 def test_paper_tables_are_complete():
-    for problem, schemes in PAPER_TABLES.items():
-        assert set(schemes) == {"newmark", "bathe", "hfdi"}
     assert paper_row("dumbbell", "hfdi", 3.3)["steps"] == 45
     assert paper_row("dumbbell", "newmark", 4.5) is None          # "div"
+    for name, exp in EXPERIMENTS.items():
+        assert name in hfdi.models.available()
+        # the paper's table has a row for every target of every scheme, and no other
+        assert set(exp.paper) == set(exp.targets) == set(hfdi.SCHEMES)
+        for scheme, targets in exp.targets.items():
+            assert sorted(exp.paper[scheme]) == sorted(targets), (name, scheme)
+        # the runs the figures draw are runs of the table
+        for runs in exp.shown_runs.values():
+            assert all(target in exp.targets[scheme] for scheme, target in runs), name
+        assert exp.long_time >= exp.observation_time > 0
+
+
+def test_paper_facts_are_not_in_the_models():
+    """T_o, the targets and the long T_o are the experiments' (validation.experiments)."""
+    for name in hfdi.models.available():
+        model = hfdi.models.get(name)
+        for field in ("observation_time", "paper_targets", "long_observation_time"):
+            assert not hasattr(model, field), (name, field)
 
 
 def test_table_rtol_runs_are_error_controlled(tmp_path, capsys, monkeypatch):
@@ -90,7 +108,6 @@ def test_table_rtol_out_of_range_is_one_line(bad, capsys):
 
 
 @pytest.mark.parametrize("args", [["table", "dumbbell", "--t-end", "1e300"],
-                                  ["bench", "--problems", "dumbbell", "--t-end", "1e9"],
                                   ["all", "--problems", "dumbbell", "--long-t-end", "1e9"]])
 def test_absurd_t_end_is_refused_before_any_work(tmp_path, capsys, args):
     """--t-end = 1e300 used to be accepted; the IDA reference then ran without

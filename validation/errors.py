@@ -11,11 +11,27 @@ import math
 
 import numpy as np
 
-__all__ = ["error_norm", "error_norms"]
+__all__ = ["error_norm", "error_norms", "relative_error"]
 
 
 def _trapezoid(t, f):
     return 0.5 * float(np.sum(np.diff(t) * (f[1:] + f[:-1])))
+
+
+def relative_error(t, error_squared, reference_squared) -> float:
+    """``ε`` of Eq. 42 from ``|z − z*|²`` and ``|z*|²`` at the times ``t`` (n,).
+
+    ``sqrt(∫|z − z*|² dt / ∫|z*|² dt)`` by the trapezoidal rule; ``0`` when
+    both integrals vanish, ``inf`` when only the reference's does, NaN when
+    either is NaN.
+    """
+    num = _trapezoid(t, np.asarray(error_squared, dtype=float))
+    den = _trapezoid(t, np.asarray(reference_squared, dtype=float))
+    if math.isnan(num) or math.isnan(den):
+        return math.nan
+    if den == 0.0:
+        return 0.0 if num == 0.0 else math.inf
+    return math.sqrt(num / den)
 
 
 def error_norm(t, z, z_ref) -> float:
@@ -49,13 +65,7 @@ def error_norm(t, z, z_ref) -> float:
                          f"got {z.shape} and {z_ref.shape}")
     if np.any(np.diff(t) < 0):
         raise ValueError("t must be non-decreasing")
-    num = _trapezoid(t, np.sum((z - z_ref) ** 2, axis=1))
-    den = _trapezoid(t, np.sum(z_ref ** 2, axis=1))
-    if math.isnan(num) or math.isnan(den):
-        return math.nan
-    if den == 0.0:
-        return 0.0 if num == 0.0 else math.inf
-    return math.sqrt(num / den)
+    return relative_error(t, np.sum((z - z_ref) ** 2, axis=1), np.sum(z_ref ** 2, axis=1))
 
 
 def error_norms(model, result, reference) -> dict:

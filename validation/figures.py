@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import io
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,107 +31,24 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 
-import hfdi  # noqa: E402
 
-from .reference import cached_reference, default_atol  # noqa: E402
 from .atomic import write_atomic  # noqa: E402
-from .tables import (SCHEME_ORDER, RunRecord, make_record, problem_reference,  # noqa: E402
-                     run_experiment)
+from .experiments import (EXPERIMENTS, FIGURE_SUBJECTS, SCHEME_COLOURS,  # noqa: E402
+                          SCHEME_ORDER, Quantity)
+from .runs import ProblemRuns, run_label, scheme_title  # noqa: E402
 
-__all__ = ["Progress", "write_atomic", "figure_png", "save_figure", "ProblemRuns",
-           "FigureSpec", "figure_specs", "write_figures", "eps_figure", "run_label", "scheme_title",
-           "kinetic_energy", "SHOWN_RUNS", "PROBLEM_TITLES"]
+__all__ = ["figure_png", "save_figure", "FigureSpec", "figure_specs", "write_figures",
+           "eps_figure", "kinetic_energy"]
 
-PROBLEM_TITLES = {"dumbbell": "Dumbbell", "tetrahedra": "Tetrahedra",
-                  "articulated": "Articulated system", "toss_rule": "Toss rule"}
-
-#: The runs the paper draws in its trajectory and energy figures, per figure
-#: kind. The dumbbell's Figs. 4–6 use the runs its text names (Newmark 4.5,
-#: Bathe 2·4.5, HFDI 3.3); the tetrahedra's Figs. 12–13 and the articulated
-#: system's Figs. 15–17 those of their captions. The paper does not name the
-#: toss rule's runs of Figs. 23–24: N̄ = 4.0 for each scheme here.
-SHOWN_RUNS = {
-    "dumbbell": {"trajectory": (("newmark", 4.5), ("bathe", 4.5), ("hfdi", 3.3)),
-                 "energy": (("newmark", 4.5), ("bathe", 4.5), ("hfdi", 3.3))},
-    "tetrahedra": {"trajectory": (("bathe", 4.0), ("hfdi", 4.0))},
-    "articulated": {"configuration": (("newmark", 5.0), ("bathe", 5.0), ("hfdi", 5.0)),
-                    "trajectory": (("bathe", 4.5), ("hfdi", 4.0)),
-                    "energy": (("bathe", 4.5), ("hfdi", 4.0))},
-    "toss_rule": {"trajectory": (("newmark", 4.0), ("bathe", 4.0), ("hfdi", 4.0))},
-}
-
-#: Paper figure of the error norm of each quantity; a quantity the paper does
-#: not plot gets the number of the paper's figure of the same kind.
-EPS_FIGURE = {
-    "dumbbell": {"u": 9, "stretch": 10},
-    "tetrahedra": {"u": 9, "f": 10},
-    "articulated": {"u": 9, "delta_alpha": 10},
-    "toss_rule": {"alpha_mv": 20, "m_c": 21, "u": 9, "alpha_t_mv": 20, "N_c": 21},
-}
-#: The error figures the paper itself shows.
-_EPS_IN_PAPER = {("tetrahedra", "u"), ("tetrahedra", "f"), ("toss_rule", "alpha_mv"),
-                 ("toss_rule", "m_c")}
-#: What the paper's figures of which other problems get analogues show.
-_FIGURE_SUBJECT = {9: "ε of u of the tetrahedra", 10: "ε of f of the tetrahedra",
-                   11: "the step sizes of the tetrahedra", 20: "ε of α_mv of the toss rule",
-                   21: "ε of m_c of the toss rule", 22: "the step sizes of the toss rule"}
-_STEP_FIGURE = {"tetrahedra": 11, "toss_rule": 22, "dumbbell": 11, "articulated": 11}
-
-#: Quantity names as mathtext, with their units where the model states them.
-_QUANTITY = {
-    "u": (r"\mathbf{u}", ""), "stretch": (r"\lambda", "-"), "f": (r"\mathbf{f}", ""),
-    "delta_alpha": (r"\Delta\alpha", "rad"), "alpha_mv": (r"\alpha_{mv}", "rad"),
-    "m_c": (r"m_c", "N·m"), "alpha_t_mv": (r"\alpha_{t,mv}", "rad/s"), "N_c": (r"N_c", "N"),
-}
-_QUANTITY_WORDS = {
-    "u": "displacements u", "stretch": "stretch λ", "f": "interaction forces f",
-    "delta_alpha": "relative angle Δα", "alpha_mv": "mean rotation α_mv",
-    "m_c": "central bending moment m_c", "alpha_t_mv": "mean angular velocity α_t,mv",
-    "N_c": "central axial force N_c",
-}
-#: Units of the models: the toss rule is in SI; the others state frequencies in
-#: rad/s (docs/models.md), so their time is in s, and their lengths, masses
-#: and energies are in consistent units the paper leaves unnamed.
-_LENGTH_UNIT = {"toss_rule": "m"}
-_ENERGY_UNIT = {"toss_rule": "J"}
-
-_STYLE = {"newmark": {"color": "tab:blue", "marker": "s"},
-          "bathe": {"color": "tab:orange", "marker": "^"},
-          "hfdi": {"color": "tab:green", "marker": "o"}}
+#: Colour (one per scheme in every figure) and marker of each scheme's runs.
+_STYLE = {scheme: {"color": SCHEME_COLOURS[scheme], "marker": marker}
+          for scheme, marker in (("newmark", "s"), ("bathe", "^"), ("hfdi", "o"))}
 _REFERENCE_STYLE = {"color": "black", "linestyle": "-", "linewidth": 0.8}
 _TARGET_COLORS = ("tab:green", "tab:blue", "tab:purple", "tab:red", "tab:brown", "tab:olive",
                   "tab:cyan", "tab:pink")
 
 
 # -- output helpers ---------------------------------------------------------------
-
-class Progress:
-    """Progress lines on stderr, each prefixed with the time since the start.
-
-    Parameters
-    ----------
-    stream : file, optional
-        Where to write; ``sys.stderr`` at the time of each line by default
-        (so that a test's capture sees it).
-    enabled : bool
-        ``False`` silences every line.
-    """
-
-    def __init__(self, stream=None, enabled=True):
-        self.start = time.perf_counter()
-        self.stream = stream
-        self.enabled = enabled
-
-    @property
-    def elapsed(self) -> float:
-        """Seconds since the display started."""
-        return time.perf_counter() - self.start
-
-    def say(self, text: str) -> None:
-        """Write one line."""
-        if self.enabled:
-            print(f"[{self.elapsed:7.1f} s] {text}", file=self.stream or sys.stderr, flush=True)
-
 
 def figure_png(fig) -> bytes:
     """``fig`` rendered as PNG (the bytes :func:`save_figure` writes); closes it."""
@@ -150,25 +66,6 @@ def save_figure(fig, path) -> Path:
 
 
 # -- labels -------------------------------------------------------------------------
-
-def scheme_title(scheme: str) -> str:
-    """The scheme's name as the paper writes it."""
-    return {"newmark": "Newmark", "bathe": "Bathe", "hfdi": "HFDI"}.get(scheme, scheme)
-
-
-def run_label(scheme: str, target: float, mean_step: float | None = None,
-              plain=False) -> str:
-    """Legend text of a run, in the paper's notation (Bathe's target as ``2·N̄``).
-
-    Mathtext for matplotlib unless ``plain``.
-    """
-    head = "2·" if scheme == "bathe" else ""
-    n_bar, dt = ("N̄", "Δt_mv") if plain else (r"$\bar N$", r"$\Delta t_{mv}$")
-    text = f"{scheme_title(scheme)} {n_bar} = {head}{target:.1f}"
-    if mean_step is not None and math.isfinite(mean_step):
-        text += f" ({dt} = {mean_step:.2g})"
-    return text
-
 
 def _unit(unit: str) -> str:
     return f" [{unit}]" if unit else ""
@@ -191,135 +88,6 @@ def kinetic_energy(model, v) -> np.ndarray:
 
 
 # -- the runs of one problem --------------------------------------------------------------
-
-class ProblemRuns:
-    """The runs and references of one problem, each computed once when first needed.
-
-    Parameters
-    ----------
-    problem : str
-        A name of :func:`hfdi.models.get`.
-    schemes : sequence of str
-        Schemes of the table runs.
-    targets : sequence of float, optional
-        Target iteration counts of the table runs (every scheme); the paper's
-        per scheme when omitted.
-    t_end : float, optional
-        End of the table runs and of the reference; the model's ``T_o`` when
-        omitted.
-    long_t_end : float, optional
-        End of the long energy runs (Figs. 7, 18). Default: ``t_end`` when it
-        is given, else the model's ``long_observation_time`` (or ``T_o``).
-    params : dict, optional
-        Model parameters.
-    progress : Progress, optional
-    """
-
-    def __init__(self, problem, schemes=SCHEME_ORDER, targets=None, t_end=None,
-                 long_t_end=None, params=None, progress=None):
-        self.problem = problem
-        self.params = dict(params or {})
-        self.model = hfdi.models.get(problem, **self.params)
-        self.schemes = tuple(schemes)
-        self.targets = None if targets is None else tuple(float(t) for t in targets)
-        self.t_end = float(self.model.observation_time if t_end is None else t_end)
-        if long_t_end is not None:
-            self.long_t_end = float(long_t_end)
-        elif t_end is not None:
-            self.long_t_end = self.t_end
-        else:
-            self.long_t_end = float(getattr(self.model, "long_observation_time", None)
-                                    or self.t_end)
-        self.progress = progress or Progress(enabled=False)
-        self._runs: dict = {}
-        self._references: dict = {}
-        self._records = None
-
-    def table_targets(self, scheme: str) -> tuple:
-        """Targets of the table runs of ``scheme``."""
-        return self.targets or tuple(float(t) for t in self.model.paper_targets[scheme])
-
-    def long_targets(self) -> tuple:
-        """HFDI targets of the long energy runs."""
-        return self.table_targets("hfdi")
-
-    def run(self, scheme: str, target: float, t_end: float | None = None):
-        """The :class:`hfdi.Result` of one run, integrated on first request."""
-        t_end = self.t_end if t_end is None else float(t_end)
-        key = (scheme, float(target), t_end)
-        if key not in self._runs:
-            start = time.perf_counter()
-            _, result = run_experiment(self.problem, scheme, float(target), t_end, self.params)
-            st = result.stats
-            self.progress.say(
-                f"run {self.problem} {run_label(scheme, target, plain=True)} "
-                f"to t = {t_end:g}: {st.steps} steps, N_mv {st.mean_iterations:.3f}, "
-                f"{result.status.name} ({time.perf_counter() - start:.1f} s)")
-            self._runs[key] = result
-        return self._runs[key]
-
-    def reference(self, rtol: float = 1e-12, atol_factors=(1.0, 1.0)):
-        """The dense IDA reference over ``[0, t_end]`` (cached on disk).
-
-        ``atol_factors`` scale the default absolute tolerances of ``rtol``
-        (:func:`validation.reference.default_atol`) of the displacements and
-        of the velocities.
-        """
-        fu, fv = (float(f) for f in atol_factors)
-        key = (float(rtol), fu, fv)
-        if key not in self._references:
-            start = time.perf_counter()
-            what = f"rtol {rtol:g}" + (f", atol ×{fu:g} (u) ×{fv:g} (v)"
-                                       if (fu, fv) != (1.0, 1.0) else "")
-            self.progress.say(f"reference {self.problem} over [0, {self.t_end:g}], {what}: "
-                              "loading or computing (IDA; cached once computed)")
-            if (fu, fv) == (1.0, 1.0):
-                ref = problem_reference(self.problem, self.t_end, self.params, rtol=rtol)
-            else:
-                atol = default_atol(self.model, rtol, self.t_end)
-                n = self.model.n_dof
-                atol[:n] *= fu
-                atol[n:] *= fv
-                ref = cached_reference(self.problem, self.params, t_end=self.t_end, rtol=rtol,
-                                       atol=atol)
-            origin = "from cache" if ref.from_cache else "computed"
-            self.progress.say(f"reference {self.problem} {what}: {ref.t.size} nodes, "
-                              f"{origin} ({time.perf_counter() - start:.1f} s)")
-            self._references[key] = ref
-        return self._references[key]
-
-    def record(self, scheme: str, target: float, reference=None) -> RunRecord:
-        """The table record of one run, as :func:`validation.tables.table_run` makes it."""
-        return make_record(self.problem, scheme, target, self.model, self.run(scheme, target),
-                           reference)
-
-    def records(self) -> list:
-        """Every table run with its ``ε`` against the rtol 1e-12 reference."""
-        if self._records is None:
-            reference = self.reference()
-            self._records = [self.record(s, t, reference)
-                             for s in self.schemes for t in self.table_targets(s)]
-        return self._records
-
-    def set_records(self, records: list) -> None:
-        """Use table records read back from disk instead of recomputing them."""
-        self._records = list(records)
-
-    def plot_times(self) -> np.ndarray:
-        """Uniform times over ``[0, t_end]`` fine enough to draw the reference.
-
-        As many as the reference has IDA steps (which resolve its fastest
-        oscillation), between 2001 and 100001.
-        """
-        n = int(np.clip(self.reference().t.size, 2001, 100_001))
-        return np.linspace(0.0, self.t_end, n)
-
-    def reference_quantity(self, name: str):
-        """Plot times and the reference's quantity ``name`` (n, m) there."""
-        t = self.plot_times()
-        u, v = self.reference().at(t)
-        return t, self.model.quantities(t, u, v)[name]
-
 
 # -- figure makers --------------------------------------------------------------------------
 
@@ -356,7 +124,8 @@ def eps_figure(records, quantity: str, title: str, time_unit="s"):
     matplotlib.figure.Figure
     """
     fig, ax = _figure()
-    symbol, _ = _QUANTITY.get(quantity, (quantity, ""))
+    problem = EXPERIMENTS.get(records[0].problem) if records else None
+    symbol = (problem.quantity(quantity) if problem else Quantity(quantity, "", "")).symbol
     for scheme in SCHEME_ORDER:
         rows = [r for r in records if r.scheme == scheme
                 and math.isfinite(r.eps.get(quantity, math.nan)) and r.eps[quantity] > 0
@@ -418,7 +187,7 @@ def _body_path(ctx: ProblemRuns, runs, ix, iy, title):
         ax.plot(result.u[:, ix], result.u[:, iy], linestyle="none", marker=style["marker"],
                 markersize=3, markerfacecolor="none", color=style["color"],
                 label=run_label(scheme, target, result.stats.mean_step), zorder=2)
-    length = _unit(_LENGTH_UNIT.get(ctx.problem, ""))
+    length = _unit(ctx.experiment.length_unit)
     ax.set_xlabel("x" + length)
     ax.set_ylabel("y" + length)
     ax.set_title(title, fontsize=10)
@@ -474,7 +243,7 @@ def _configurations(ctx: ProblemRuns, runs, bodies, title, n_snapshots=11):
     else:
         fig, axes = plt.subplots(1, len(runs), figsize=(3.8 * len(runs), 5.0), squeeze=False)
         axes = axes[0]
-    length = _unit(_LENGTH_UNIT.get(ctx.problem, ""))
+    length = _unit(ctx.experiment.length_unit)
     names = ("x", "y")
     for ax, (scheme, target) in zip(axes, runs):
         result = ctx.run(scheme, target)
@@ -511,7 +280,7 @@ def _configurations(ctx: ProblemRuns, runs, bodies, title, n_snapshots=11):
 
 def _energy_increments(ctx: ProblemRuns, runs, title):
     fig, ax = _figure()
-    unit = _unit(_ENERGY_UNIT.get(ctx.problem, ""))
+    unit = _unit(ctx.experiment.energy_unit)
     for scheme, target in runs:
         result = ctx.run(scheme, target)
         style = _STYLE[scheme]
@@ -610,7 +379,7 @@ class FigureSpec:
 
 
 def _analogue(number: int) -> str:
-    return f"not in the paper; its analogue is paper Fig. {number} ({_FIGURE_SUBJECT[number]})"
+    return f"not in the paper; its analogue is paper Fig. {number} ({FIGURE_SUBJECTS[number]})"
 
 
 def _runs_text(runs) -> str:
@@ -619,17 +388,17 @@ def _runs_text(runs) -> str:
 
 def _eps_specs(ctx: ProblemRuns) -> list:
     specs = []
-    title_p = PROBLEM_TITLES.get(ctx.problem, ctx.problem)
-    names = list(EPS_FIGURE.get(ctx.problem, {}))
+    title_p = ctx.experiment.title
+    names = list(ctx.experiment.eps_figures)
     for name in ctx.model.quantities(np.zeros(1), ctx.model.initial_displacement[None],
                                      ctx.model.initial_velocity[None]):
         if name not in names:
             names.append(name)
     for name in names:
-        number = EPS_FIGURE.get(ctx.problem, {}).get(name, 9)
-        own = (ctx.problem, name) in _EPS_IN_PAPER
+        number = ctx.experiment.eps_figures.get(name, 9)
+        own = name in ctx.experiment.eps_in_paper
         paper = f"paper Fig. {number}" if own else _analogue(number)
-        words = _QUANTITY_WORDS.get(name, name)
+        words = ctx.experiment.quantity(name).words
         title = (f"{title_p}: error ε of the {words} against the mean step\n"
                  f"t = 0..{ctx.t_end:g} s ({'paper' if own else 'as paper'} Fig. {number})")
         caption = (f"{title_p}: error norm ε (Eq. 42) of the {words} against the mean step "
@@ -642,9 +411,9 @@ def _eps_specs(ctx: ProblemRuns) -> list:
 
 
 def _step_spec(ctx: ProblemRuns) -> FigureSpec:
-    number = _STEP_FIGURE.get(ctx.problem, 11)
-    own = ctx.problem in ("tetrahedra", "toss_rule")
-    title_p = PROBLEM_TITLES.get(ctx.problem, ctx.problem)
+    number = ctx.experiment.step_figure
+    own = ctx.experiment.step_in_paper
+    title_p = ctx.experiment.title
     title = (f"{title_p}: adaptive step size of HFDI for several targets "
              f"({'paper' if own else 'cf. paper'} Fig. {number})")
     return FigureSpec(f"{ctx.problem}_fig{number:02d}_step_size.png",
@@ -654,8 +423,8 @@ def _step_spec(ctx: ProblemRuns) -> FigureSpec:
 
 
 def _dumbbell_specs(ctx):
-    shown = SHOWN_RUNS["dumbbell"]["trajectory"]
-    energy = SHOWN_RUNS["dumbbell"]["energy"]
+    shown = ctx.experiment.shown_runs["trajectory"]
+    energy = ctx.experiment.shown_runs["energy"]
 
     def bodies(u):
         return np.asarray(u).reshape(-1, 2, 2)
@@ -695,7 +464,7 @@ def _dumbbell_specs(ctx):
 
 
 def _tetrahedra_specs(ctx):
-    shown = SHOWN_RUNS["tetrahedra"]["trajectory"]
+    shown = ctx.experiment.shown_runs["trajectory"]
 
     def f12(z):
         return np.linalg.norm(z[:, 0:3], axis=1)
@@ -717,9 +486,9 @@ def _tetrahedra_specs(ctx):
 
 
 def _articulated_specs(ctx):
-    config = SHOWN_RUNS["articulated"]["configuration"]
-    shown = SHOWN_RUNS["articulated"]["trajectory"]
-    energy = SHOWN_RUNS["articulated"]["energy"]
+    config = ctx.experiment.shown_runs["configuration"]
+    shown = ctx.experiment.shown_runs["trajectory"]
+    energy = ctx.experiment.shown_runs["energy"]
 
     def bodies(u):
         return np.asarray(u).reshape(-1, 3, 2)
@@ -754,7 +523,7 @@ def _articulated_specs(ctx):
 
 
 def _toss_rule_specs(ctx):
-    shown = SHOWN_RUNS["toss_rule"]["trajectory"]
+    shown = ctx.experiment.shown_runs["trajectory"]
     return [
         FigureSpec("toss_rule_fig23_alpha_t_mv.png", "paper Fig. 23",
                    "Toss rule: mean angular velocity α_t,mv against time; reference solid; "

@@ -75,6 +75,7 @@ import scipy.sparse.linalg as spla
 
 import hfdi
 from hfdi.dense import hermite_quintic
+from hfdi.linalg import normalise_matrix
 
 from .atomic import atomic_file
 
@@ -83,6 +84,7 @@ __all__ = [
     "IDAError",
     "NonFiniteResidualError",
     "ida_reference",
+    "ida_solve",
     "ida_dense_reference",
     "ida_march",
     "cached_reference",
@@ -140,28 +142,16 @@ class IDAError(RuntimeError):
             text += f" SUNDIALS: {self.sundials_message}"
         super().__init__(text)
 
+    def __reduce__(self):
+        # rebuilt from its own fields when it comes back from a worker process
+        return type(self), (self.status, self.message, self.sundials_message, self.t)
+
 
 class NonFiniteResidualError(FloatingPointError):
     """The model gave a non-finite force or load during the reference run."""
 
 
 # -- matrices of the model ----------------------------------------------------
-
-def _matrix(a, n, name):
-    """``a`` as a 1-D diagonal, a 2-D ndarray or CSR; ``None`` stays ``None``."""
-    if a is None:
-        return None
-    if sp.issparse(a):
-        if a.shape != (n, n):
-            raise ValueError(f"model {name} must have shape ({n}, {n}), got {a.shape}")
-        return sp.csr_matrix(a, dtype=float)
-    arr = np.asarray(a, dtype=float)
-    if arr.ndim == 1 and arr.shape == (n,):
-        return arr
-    if arr.shape != (n, n):
-        raise ValueError(f"model {name} must have shape ({n},) or ({n}, {n}), got {arr.shape}")
-    return arr
-
 
 def _times(a, x):
     if a is None:
@@ -239,10 +229,12 @@ class _FirstOrderForm:
         self.model = model
         self.n = n
         self.n_eq = 2 * n
-        self.M = _matrix(model.mass, n, "mass")
+        self.M = normalise_matrix(model.mass, n, "model mass")
         if self.M is None:
             raise ValueError("the model has no mass matrix")
-        self.C = _matrix(model.damping, n, "damping")
+        self.C = normalise_matrix(model.damping, n, "model damping")
+        #: ``on_residual(t)``, called before each residual evaluation (see :func:`ida_solve`)
+        self.on_residual = None
         self.dropped_entries = 0
         u0 = model.initial_displacement
         u0 = np.zeros(n) if u0 is None else np.asarray(u0, dtype=float)
@@ -364,6 +356,8 @@ class _FirstOrderForm:
 
     # IDA callbacks
     def residual(self, t, y, yp, res):
+        if self.on_residual is not None:
+            self.on_residual(t)
         model = self.model
         u = np.array(y[self.su])
         v = y[self.sv]
@@ -638,6 +632,57 @@ def _stats(sol, wall, form, steps):
             "jacobian": form.jacobian_kind,
             "lband": form.options.get("lband"), "uband": form.options.get("uband"),
             "status": int(sol.status), "dropped_jacobian_entries": form.dropped_entries}
+
+
+def ida_solve(model, t_end, *, rtol, atol=None, on_residual=None,
+              max_num_steps=10 ** 9, linsolver="auto") -> dict:
+    """One IDA run of ``model`` from its initial state over ``[0, t_end]``,
+    every internal step kept; a failure is reported, not raised.
+
+    The run of a work–precision comparison: the same first-order form,
+    iteration matrix and initial derivative as :func:`ida_reference`.
+
+    Parameters
+    ----------
+    model : hfdi.SecondOrderSystem
+    t_end : float
+    rtol : float
+    atol : array_like (2N,), optional
+        In ``(u, v)`` order; :func:`default_atol` by default.
+    on_residual : callable, optional
+        ``on_residual(t)`` before each residual evaluation: counts them, and
+        an exception it raises stops the run and reaches the caller (a work
+        budget).
+    max_num_steps : int
+    linsolver : str
+
+    Returns
+    -------
+    dict
+        ``t`` (n,) distinct times, ``u``, ``v`` (n, N), ``success``,
+        ``status`` (IDA's flag), ``message`` (with what SUNDIALS printed),
+        ``nfev``, ``njev``, ``linsolver`` and ``atol`` (2N,).
+    """
+    form = _FirstOrderForm(model, linsolver)
+    form.on_residual = on_residual
+    atol_uv = default_atol(model, rtol, t_end) if atol is None else \
+        np.asarray(atol, dtype=float)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        solver = _solver(form, rtol, atol_uv, max_num_steps)
+        _, _, y0, yp0 = form.initial_state(0.0)
+        # two times: scikit-sundae returns every internal step
+        sol = solver.solve(np.array([0.0, t_end]), y0, yp0)
+    t = np.asarray(sol.t, dtype=float)
+    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+    y = np.asarray(sol.y)[keep]
+    message = str(sol.message)
+    if printed.getvalue().strip():
+        message += " SUNDIALS: " + printed.getvalue().strip()
+    return {"t": t[keep], "u": y[:, form.su], "v": y[:, form.sv],
+            "success": bool(sol.success), "status": int(sol.status), "message": message,
+            "nfev": int(sol.nfev), "njev": int(sol.njev), "linsolver": form.linsolver,
+            "atol": atol_uv}
 
 
 def ida_reference(model, t_eval, *, rtol=1e-12, atol=None, t0=0.0,
@@ -965,8 +1010,8 @@ def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1
     """The IDA reference of a registered model, computed once and kept on disk.
 
     Without ``t_eval`` the reference is dense (:func:`ida_dense_reference`)
-    over ``[t0, t_end]``, ``t_end`` defaulting to the model's observation
-    time: one IDA run then serves the error norms of every analysis of the
+    over ``[t0, t_end]``, ``t_end`` defaulting to the benchmark's observation
+    time ``T_o`` (:mod:`validation.experiments`): one IDA run then serves the error norms of every analysis of the
     model over that interval (or a part of it) through :meth:`Reference.at`.
     With ``t_eval`` it holds IDA's output at exactly those times
     (:func:`ida_reference`).
@@ -1012,9 +1057,10 @@ def cached_reference(model_name, params=None, t_eval=None, *, t_end=None, rtol=1
         t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))
         t_end = float(t_eval[-1])
     elif t_end is None:
-        if model.observation_time is None:
-            raise ValueError(f"model {model_name!r} has no observation_time; give t_end")
-        t_end = float(model.observation_time)
+        from .experiments import EXPERIMENTS
+        if model_name not in EXPERIMENTS:
+            raise ValueError(f"model {model_name!r} is no benchmark of the paper; give t_end")
+        t_end = float(EXPERIMENTS[model_name].observation_time)
     else:
         t_end = float(t_end)
     key = _cache_key(model_name, params, model, t0, t_end, t_eval, float(rtol), atol, linsolver,

@@ -41,12 +41,12 @@ import numpy as np
 import hfdi
 
 from .errors import error_norms
-from .figures import (PROBLEM_TITLES, Progress, ProblemRuns, figure_specs, scheme_title,
-                      write_atomic, write_figures)
-from .paper import PAPER_TABLES
+from .atomic import write_atomic
+from .experiments import EXPERIMENTS, SCHEME_ORDER, experiment, names
+from .figures import figure_specs, write_figures
 from .reference import IDAError
+from .runs import Progress, ProblemRuns, RunRecord, scheme_title
 from .stability import DEFAULT_RATIOS, FIGURE_NAMES, format_stability_table, write_stability
-from .tables import SCHEME_ORDER, RunRecord
 
 __all__ = ["run_all", "reference_convergence", "build_report", "SettingsMismatch",
            "TIGHT_RTOL", "SETTINGS_FILE"]
@@ -56,7 +56,6 @@ DEFAULT_RTOL = 1e-12
 TIGHT_RTOL = 1e-13
 SETTINGS_FILE = "hfdi-validate-all.json"
 FIGURE_DIR = "figures"
-_TABLE_NUMBER = {"dumbbell": 2, "tetrahedra": 3, "articulated": 4, "toss_rule": 5}
 
 
 class SettingsMismatch(ValueError):
@@ -166,7 +165,7 @@ def _target_text(scheme, target):
 
 def _paper(problem, scheme, target):
     """The paper's row: a dict, ``None`` for "div", ``"n/a"`` when it has no such run."""
-    return PAPER_TABLES.get(problem, {}).get(scheme, {}).get(round(float(target), 3), "n/a")
+    return EXPERIMENTS[problem].paper.get(scheme, {}).get(round(float(target), 3), "n/a")
 
 
 def _table_markdown(problem, records) -> list:
@@ -320,24 +319,24 @@ def build_report(out, problems, settings, stability_rows, elapsed=None) -> str:
              "steps and Δt_mv need not match the paper's.", "",
              "## Contents", ""]
     for problem in problems:
-        lines.append(f"- [{PROBLEM_TITLES.get(problem, problem)}](#{problem.replace('_', '-')})")
+        lines.append(f"- [{experiment(problem).title}](#{problem.replace('_', '-')})")
     lines += ["- [Stability and accuracy of the schemes](#stability)",
               "- [Reference convergence](#reference-convergence)", ""]
 
     for problem in problems:
-        title = PROBLEM_TITLES.get(problem, problem)
+        title = experiment(problem).title
         records = [RunRecord(**d) for d in json.loads((out / f"{problem}_table.json").read_text())]
         ctx = ProblemRuns(problem, schemes=settings.get("schemes") or SCHEME_ORDER,
                           targets=settings.get("targets"), t_end=settings.get("t_end"),
                           long_t_end=settings.get("long_t_end"))
-        number = _TABLE_NUMBER.get(problem)
+        number = experiment(problem).table
         lines += [f'<a id="{problem.replace("_", "-")}"></a>', "",
                   f"## {title}" + (f" (paper Table {number})" if number else ""), "",
                   f"Table runs to t = {ctx.t_end:g} s (the paper's T_o = "
-                  f"{ctx.model.observation_time:g} s); JSON: "
+                  f"{ctx.experiment.observation_time:g} s); JSON: "
                   f"[{problem}_table.json]({problem}_table.json).", ""]
         lines += _table_markdown(problem, records)
-        if math.isclose(ctx.t_end, ctx.model.observation_time):
+        if math.isclose(ctx.t_end, ctx.experiment.observation_time):
             lines += [""] + _comparison_summary(problem, records) + [""]
         else:
             lines += ["", f"These runs end at t = {ctx.t_end:g} s, not at the paper's T_o: "
@@ -377,7 +376,7 @@ def build_report(out, problems, settings, stability_rows, elapsed=None) -> str:
               "largest change.", ""]
     for problem in problems:
         path = out / f"{problem}_reference_convergence.json"
-        lines += [f"### {PROBLEM_TITLES.get(problem, problem)}", ""]
+        lines += [f"### {experiment(problem).title}", ""]
         if path.exists():
             lines += _convergence_markdown(json.loads(path.read_text())) + [""]
         else:
@@ -504,13 +503,6 @@ def _all_task(kind, *args) -> dict:
             "files": files, "lines": lines.lines, "wrote": wrote, "rows": rows}
 
 
-#: Relative CPU times of the problems' tasks in a call of ``all`` (measured
-#: with warm references: 9.8, 6.7, 6.0, 4.5 s; the stability outputs 2 s, last):
-#: the parallel tasks are submitted longest first, so that two workers finish
-#: together. This affects when the tasks run, never what they compute.
-_TASK_COST = {"toss_rule": 1.6, "articulated": 1.1, "dumbbell": 1.0, "tetrahedra": 0.75}
-
-
 def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
             long_t_end=None, ratios=DEFAULT_RATIOS, force=False, progress=None,
             runner=None) -> Path:
@@ -521,9 +513,9 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
     out : str or Path
         Output directory (created).
     problems : sequence of str, optional
-        Default: every registered model.
+        Default: every benchmark of :mod:`validation.experiments`.
     schemes, targets, t_end, long_t_end
-        As :class:`validation.figures.ProblemRuns`.
+        As :class:`validation.runs.ProblemRuns`.
     ratios : sequence of float
         ``Δt/T`` of the stability table.
     force : bool
@@ -550,8 +542,7 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     # The paper's order (Tables 2-5), then any other registered model.
-    problems = list(problems or sorted(hfdi.models.available(),
-                                       key=lambda n: (_TABLE_NUMBER.get(n, 99), n)))
+    problems = list(problems or names())
     settings = {"schemes": list(schemes), "targets": None if targets is None else
                 [float(t) for t in targets], "t_end": t_end, "long_t_end": long_t_end,
                 "ratios": [float(r) for r in ratios]}
@@ -577,7 +568,8 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
     else:
         tasks = [("problem", p, list(schemes), targets, t_end, long_t_end, str(out),
                   _existing(out, p, skip))
-                 for p in sorted(problems, key=lambda p: -_TASK_COST.get(p, 0.5))]
+                 # longest first (Experiment.cost), so that the workers finish together
+                 for p in sorted(problems, key=lambda p: -experiment(p).cost)]
         tasks.append(("stability", ratios, str(out), _existing(out, None, skip)))
         progress.say(f"{len(problems)} problems and the stability outputs: "
                      f"{len(tasks)} tasks on {runner} (their lines come when each is done)")
@@ -592,7 +584,7 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
             if result["kind"] == "stability":
                 state["rows"] = result["rows"]
 
-        runner.map(_all_task, tasks, on_result=collect, ordered=False)
+        runner.map(_all_task, tasks, on_result=collect)
         wrote, rows = state["wrote"], state["rows"]
 
     report = out / "report.md"

@@ -12,8 +12,10 @@ import numpy as np
 
 from hfdi.spectral import spectral_properties
 
-from .figures import Progress, figure_png, plt, scheme_title, write_atomic
-from .tables import SCHEME_ORDER
+from .atomic import write_atomic
+from .experiments import SCHEME_COLOURS, SCHEME_ORDER
+from .figures import figure_png, plt
+from .runs import Progress, scheme_title
 
 __all__ = ["DEFAULT_RATIOS", "FIGURE_NAMES", "stability_rows", "format_stability_table",
            "spectral_radius_figure", "accuracy_figure", "write_stability"]
@@ -75,7 +77,8 @@ def format_stability_table(rows, markdown=False) -> str:
     return "\n".join("  ".join(f.format(c) for f, c in zip(fmt, cells)) for cells in [head, *body])
 
 
-_STYLE = {"newmark": ("tab:blue", "-"), "bathe": ("tab:orange", "--"), "hfdi": ("tab:green", "-.")}
+_STYLE = {scheme: (SCHEME_COLOURS[scheme], line)
+          for scheme, line in (("newmark", "-"), ("bathe", "--"), ("hfdi", "-."))}
 
 
 def spectral_radius_figure(schemes=SCHEME_ORDER):

@@ -134,12 +134,23 @@ class Articulated(SecondOrderSystem):
     """
 
     name = "articulated"
-    observation_time = 0.5
-    #: T_o of the paper's long energy run (Fig. 18).
-    long_observation_time = 3.0
-    paper_targets = {"newmark": (3.0, 3.5, 4.0, 4.5, 5.0),
-                     "bathe": (3.0, 3.5, 4.0, 4.5, 5.0),
-                     "hfdi": (3.0, 3.5, 4.0, 4.5, 5.0)}
+    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
+    #: ``stop_time`` is the end of its default experiment.
+    fmi_metadata = {
+        "dofs": [["m", "x of mass {k}"], ["m", "y of mass {k}"]],
+        "parameters": {
+            "k_e": ["N/m", "axial stiffness of the two links (Eq. 47)"],
+            "k_f": ["N.m/rad", "rotational stiffness of the hinge spring (Eq. 48)"],
+            "h": ["m", "rest length of each link"],
+            "load_amplitude": ["N", "peak of the hat-shaped y force on mass 1"],
+            "load_time": ["s", "time of the peak of the hat load (it ends at twice this)"],
+        },
+        "quantities": {
+            "u": ["m", "positions", None],
+            "delta_alpha": ["rad", "hinge angle alpha12 - alpha23", None],
+        },
+        "stop_time": 0.5,
+    }
     #: No exact load rate: HFDI uses the paper's difference quotient.
     load_rate = None
     damping = None

@@ -35,12 +35,21 @@ class Dumbbell(SecondOrderSystem):
     """
 
     name = "dumbbell"
-    observation_time = 2.0
-    paper_targets = {"newmark": (3.0, 3.5, 4.0, 4.5, 5.0),
-                     "bathe": (3.0, 3.5, 4.0, 4.5, 5.0),
-                     "hfdi": (3.0, 3.1, 3.2, 3.3, 3.5)}
-    #: T_o of the paper's long energy run (Fig. 7).
-    long_observation_time = 10.0
+    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
+    #: ``stop_time`` is the end of its default experiment.
+    fmi_metadata = {
+        "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"]],
+        "parameters": {
+            "A": ["J", "bond strength A of V(r) = A[(sigma/r)^5 - (sigma/r)^3] (paper Eq. 44)"],
+            "sigma": ["m", "length parameter sigma of the bond potential (rest length "
+                           "sigma*(5/3)^(1/2))"],
+        },
+        "quantities": {
+            "u": ["m", "positions", None],
+            "stretch": ["1", "relative bond stretch (r - r0)/r0", None],
+        },
+        "stop_time": 2.0,
+    }
 
     def __init__(self, A=1e6, sigma=math.sqrt(3.0 / 5.0), masses=(1.0, 1.0),
                  u0=(0.0, 0.0, 1.0, 0.0), v0=(0.0, 10.0, 0.0, 5.0)):

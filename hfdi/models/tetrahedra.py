@@ -39,6 +39,9 @@ PAIRS_I = (0, 0, 0, 1, 1, 2)
 PAIRS_J = (1, 2, 3, 2, 3, 3)
 
 
+#: The six particle pairs, in the order of the quantity ``f``.
+_FMI_PAIRS = ("12", "13", "14", "23", "24", "34")
+
 class Tetrahedra(SecondOrderSystem):
     """Four particles in space joined pairwise by Neo-Hooke springs (Eqs. 45–46).
 
@@ -82,10 +85,24 @@ class Tetrahedra(SecondOrderSystem):
     """
 
     name = "tetrahedra"
-    observation_time = 50.0
-    paper_targets = {"newmark": (3.0, 3.5, 4.0, 4.5),
-                     "bathe": (3.0, 3.5, 4.0, 4.5),
-                     "hfdi": (3.0, 3.5, 4.0, 4.5)}
+    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
+    #: ``stop_time`` is the end of its default experiment.
+    fmi_metadata = {
+        "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"],
+                 ["m", "z of particle {k}"]],
+        "parameters": {
+            "k_stiff": ["N/m", "stiffness k of the spring between particles 1 and 2 (Eq. 45)"],
+            "k_soft": ["N/m", "stiffness k of the five other springs (Eq. 45)"],
+            "load_amplitude": ["N", "peak of the hat-shaped x force on particle 1"],
+            "load_time": ["s", "time of the peak of the hat load (it ends at twice this)"],
+        },
+        "quantities": {
+            "u": ["m", "positions", None],
+            "f": ["N", "interaction forces f^ij of the six springs (Eq. 46)",
+                  [f"pair {p} {c}" for p in _FMI_PAIRS for c in "xyz"]],
+        },
+        "stop_time": 50.0,
+    }
     #: No exact load rate: HFDI uses the paper's difference quotient.
     load_rate = None
     damping = None

@@ -125,10 +125,34 @@ class TossRule(SecondOrderSystem):
     """
 
     name = "toss_rule"
-    observation_time = 0.1
-    paper_targets = {"newmark": (3.0, 3.5, 4.0, 4.5, 5.0),
-                     "bathe": (3.0, 3.5, 4.0, 4.5, 5.0),
-                     "hfdi": (3.0, 3.5, 4.0, 4.5, 5.0)}
+    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
+    #: ``stop_time`` is the end of its default experiment.
+    fmi_metadata = {
+        "dofs": [["m", "axial u of node {k0}"],
+                 ["m", "transverse v of node {k0}"],
+                 ["rad", "rotation alpha of node {k0}"]],
+        "parameters": {
+            "n_elements": ["1", "number of beam elements (fixes the number of DOFs)"],
+            "length": ["m", "length of the rule"],
+            "width": ["m", "width of the cross-section"],
+            "thickness": ["m", "thickness of the cross-section"],
+            "E": ["Pa", "Young's modulus"],
+            "nu": ["1", "Poisson's ratio"],
+            "shear_factor": ["1", "shear correction factor"],
+            "rho": ["kg/m3", "density"],
+            "force_amplitude": ["N", "peak of the +y hat force at the left end"],
+            "moment_amplitude": ["N.m", "peak of the hat moment at the left end"],
+            "load_time": ["s", "time of the peak of both hat loads"],
+        },
+        "quantities": {
+            "u": ["m", "nodal displacements and rotations", None],
+            "alpha_mv": ["rad", "mean of the elements' rotations alpha_o (Eq. 55)", None],
+            "m_c": ["N.m", "bending moment EJ chi at the centre (Eq. 55)", None],
+            "alpha_t_mv": ["rad/s", "mean rotation rate over the elements", None],
+            "N_c": ["N", "axial force EA epsilon at the centre", None],
+        },
+        "stop_time": 0.1,
+    }
     # The hat pulses have kinks, so an exact rate would not help HFDI more
     # than the paper's difference quotient does.
     load_rate = None

@@ -1,6 +1,6 @@
 """Cost of driving an FMU through fmpy against calling the library in-process.
 
-``python -m fmu bench [PROBLEM]``: the same run, with the same communication
+``python -m benchmarks cosim [PROBLEM]``: the same run, with the same communication
 points, once through :meth:`hfdi.Integrator.advance` in this process and once
 through the FMU's ``fmi2DoStep`` (fmpy's low-level ``FMU2Slave``), reading the
 state outputs after every communication step in both. Set-up (extraction,
@@ -15,8 +15,11 @@ import tempfile
 import time
 
 import hfdi
+from validation import options as opt
+from validation.atomic import write_atomic
+from validation.experiments import SCHEME_ORDER, experiment
 
-__all__ = ["benchmark"]
+__all__ = ["benchmark", "main"]
 
 
 def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal_per_step=10,
@@ -27,12 +30,11 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
     step of a pilot run. Returns a dict with both best times, their ratio
     (FMU over in-process), the communication step and the internal steps.
     """
-    from .build import build
-    from .master import Unit
+    from fmu.build import build
+    from fmu.master import Unit
 
     model = hfdi.models.get(problem)
-    t_end = float(getattr(model, "long_observation_time", None) or model.observation_time
-                  if t_end is None else t_end)
+    t_end = float(experiment(problem).long_time if t_end is None else t_end)
     pilot = hfdi.Integrator(model, scheme, target_iterations=target_iterations)
     pilot.advance(t_end)
     comm = internal_per_step * t_end / pilot.statistics.steps
@@ -82,17 +84,27 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
             "repeats": repeats}
 
 
-def main(problem="dumbbell", scheme="hfdi", repeats=5, json_path=None) -> int:
-    result = benchmark(problem, scheme, repeats=repeats)
-    print(f"{problem}, {scheme}: {result['communication_steps']} communication steps of "
-          f"{result['communication_step']:.4g} s, "
+def main(argv=None) -> int:
+    """``python -m benchmarks cosim [PROBLEM] [--scheme S] [--repeats N] [--json FILE]``."""
+    parser = opt.Parser(prog="python -m benchmarks cosim",
+                        description="Time the FMU through fmpy against in-process advance, "
+                                    "communication step ≈ 10 internal steps.")
+    parser.add_argument("problem", nargs="?", default="dumbbell",
+                        type=lambda text: opt.problems(text)[0])
+    parser.add_argument("--scheme", choices=SCHEME_ORDER, default="hfdi")
+    parser.add_argument("--repeats", type=opt.positive_integer, default=5)
+    parser.add_argument("--json", metavar="FILE", type=opt.output_file)
+    args = parser.parse_args(argv)
+    result = benchmark(args.problem, args.scheme, repeats=args.repeats)
+    repeats = args.repeats
+    print(f"{args.problem}, {args.scheme}: {result['communication_steps']} communication "
+          f"steps of {result['communication_step']:.4g} s, "
           f"{result['internal_per_communication_step']:.1f} internal steps each "
           f"(in-process {result['internal_steps_in_process']}, "
           f"FMU {result['internal_steps_fmu']})")
     print(f"  in-process advance  {result['in_process_s']:.4f} s (best of {repeats})")
     print(f"  FMU through fmpy    {result['fmu_s']:.4f} s (best of {repeats})")
     print(f"  ratio FMU / in-process = {result['ratio']:.3f}")
-    if json_path:
-        with open(json_path, "w") as fh:
-            json.dump(result, fh, indent=1)
+    if args.json:
+        write_atomic(args.json, json.dumps(result, indent=1))
     return 0

@@ -1,4 +1,4 @@
-"""Work–precision of our schemes against IDA and scipy's Radau and BDF (``hfdi-validate bench``).
+"""Work–precision of our schemes against IDA and scipy's Radau and BDF (``python -m benchmarks precision``).
 
 For each problem, every method integrates the model from its initial state to
 ``t_end`` (default ``T_o``), one run after another in one process, the
@@ -69,7 +69,7 @@ against measured wall, and beside it HFDI's front interpolated at IDA's ε.
 """
 from __future__ import annotations
 
-import contextlib
+import argparse
 import io
 import json
 import math
@@ -85,15 +85,19 @@ import scipy.sparse as sp
 
 import hfdi
 
-from .atomic import write_atomic
-from .errors import error_norm
-from .reference import (_FirstOrderForm, _matrix, _solver, cached_reference, default_atol)
+from hfdi.linalg import normalise_matrix
+from validation import options as opt
+from validation.atomic import write_atomic
+from validation.errors import error_norm
+from validation.experiments import ENERGY_LIMIT, SCHEME_COLOURS, SCHEME_ORDER, experiment, names
+from validation.reference import cached_reference, default_atol, ida_solve
+from validation.runs import integrate
 
 __all__ = ["bench_problem", "bench_task", "pareto_front", "interpolate_wall", "speedups",
            "goal", "format_problem", "plot_problem", "machine_info", "add_bench_parser",
            "run_bench_command", "SCHEMES", "COMPETITORS", "DEFAULT_TARGETS", "DEFAULT_RTOLS"]
 
-SCHEMES = ("newmark", "bathe", "hfdi")
+SCHEMES = SCHEME_ORDER
 #: Our schemes under error control (``hfdi.integrate(..., rtol=...)``), one run per rtol.
 ERROR_CONTROLLED = tuple(f"{s}-rtol" for s in SCHEMES)
 OURS = SCHEMES + ERROR_CONTROLLED
@@ -134,7 +138,6 @@ REPEAT_BELOW = 1.0
 GOAL_RTOL = 1e-6
 GOAL_FACTOR = 10.0
 #: The energy guard of the paper's tables (``validation.tables.ENERGY_LIMIT``).
-ENERGY_LIMIT = 0.5
 
 ATOL_RULE = ("validation.reference.default_atol(model, rtol, t_end): atol_u,i = rtol * "
              "max(|u0_i|, u_scale), atol_v,i = rtol * max(|v0_i|, V), "
@@ -149,11 +152,10 @@ class _Budget(Exception):
 
 def _run_ours(model, scheme, t_end, target=None, rtol=None):
     # error control with the competitors' absolute tolerances, (u, v) alike
-    mode = dict(target_iterations=target) if rtol is None else \
-        dict(rtol=rtol, atol=default_atol(model, rtol, t_end))
+    atol = None if rtol is None else default_atol(model, rtol, t_end)
     cpu = time.process_time()
     start = time.perf_counter()
-    result = hfdi.integrate(model, scheme, t_end, energy_limit=ENERGY_LIMIT, **mode)
+    result = integrate(model, scheme, t_end, target, rtol, atol)
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu
     st = result.stats
@@ -169,48 +171,33 @@ def _run_ours(model, scheme, t_end, target=None, rtol=None):
 
 
 def _run_ida(model, t_end, rtol, max_nfev):
-    form = _FirstOrderForm(model)
-    atol = default_atol(model, rtol, t_end)
     count = [0]
-    residual = form.residual
 
-    def counted(t, y, yp, res):
+    def budget(t):
         # the budget stops a run that would take minutes; IDA passes the
         # exception through
         count[0] += 1
         if count[0] > max_nfev:
             raise _Budget(f"stopped at t = {t:.6g} after {max_nfev} residual evaluations "
                           f"(work budget)")
-        residual(t, y, yp, res)
 
-    form.residual = counted                      # _solver binds form.residual
-    printed = io.StringIO()
     cpu = time.process_time()
     start = time.perf_counter()
     try:
-        with contextlib.redirect_stdout(printed):
-            solver = _solver(form, rtol, atol, 10 ** 9)
-            _, _, y0, yp0 = form.initial_state(0.0)
-            # two times: scikit-sundae returns every internal step
-            sol = solver.solve(np.array([0.0, t_end]), y0, yp0)
+        sol = ida_solve(model, t_end, rtol=rtol, on_residual=budget)
     except _Budget as exc:
         return _failed(time.perf_counter() - start, time.process_time() - cpu, "BUDGET",
                        str(exc), count[0])
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu
-    t = np.asarray(sol.t, dtype=float)
-    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
-    success = bool(sol.success) and t.size >= 2 and t[-1] == t_end
-    message = str(sol.message)
-    if printed.getvalue().strip():
-        message += " SUNDIALS: " + printed.getvalue().strip()
+    t = sol["t"]
+    success = sol["success"] and t.size >= 2 and t[-1] == t_end
     return {
-        "wall": wall, "cpu": cpu, "t": t[keep], "u": np.asarray(sol.y)[keep][:, form.su],
-        "v": np.asarray(sol.y)[keep][:, form.sv],
-        "success": success, "status": "SUCCESS" if success else f"IDA_{int(sol.status)}",
-        "message": message, "steps": int(max(np.count_nonzero(keep) - 1, 0)),
-        "nfev": int(sol.nfev), "njev": int(sol.njev), "linsolver": form.linsolver,
-        "atol": atol.tolist(),
+        "wall": wall, "cpu": cpu, "t": t, "u": sol["u"], "v": sol["v"],
+        "success": success, "status": "SUCCESS" if success else f"IDA_{sol['status']}",
+        "message": sol["message"], "steps": int(max(t.size - 1, 0)),
+        "nfev": sol["nfev"], "njev": sol["njev"], "linsolver": sol["linsolver"],
+        "atol": sol["atol"].tolist(),
     }
 
 
@@ -225,8 +212,8 @@ class _ExplicitForm:
     def __init__(self, model):
         n = int(model.n_dof)
         self.model, self.n = model, n
-        M = _matrix(model.mass, n, "mass")
-        C = _matrix(model.damping, n, "damping")
+        M = normalise_matrix(model.mass, n, "model mass")
+        C = normalise_matrix(model.damping, n, "model damping")
         if isinstance(M, np.ndarray) and M.ndim == 1:
             minv = 1.0 / M
             self._minv = lambda x: minv * x if x.ndim == 1 else \
@@ -452,7 +439,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     started = time.perf_counter()
     load_start = load_average()
     model = hfdi.models.get(problem)
-    t_end = float(model.observation_time if t_end is None else t_end)
+    t_end = float(experiment(problem).observation_time if t_end is None else t_end)
     if isinstance(targets, dict):
         per_scheme = {s: tuple(targets.get(s) or DEFAULT_TARGETS[s]) for s in schemes}
     else:
@@ -507,7 +494,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
         "problem": problem,
         "n_dof": int(model.n_dof),
         "t_end": t_end,
-        "observation_time": float(model.observation_time),
+        "observation_time": float(experiment(problem).observation_time),
         "settings": {
             "schemes": list(schemes), "targets": {s: list(ts) for s, ts in per_scheme.items()},
             "ours_rtols": list(ours_rtols), "competitors": list(competitors), "rtols": list(rtols), "repeats": int(repeats),
@@ -876,11 +863,13 @@ def format_problem(result) -> str:
     return "\n".join(lines)
 
 
-_STYLE = {"newmark": ("tab:blue", "o", "-"), "bathe": ("tab:green", "s", "-"),
-          "hfdi": ("tab:red", "D", "-"), "ida": ("black", "^", "--"),
-          "radau": ("tab:purple", "v", "--"), "bdf": ("tab:orange", "P", "--"),
-          "newmark-rtol": ("tab:blue", "o", ":"), "bathe-rtol": ("tab:green", "s", ":"),
-          "hfdi-rtol": ("tab:red", "D", ":")}
+#: Colour, marker and line of each method: our schemes in the colours of every
+#: figure (:data:`validation.experiments.SCHEME_COLOURS`), dotted when error-controlled.
+_MARKERS = {"newmark": "o", "bathe": "s", "hfdi": "D"}
+_STYLE = {**{s: (SCHEME_COLOURS[s], _MARKERS[s], "-") for s in SCHEMES},
+          **{f"{s}-rtol": (SCHEME_COLOURS[s], _MARKERS[s], ":") for s in SCHEMES},
+          "ida": ("black", "^", "--"), "radau": ("tab:purple", "v", "--"),
+          "bdf": ("tab:brown", "P", "--")}
 
 
 def plot_problem(result, path) -> Path:
@@ -945,9 +934,9 @@ def write_outputs(results, out) -> dict:
         written[f"{name}.png"] = plot_problem(res, out / f"bench_{name}.png")
         tables.append(format_problem(res))
     text = ["# Work–precision: our schemes against IDA, Radau and BDF", "",
-            "Made by `hfdi-validate bench`. ε_u is the paper's error norm (Eq. 42) against a "
+            "Made by `python -m benchmarks precision`. ε_u is the paper's error norm (Eq. 42) against a "
             "dense IDA reference at each run's own step times; wall times are measured in one "
-            "process per problem, one run after another (see `validation/bench.py`).", ""]
+            "process per problem, one run after another (see `benchmarks/precision.py`).", ""]
     for table in tables:
         text += ["```", table, "```", ""]
     written["bench.md"] = write_atomic(out / "bench.md", "\n".join(text))
@@ -957,7 +946,6 @@ def write_outputs(results, out) -> dict:
 # -- command line -----------------------------------------------------------------------
 
 def _rtols(text):
-    import argparse
     try:
         values = [float(s) for s in text.split(",") if s.strip()]
     except ValueError:
@@ -968,43 +956,32 @@ def _rtols(text):
 
 
 def _ours_rtols(text):
-    import argparse
-    if text.strip().lower() == "none":
-        return []
-    values = _rtols(text)
-    low, high = hfdi.controller.RTOL_RANGE
-    if any(not (low <= v < high) for v in values):
-        raise argparse.ArgumentTypeError(f"--rtol values must be in [{low:g}, {high:g}), "
-                                         f"got {text!r}")
-    return values
+    return [] if text.strip().lower() == "none" else opt.rtols(text)
 
 
 def _competitors(text):
-    import argparse
     if text.strip().lower() == "none":
         return []
-    names = [s.strip().lower() for s in text.split(",") if s.strip()]
-    bad = [s for s in names if s not in COMPETITORS]
-    if bad or not names:
+    items = [s.strip().lower() for s in text.split(",") if s.strip()]
+    bad = [s for s in items if s not in COMPETITORS]
+    if bad or not items:
         raise argparse.ArgumentTypeError(
             f"unknown competitor(s) {', '.join(bad) or repr(text)}; choose from "
             f"{', '.join(COMPETITORS)} (or none)")
-    return list(dict.fromkeys(names))
+    return list(dict.fromkeys(items))
 
 
-def add_bench_parser(sub) -> None:
-    """Register ``bench`` on the sub-parsers of ``hfdi-validate``."""
-    from . import cli
-    from .parallel import add_options, positive_integer
-    bench = sub.add_parser("bench", help="work–precision (ε_u against wall time) of our "
-                                         "schemes, IDA, Radau and BDF, per problem")
-    bench.add_argument("--problems", type=cli._problems, default=None,
+def add_parser(sub) -> None:
+    """Register ``precision`` on the sub-parsers of ``python -m benchmarks``."""
+    bench = sub.add_parser("precision", help="work–precision (ε_u against wall time) of our "
+                                             "schemes, IDA, Radau and BDF, per problem")
+    bench.add_argument("--problems", type=opt.problems, default=None,
                        help="comma-separated problems (default: all four)")
     bench.add_argument("--out", default="out/bench", metavar="DIR",
                        help="output directory (default out/bench)")
-    bench.add_argument("--schemes", type=cli._schemes, default=list(SCHEMES),
+    bench.add_argument("--schemes", type=opt.schemes, default=list(SCHEMES),
                        help="our schemes (default: all three)")
-    bench.add_argument("--targets", type=cli._targets, default=None,
+    bench.add_argument("--targets", type=opt.targets, default=None,
                        help="target iteration counts for every scheme (per sub-step for "
                             "Bathe; default 1.5,2,2.5,3,3.5,4,5)")
     bench.add_argument("--competitors", type=_competitors, default=list(COMPETITORS),
@@ -1015,38 +992,36 @@ def add_bench_parser(sub) -> None:
                        default=list(DEFAULT_OURS_RTOLS),
                        help="relative tolerances of our schemes' error-controlled runs "
                             "(default 1e-3,...,1e-9; none for none)")
-    bench.add_argument("--t-end", type=cli._positive, default=None,
+    bench.add_argument("--t-end", type=opt.positive, default=None,
                        help="end time of the runs and of the reference (default: T_o)")
-    bench.add_argument("--repeats", type=positive_integer, default=REPEATS,
+    bench.add_argument("--repeats", type=opt.positive_integer, default=REPEATS,
                        help=f"runs under {REPEAT_BELOW:g} s are made this many times, the "
                             f"shortest kept (default {REPEATS})")
-    bench.add_argument("--max-nfev", type=positive_integer, default=MAX_NFEV,
+    bench.add_argument("--max-nfev", type=opt.positive_integer, default=MAX_NFEV,
                        help=f"work budget of a competitor run, in evaluations (default "
                             f"{MAX_NFEV}); tighter rtols are skipped after a run above "
                             f"half of it")
-    add_options(bench)
+    opt.add_parallel_options(bench)
 
 
-def run_bench_command(args) -> int:
-    """``hfdi-validate bench``: run, print the tables, write the outputs."""
-    from . import cli
-    from .parallel import runner_from_args
-    problems = args.problems or hfdi.models.available()
-    cli._check_runs(problems, args.schemes, args.targets, args.t_end)
-    out = cli._out_dir(args.out)
+def run_command(args) -> int:
+    """``python -m benchmarks precision``: run, print the tables, write the outputs."""
+    problems = args.problems or names()
+    opt.check_runs(problems, args.schemes, args.targets, args.t_end)
+    out = opt.out_dir(args.out)
     options = {"schemes": list(args.schemes), "targets": args.targets,
                "rtols": list(args.rtols), "ours_rtols": list(args.ours_rtols),
                "competitors": list(args.competitors),
                "t_end": args.t_end, "repeats": args.repeats, "max_nfev": args.max_nfev,
                "skip_nfev": max(1, args.max_nfev // 2)}
     started = time.perf_counter()
-    results = runner_from_args(args).map(bench_task, [(p, options) for p in problems])
+    results = opt.runner_from_args(args).map(bench_task, [(p, options) for p in problems])
     written = write_outputs(results, out)
     for res in results:
         print(format_problem(res))
         print()
-    print(f"bench of {len(results)} problem(s) took {time.perf_counter() - started:.0f} s; "
-          f"outputs in {out}")
+    print(f"work–precision of {len(results)} problem(s) took "
+          f"{time.perf_counter() - started:.0f} s; outputs in {out}")
     for path in written.values():
         print(path)
     return 0

@@ -1,6 +1,6 @@
 """Cost per Newton iteration and where it goes: model, linear algebra, driver.
 
-``python -m validation.profile [--problems a,b] [--schemes ...] [--target 3]
+``python -m benchmarks profile [--problems a,b] [--schemes ...] [--target 3]
 [--json FILE]`` integrates each problem to its ``T_o`` and prints, per
 scheme, the wall time per Newton iteration (best of ``--repeats`` plain runs)
 and the fractions of one run under ``cProfile`` spent in
@@ -22,7 +22,6 @@ the per-iteration time is taken from the plain runs.
 """
 from __future__ import annotations
 
-import argparse
 import cProfile
 import inspect
 import json
@@ -33,10 +32,12 @@ import time
 from pathlib import Path
 
 import hfdi
+from validation import options as opt
+from validation.experiments import SCHEME_ORDER, experiment, names
+from validation.runs import integrate
 
 __all__ = ["profile_run", "main"]
 
-SCHEMES = ("newmark", "bathe", "hfdi")
 _HFDI = Path(hfdi.__file__).resolve().parent
 _LINALG_METHODS = {"solve", "band", "solve_band"}
 
@@ -88,10 +89,10 @@ def profile_run(problem: str, scheme: str, target: float = 3.0, repeats: int = 5
         and ``fractions`` (``model``, ``linear_algebra``, ``driver``; they sum to 1).
     """
     def run():
-        model = hfdi.models.get(problem)
-        end = model.observation_time if t_end is None else t_end
+        model = experiment(problem).model()
+        end = experiment(problem).observation_time if t_end is None else t_end
         start = time.perf_counter()
-        result = hfdi.integrate(model, scheme, end, target_iterations=target)
+        result = integrate(model, scheme, end, target)
         return model, result, time.perf_counter() - start
 
     best = math.inf
@@ -117,34 +118,22 @@ def profile_run(problem: str, scheme: str, target: float = 3.0, repeats: int = 5
             "status": result.status.name, "fractions": fractions}
 
 
-def _list(text, allowed, what):
-    names = [s.strip() for s in text.split(",") if s.strip()]
-    bad = [s for s in names if s not in allowed]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(f"unknown {what} {', '.join(bad) or repr(text)}; "
-                                         f"choose from {', '.join(allowed)}")
-    return names
-
-
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m validation.profile",
-                                     description="Cost per Newton iteration and its split.")
-    parser.add_argument("--problems", default=None,
-                        type=lambda s: _list(s, hfdi.models.available(), "problem(s)"))
-    parser.add_argument("--schemes", default=list(SCHEMES),
-                        type=lambda s: _list(s, SCHEMES, "scheme(s)"))
-    parser.add_argument("--target", type=float, default=3.0, help="N̄ (default 3)")
-    parser.add_argument("--repeats", type=int, default=5, help="plain runs, best kept (5)")
-    parser.add_argument("--t-end", type=float, default=None, help="default: T_o")
-    parser.add_argument("--json", default=None, metavar="FILE")
+    parser = opt.Parser(prog="python -m benchmarks profile",
+                        description="Cost per Newton iteration and its split.")
+    parser.add_argument("--problems", default=None, type=opt.problems)
+    parser.add_argument("--schemes", default=list(SCHEME_ORDER), type=opt.schemes)
+    parser.add_argument("--target", type=lambda s: opt.targets(s)[0], default=3.0,
+                        help="N̄ (default 3)")
+    parser.add_argument("--repeats", type=opt.positive_integer, default=5,
+                        help="plain runs, best kept (5)")
+    parser.add_argument("--t-end", type=opt.positive, default=None, help="default: T_o")
+    parser.add_argument("--json", default=None, metavar="FILE", type=opt.output_file)
     args = parser.parse_args(argv)
-    if not (1.0 <= args.target <= 100.0) or args.repeats < 1:
-        parser.exit(2, "python -m validation.profile: error: --target must be in [1, 100] "
-                       "and --repeats >= 1\n")
     rows = []
     print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'ms':>8s} "
           f"{'ms/it':>7s}  model  linalg  driver")
-    for problem in args.problems or hfdi.models.available():
+    for problem in args.problems or names():
         for scheme in args.schemes:
             row = profile_run(problem, scheme, args.target, args.repeats, args.t_end)
             rows.append(row)

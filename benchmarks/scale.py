@@ -16,7 +16,7 @@ should cost ``O(N_el)``. This module measures it:
   ``T_o = 0.1`` at 6000 elements with the schemes and with IDA (band solver)
   on the same model, and compares them.
 
-``python -m validation.scale --out DIR`` does all of it (see :func:`main`).
+``python -m benchmarks scale --out DIR`` does all of it (see :func:`main`).
 
 Measurement conventions
 -----------------------
@@ -45,6 +45,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from validation.errors import relative_error
+from validation.experiments import experiment
+from validation.options import Parser
 
 __all__ = ["DEFAULT_SIZES", "ASYMPTOTIC_MIN", "measure_size", "fit_exponent", "run_scale",
            "full_run_comparison", "machine_info", "plot_scale", "main"]
@@ -90,8 +94,8 @@ def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5):
     model = hfdi.models.toss_rule(int(n_elements))
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
-    integrator = hfdi.Integrator(model, scheme, target_iterations=float(target),
-                                 t_bound=model.observation_time)
+    t_o = experiment("toss_rule").observation_time
+    integrator = hfdi.Integrator(model, scheme, target_iterations=float(target), t_bound=t_o)
     setup = time.perf_counter() - t0
     st = integrator.statistics
     t0 = time.perf_counter()
@@ -103,7 +107,7 @@ def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5):
     c0 = time.process_time()
     t0 = time.perf_counter()
     taken = 0
-    while ok and taken < steps and integrator.t < model.observation_time:
+    while ok and taken < steps and integrator.t < t_o:
         ok = integrator.step()
         taken += 1
     wall = time.perf_counter() - t0
@@ -138,7 +142,8 @@ def _child_env(threads):
             env.pop(var, None)
         else:
             env[var] = str(int(threads))
-    # the measuring process imports this package from the same tree as the caller
+    # the measuring process imports benchmarks (not installed) and this
+    # package from the same tree as the caller
     root = str(Path(__file__).resolve().parent.parent)
     env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
@@ -182,7 +187,7 @@ def measure_size(n_elements, scheme="hfdi", target=3.0, steps=5, threads=1, time
     n_elements = int(n_elements)
     if n_elements < 1 or int(steps) < 1:
         raise ValueError(f"n_elements and steps must be >= 1, got {n_elements} and {steps}")
-    code = ("import json, sys; from validation.scale import _measure_here; "
+    code = ("import json, sys; from benchmarks.scale import _measure_here; "
             "print(json.dumps(_measure_here(*json.loads(sys.argv[1]))))")
     args = json.dumps([n_elements, str(scheme), float(target), int(steps)])
     try:
@@ -236,10 +241,10 @@ def fit_exponent(n, y):
 
 
 def machine_info(threads=1):
-    """:func:`validation.bench.machine_info` (platform, CPU, cores, versions,
+    """:func:`benchmarks.precision.machine_info` (platform, CPU, cores, versions,
     thread variables), with the memory, the BLAS threads of the measurement
     and the load average at its start."""
-    from .bench import load_average, machine_info as common
+    from .precision import load_average, machine_info as common
     info = common()
     try:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
@@ -382,7 +387,8 @@ def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, thre
 # -- the full run at 6000 elements -----------------------------------------------
 
 class _Error:
-    """Accumulates the trapezoidal integrals of Eq. 42 for ``u`` over one run's times."""
+    """Collects ``|u − u*|²`` and ``|u*|²`` of Eq. 42 at one run's times as IDA
+    marches past them (the reference is never held whole)."""
 
     def __init__(self, t, u):
         self.t = np.asarray(t, dtype=float)
@@ -403,9 +409,7 @@ class _Error:
         if n < 2:
             return math.nan, None
         t = self.t[:n]
-        num = 0.5 * np.sum(np.diff(t) * (self.err[1:n] + self.err[:n - 1]))
-        den = 0.5 * np.sum(np.diff(t) * (self.ref[1:n] + self.ref[:n - 1]))
-        return (math.sqrt(num / den) if den > 0 else math.nan), float(t[-1])
+        return relative_error(t, self.err[:n], self.ref[:n]), float(t[-1])
 
 
 def _scheme_run(model, scheme, target, keep, t_end):
@@ -485,11 +489,11 @@ def full_run_comparison(n_elements=6000, schemes=("hfdi", "newmark", "bathe"), t
         ``wall_ratio`` (scheme / IDA), ``eps_u`` and settings.
     """
     import hfdi
-    from .reference import ida_march
+    from validation.reference import ida_march
 
     say = progress or (lambda text: None)
     model = hfdi.models.toss_rule(int(n_elements))
-    t_end = float(model.observation_time if t_end is None else t_end)
+    t_end = float(experiment("toss_rule").observation_time if t_end is None else t_end)
     rtols = sorted((float(r) for r in rtols), reverse=True)
     eps = eps and bool(rtols)           # no IDA run, nothing to measure against
     runs, ends, kept, ida, ida_ends = [], {}, {}, [], {}
@@ -683,13 +687,8 @@ def _floats(text):
     return values
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
-
-
 def build_parser():
-    p = _Parser(prog="python -m validation.scale",
+    p = Parser(prog="python -m benchmarks scale",
                 description="Toss rule: time per Newton iteration and peak memory against "
                             "the number of elements, and a full run against IDA.")
     p.add_argument("--out", required=True, help="output directory (scale.json, scale.png, "
@@ -762,10 +761,10 @@ def main(argv=None):
         if args.json:
             _write_json(Path(args.json).expanduser(), everything)
     except (OSError, ValueError, ScaleError) as exc:
-        print(f"validation.scale: error: {exc}", file=sys.stderr)
+        print(f"benchmarks scale: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("validation.scale: interrupted", file=sys.stderr)
+        print("benchmarks scale: interrupted", file=sys.stderr)
         return 130
     return 0
 

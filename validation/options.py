@@ -1,0 +1,223 @@
+"""The command-line argument types and checks of ``hfdi-validate`` and ``benchmarks``.
+
+Each type raises ``argparse.ArgumentTypeError`` with a message naming the
+allowed values, which :class:`Parser` prints in one line (exit status 2);
+the checks made after parsing raise :class:`UsageError`, reported the same way.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+import hfdi
+
+from .experiments import SCHEME_ORDER, experiment, names
+
+__all__ = ["Parser", "UsageError", "schemes", "targets", "rtols", "positive", "ratios",
+           "problems", "positive_integer", "numbers", "output_file", "out_dir",
+           "check_problem", "check_runs", "add_parallel_options", "runner_from_args",
+           "LONGEST_RUN"]
+
+
+class UsageError(Exception):
+    """Settings refused after parsing; the command line prints it in one line (exit 2)."""
+
+
+class Parser(argparse.ArgumentParser):
+    """Reports bad arguments in one line (no usage block), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
+
+
+def numbers(text, what, low=-float("inf"), high=float("inf"), high_open=False) -> list:
+    """Comma-separated numbers in ``[low, high]`` (``[low, high)`` with ``high_open``)."""
+    try:
+        values = [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what} must be numbers, got {text!r}") from None
+    inside = (lambda v: low <= v < high) if high_open else (lambda v: low <= v <= high)
+    if not values or not all(inside(v) for v in values):
+        raise argparse.ArgumentTypeError(
+            f"{what} must be numbers in [{low:g}, {high:g}{')' if high_open else ']'}, "
+            f"got {text!r}")
+    return values
+
+
+def schemes(text) -> list:
+    """Scheme names of :data:`hfdi.SCHEMES`, comma-separated."""
+    items = [s.strip().lower() for s in text.split(",") if s.strip()]
+    bad = [s for s in items if s not in SCHEME_ORDER]
+    if bad or not items:
+        raise argparse.ArgumentTypeError(
+            f"unknown scheme(s) {', '.join(bad) or text!r}; choose from {', '.join(SCHEME_ORDER)}")
+    return items
+
+
+def targets(text) -> list:
+    """Target iteration counts in :data:`hfdi.controller.TARGET_ITERATIONS_RANGE`.
+
+    The corrector of a step may take ``2 N̄`` corrections and the first step
+    is bracketed with up to 40 trials, so the cost grows with ``N̄``; the
+    paper's targets are 3 to 5.
+    """
+    return numbers(text, "targets", *hfdi.controller.TARGET_ITERATIONS_RANGE)
+
+
+def rtols(text) -> list:
+    """Relative tolerances in :data:`hfdi.controller.RTOL_RANGE`, loosest first."""
+    values = numbers(text, "rtol", *hfdi.controller.RTOL_RANGE, high_open=True)
+    return sorted(set(values), reverse=True)
+
+
+def positive(text) -> float:
+    """A positive finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
+    return value
+
+
+def ratios(text) -> list:
+    """Positive finite ratios Δt/T, comma-separated."""
+    try:
+        values = [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"ratios must be numbers, got {text!r}") from None
+    if not values or any(not (0 < v < float("inf")) for v in values):
+        raise argparse.ArgumentTypeError(f"ratios Δt/T must be positive finite numbers, "
+                                         f"got {text!r}")
+    return values
+
+
+def problems(text) -> list:
+    """Benchmarks of :mod:`validation.experiments`, comma-separated."""
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    bad = [s for s in items if s not in names()]
+    if bad or not items:
+        raise argparse.ArgumentTypeError(
+            f"unknown problem(s) {', '.join(map(repr, bad)) or repr(text)}; "
+            f"available: {', '.join(names())}")
+    return list(dict.fromkeys(items))
+
+
+def positive_integer(text) -> int:
+    """An integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+def output_file(text) -> str:
+    """A file the command will write at the end: checked now, not after the runs."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must be a file name, got ''")
+    path = Path(text).expanduser()
+    parent = path.parent
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a directory")
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{str(parent)!r} " + ("is not a directory"
+                                         if parent.exists() else "does not exist"))
+    try:
+        # a file made and removed: os.access says yes to root, and to read-only mounts
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not writable") from None
+    if path.exists() and not os.access(path, os.W_OK):
+        raise argparse.ArgumentTypeError(f"{text!r} is not writable")
+    return str(path)
+
+
+def out_dir(text) -> Path:
+    """The ``--out`` directory, created; :class:`UsageError` when it cannot be."""
+    if not text.strip():
+        # Path("") is the current directory: an empty --out (an unset shell
+        # variable) would scatter the outputs there.
+        raise UsageError("--out must name a directory, got ''")
+    path = Path(text).expanduser()
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"--out {text!r} exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create --out {text!r}: {exc.strerror or exc}") from None
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError:
+        raise UsageError(f"--out {text!r} is not writable") from None
+    return path
+
+
+def check_problem(name) -> None:
+    """:class:`UsageError` unless ``name`` is a benchmark."""
+    if name not in names():
+        raise UsageError(f"unknown problem {name!r}; available: {', '.join(names())}")
+
+
+#: The longest --t-end accepted, in multiples of a benchmark's longest observation time.
+LONGEST_RUN = 10.0
+
+
+def check_runs(problem_names, scheme_names, target_values, t_end, rtol_values=None,
+               option="--t-end") -> None:
+    """Let the library refuse the run settings (say a ``--t-end`` below its
+    smallest step) before the reference and the runs take their time;
+    :class:`UsageError` naming the setting otherwise."""
+    for name in problem_names:
+        exp = experiment(name)
+        model = exp.model()
+        longest = LONGEST_RUN * exp.long_time
+        if t_end is not None and t_end > longest:
+            # the IDA reference (rtol 1e-12, every step kept) grows with t_end:
+            # 1e300 ran without end, memory growing
+            raise UsageError(f"{option} = {t_end:g} is too long for {name}: at most "
+                             f"{longest:g} ({LONGEST_RUN:g} times its longest observation "
+                             "time)")
+        for scheme in scheme_names:
+            for target in target_values or ([None] if rtol_values else
+                                            exp.targets.get(scheme) or [3.0]):
+                for rtol in rtol_values or [None]:
+                    try:
+                        hfdi.Integrator(model, scheme, target_iterations=target, rtol=rtol,
+                                        t_bound=t_end or exp.observation_time)
+                    except ValueError as exc:
+                        setting = ", ".join(f"{k} = {v:g}" for k, v in
+                                            (("N̄", target), ("rtol", rtol)) if v is not None)
+                        raise UsageError(f"cannot run {name} to t = "
+                                         f"{t_end or exp.observation_time:g} ({scheme}, "
+                                         f"{setting}): {exc}") from None
+
+
+def _address(text):
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must be a scheduler address "
+                                         "(e.g. tcp://host:8786), got ''")
+    return text.strip()
+
+
+def add_parallel_options(parser) -> None:
+    """Add ``--jobs N`` and ``--dask ADDRESS`` to a sub-command's parser."""
+    parser.add_argument("--jobs", type=positive_integer, default=1, metavar="N",
+                        help="worker processes on this machine (default 1: this process)")
+    parser.add_argument("--dask", metavar="ADDRESS", type=_address, default=None,
+                        help="run the tasks on an existing Dask distributed cluster "
+                             "(scheduler address, e.g. tcp://host:8786; extra 'dask'); "
+                             "overrides --jobs")
+
+
+def runner_from_args(args):
+    """The :class:`validation.parallel.Runner` of parsed ``--jobs``/``--dask``."""
+    from .parallel import Runner
+    return Runner(getattr(args, "jobs", 1), getattr(args, "dask", None))
