@@ -41,6 +41,8 @@ from hypothesis import strategies as st
 
 import hfdi
 from hfdi.spectral import amplification_matrix
+from validation.experiments import experiment
+
 from strategies import PROPERTY, frequency_bound, log_uniform, spring_chain, spring_chains, taus
 
 SCHEMES = tuple(hfdi.SCHEMES)
@@ -352,7 +354,8 @@ _runs = {}
 def run(name, scheme):
     if (name, scheme) not in _runs:
         model = hfdi.models.get(name)
-        result = hfdi.integrate(model, scheme, model.observation_time, target_iterations=3.0)
+        result = hfdi.integrate(model, scheme, experiment(name).observation_time,
+                                target_iterations=3.0)
         assert result.success, result.message
         after = result.t >= CASES[name][0]
         # the energy of the motion: V has an arbitrary constant (the dumbbell's

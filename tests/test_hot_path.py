@@ -19,6 +19,7 @@ from hfdi import evaluation, linalg, schemes
 from hfdi.corrector import predict
 from hfdi.models.dumbbell import Dumbbell
 from hfdi.models.pair import PairPotential
+from validation.experiments import experiment
 
 COUNTERS = ("steps", "accepted", "rejected", "newton_iterations", "first_step_trials",
             "first_step_trial_iterations", "nfev", "njev", "ntev", "npev", "nlu")
@@ -29,7 +30,9 @@ def counts(result):
 
 
 def run(model, scheme, target=3.0):
-    return hfdi.integrate(model, scheme, model.observation_time, target_iterations=target)
+    """A run of a paper model over its observation time T_o."""
+    return hfdi.integrate(model, scheme, experiment(model.name).observation_time,
+                          target_iterations=target)
 
 
 # -- reference implementations ------------------------------------------------------------

@@ -8,6 +8,7 @@ import hfdi
 from hfdi.models.articulated import Articulated, articulated, relative_angle
 from hfdi.models.loads import hat
 from hfdi.models.tetrahedra import PAIRS_I, PAIRS_J, Tetrahedra, tetrahedra
+from validation.experiments import experiment
 
 
 # -- helpers ------------------------------------------------------------------
@@ -126,10 +127,11 @@ def test_tetrahedra_data():
     np.testing.assert_array_equal(m.initial_velocity, np.zeros(12))
     np.testing.assert_allclose(m.rest_length, [1, 1, 1, math.sqrt(2), math.sqrt(2),
                                                math.sqrt(2)])
-    assert m.observation_time == 50.0
     assert m.u_scale == 1.0
+    table_3 = experiment("tetrahedra")
+    assert table_3.observation_time == 50.0
     for scheme in ("newmark", "bathe", "hfdi"):
-        assert m.paper_targets[scheme] == (3.0, 3.5, 4.0, 4.5)
+        assert tuple(table_3.targets[scheme]) == (3.0, 3.5, 4.0, 4.5)
     assert m.parameters()["k_stiff"] == 1e3 and m.parameters()["k_soft"] == 1.0
 
 
@@ -258,10 +260,11 @@ def test_articulated_data():
     assert m.damping is None
     np.testing.assert_array_equal(m.initial_displacement, [0, 0, 0.5, 0, 1, 0])
     np.testing.assert_array_equal(m.initial_velocity, np.zeros(6))
-    assert m.observation_time == 0.5 and m.long_observation_time == 3.0
     assert m.u_scale == 0.5
+    table_4 = experiment("articulated")
+    assert table_4.observation_time == 0.5 and table_4.long_observation_time == 3.0
     for scheme in ("newmark", "bathe", "hfdi"):
-        assert m.paper_targets[scheme] == (3.0, 3.5, 4.0, 4.5, 5.0)
+        assert tuple(table_4.targets[scheme]) == (3.0, 3.5, 4.0, 4.5, 5.0)
     assert m.parameters()["k_e"] == 1e7 and m.parameters()["k_f"] == 1e3
 
 

@@ -8,6 +8,7 @@ import scipy.sparse as sp
 
 import hfdi
 from hfdi.models.toss_rule import TossRule, toss_rule
+from validation.experiments import experiment
 
 
 def bent_states(model, rng, n):
@@ -228,11 +229,12 @@ def test_rigidities_and_defaults():
     assert model.GA == pytest.approx(5 / 6 * G * A)
     assert model.EJ == pytest.approx(210e9 * J)
     assert model.EJ == pytest.approx(4.2)
-    assert model.observation_time == 0.1
     assert model.u_scale == 0.5
     assert model.load_rate is None and model.damping is None
+    table_5 = experiment("toss_rule")
+    assert table_5.observation_time == 0.1
     for scheme in ("newmark", "bathe", "hfdi"):
-        assert tuple(model.paper_targets[scheme]) == (3.0, 3.5, 4.0, 4.5, 5.0)
+        assert tuple(table_5.targets[scheme]) == (3.0, 3.5, 4.0, 4.5, 5.0)
     np.testing.assert_array_equal(model.initial_displacement, 0)
     np.testing.assert_array_equal(model.initial_velocity, 0)
     p = model.parameters()

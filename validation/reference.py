@@ -42,7 +42,7 @@ differ from run to run. Two ways are offered:
 Large models
 ------------
 Both keep ``2 × 2N`` numbers per node time; :func:`ida_march` keeps only the
-last state and hands each one to a callback (``validation.scale`` uses it on
+last state and hands each one to a callback (``benchmarks.scale`` uses it on
 the toss rule at 6000 elements). The band solver's analytic Jacobian goes
 through a full ``(2N, 2N)`` array of scikit-sundae; above ``BAND_LIMIT``
 unknowns the band solver takes SUNDIALS' own banded difference-quotient
