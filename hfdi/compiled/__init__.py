@@ -14,7 +14,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-__all__ = ["CompiledKernels", "numba_available", "kernels_of", "CompiledUnavailable"]
+__all__ = ["CompiledKernels", "CompiledUnavailable", "compiled_step", "kernels_of",
+           "numba_available"]
 
 _log = logging.getLogger("hfdi.compiled")
 
@@ -131,3 +132,49 @@ def say_once(reason: str) -> None:
     message = f"hfdi: the compiled step is not used ({reason}); the Python path runs"
     _log.info(message)
     warnings.warn(message, RuntimeWarning, stacklevel=3)
+
+
+def compiled_step(ev, scheme, compiled=None):
+    """The compiled attempt for an :class:`~hfdi.evaluation.Evaluator` and scheme,
+    or ``None`` for the Python path.
+
+    Parameters
+    ----------
+    ev : Evaluator
+    scheme : Scheme
+    compiled : {None, True, False}
+        ``None`` (auto): compiled when the model has kernels, numba imports,
+        the system is dense (``N < DENSE_BELOW``) and the scheme is
+        :class:`~hfdi.Newmark`, :class:`~hfdi.Bathe` or :class:`~hfdi.HFDI`;
+        the Python path otherwise, with a warning (once) when only numba is
+        missing. ``True``: compiled or :class:`CompiledUnavailable`.
+        ``False``: the Python path.
+
+    Returns
+    -------
+    hfdi.compiled.attempt.CompiledStep or None
+    """
+    if compiled is False:
+        return None
+    if compiled not in (None, True):
+        raise ValueError(f"compiled must be None (auto), True or False, got {compiled!r}")
+    from ..evaluation import DENSE_BELOW
+    from ..schemes import HFDI, Bathe, Newmark
+    reason = ""
+    if type(scheme) not in (Newmark, Bathe, HFDI):
+        reason = f"scheme {scheme!r} is not one of Newmark, Bathe and HFDI"
+    elif ev.n >= DENSE_BELOW:
+        reason = (f"the system has {ev.n} degrees of freedom; the compiled step is for dense "
+                  f"systems, N < {DENSE_BELOW}")
+    kernels = None
+    if not reason:
+        kernels, reason = kernels_of(ev.system)
+    if reason:
+        if compiled:
+            raise CompiledUnavailable(f"compiled=True, but the compiled step cannot run: "
+                                      f"{reason}")
+        if not numba_available()[0] and reason == numba_available()[1]:
+            say_once(reason)
+        return None
+    from .attempt import CompiledStep
+    return CompiledStep(ev, scheme, kernels)

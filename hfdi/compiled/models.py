@@ -112,12 +112,12 @@ def _bond(u):
 
 @njit(**JIT_OPTIONS)
 def _bond_derivatives(A, s, r):
-    s3 = s ** 3
-    s5 = s ** 5
-    r4 = r ** 4
-    r6 = r ** 6
-    return (A * (-5 * s5 / r6 + 3 * s3 / r4), A * (30 * s5 / r ** 7 - 12 * s3 / r ** 5),
-            A * (-210 * s5 / r ** 8 + 60 * s3 / r6))
+    s3 = math.pow(s, 3.0)
+    s5 = math.pow(s, 5.0)
+    r4 = math.pow(r, 4.0)
+    r6 = math.pow(r, 6.0)
+    return (A * (-5 * s5 / r6 + 3 * s3 / r4), A * (30 * s5 / math.pow(r, 7.0) - 12 * s3 / math.pow(r, 5.0)),
+            A * (-210 * s5 / math.pow(r, 8.0) + 60 * s3 / r6))
 
 
 @njit(**JIT_OPTIONS)
@@ -137,7 +137,7 @@ def _bond_blocks(hxx, hxy, hyy):
 def dumbbell_force(u, params):
     A, s = params[0], params[1]
     dx, dy, r = _bond(u)
-    q = A * (-5 * s ** 5 / r ** 6 + 3 * s ** 3 / r ** 4) / r
+    q = A * (-5 * math.pow(s, 5.0) / math.pow(r, 6.0) + 3 * math.pow(s, 3.0) / math.pow(r, 4.0)) / r
     f = np.empty(4)
     f[0] = -(q * dx)
     f[1] = -(q * dy)
@@ -175,7 +175,7 @@ def dumbbell_stiffness_derivative(u, w, params):
 def dumbbell_potential_energy(u, params):
     A, s = params[0], params[1]
     r = _bond(u)[2]
-    return A * (s ** 5 / r ** 5 - s ** 3 / r ** 3)
+    return A * (math.pow(s, 5.0) / math.pow(r, 5.0) - math.pow(s, 3.0) / math.pow(r, 3.0))
 
 
 def dumbbell_kernels(model) -> CompiledKernels:

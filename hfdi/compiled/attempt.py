@@ -1,0 +1,633 @@
+"""One attempt of a step, compiled: predictor, every stage of the scheme and the
+Newton corrector of :func:`hfdi.corrector.solve_step`, for dense systems.
+
+The Python driver (:class:`hfdi.Integrator`: controllers, landing, statistics,
+energy balance) stays the only driver; for a model with compiled kernels it
+calls :meth:`CompiledStep.solve_step` where it would call
+:func:`hfdi.corrector.solve_step`, with the same arguments and the same
+:class:`~hfdi.corrector.StepOutcome` back. Loads stay in Python: the load at
+the stage times (and HFDI's load rate) are evaluated before the attempt and
+handed in, so breakpoints and one-sided limits work as on the Python path.
+
+The compiled function restates, operation for operation, the Python code it
+replaces: :func:`hfdi.corrector.predict` and :func:`hfdi.corrector.newton`,
+``_InertiaStage`` (Newmark, Eqs. 3–5, and both Bathe sub-steps, Eqs. 6–10) and
+``_HFDIStage`` (Eqs. 15–21, Table 1) of :mod:`hfdi.schemes`, with the same
+convergence test (Eq. 38), iteration counting, ``N_max``, error estimate and
+evaluation counters. Sums of products (matrix products, LU) run in another
+order than BLAS/LAPACK, so states agree to rounding, not bit for bit;
+``tests/test_compiled_step.py`` asserts equal step and Newton counts and
+states within 1e-12 on every paper model, scheme and mode.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, types
+from numba.experimental.function_type import _get_wrapper_address
+
+from ..corrector import StepOutcome
+from ..evaluation import ModelError, NonFiniteError, State
+from ..schemes import HFDI, Bathe, Newmark
+from .signatures import (FORCE, FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, MATRIX, STIFFNESS,
+                         STIFFNESS_DERIVATIVE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
+
+__all__ = ["CompiledStep", "attempt"]
+
+# -- codes shared with the Python side -------------------------------------------
+# status of an attempt
+OK = 0
+RESIDUAL_NOT_FINITE = 1
+TANGENT_SINGULAR = 2
+CORRECTION_NOT_FINITE = 3
+NO_CONVERGENCE = 4
+END_NOT_FINITE = 5
+FORCE_NOT_FINITE = 6
+STIFFNESS_NOT_FINITE = 7
+DERIVATIVE_NOT_FINITE = 8
+STEP_MATRIX_SINGULAR = 9
+# schemes
+NEWMARK, BATHE, HFDI_SCHEME = 0, 1, 2
+# entries of ``config`` (int64)
+SCHEME, HAS_PREVIOUS, HAS_START_FORCE, MAX_ITERATIONS, MASS_KIND, DAMPING_KIND = range(6)
+# entries of ``coefficients`` (float64)
+GAMMA, BETA, T_START, T_PREVIOUS, T_END, TOL, FLOOR = range(7)
+# entries of the returned ``info`` (int64)
+ITERATIONS_0, ITERATIONS_1, STAGES_COUNTED, NFEV, NJEV, NTEV, NLU, FAILED_STAGE = range(8)
+# rows of the returned ``out``: the end state, then Bathe's mid-step state
+END_U, END_V, END_A, END_F, MID_U, MID_V, MID_A = range(7)
+# kinds of M and C
+NONE, DIAGONAL, DENSE = 0, 1, 2
+
+
+# -- small dense linear algebra ----------------------------------------------------
+
+@njit(**JIT_OPTIONS)
+def _all_finite(x):
+    for value in x.ravel():
+        if not math.isfinite(value):
+            return False
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _times(diagonal, full, kind, x):
+    """``A x`` for ``A`` of the given kind (zero for NONE)."""
+    n = x.shape[0]
+    y = np.zeros(n)
+    if kind == DIAGONAL:
+        for i in range(n):
+            y[i] = diagonal[i] * x[i]
+    elif kind == DENSE:
+        y = np.dot(full, x)
+    return y
+
+
+@njit(**JIT_OPTIONS)
+def _add_dense(out, c, full, kind):
+    """``out += c A`` for a dense ``A`` (the dense terms of hfdi.linalg.combine)."""
+    if kind == DENSE and c != 0.0:
+        out += c * full
+
+
+@njit(**JIT_OPTIONS)
+def _add_diagonal(d, c, diagonal, kind):
+    """``d += c diag(A)`` for a diagonal ``A`` (combine's diagonal terms)."""
+    if kind == DIAGONAL and c != 0.0:
+        d += c * diagonal
+
+
+@njit(**JIT_OPTIONS)
+def _solve(A, b):
+    """``(x, ok)`` with ``A x = b`` by LAPACK's gesv (the routine of the Python
+    path, :func:`hfdi.linalg.solve`, so that the two give the same numbers);
+    ``ok`` false for a singular or non-finite ``A``."""
+    ok = True
+    x = np.empty_like(b)
+    try:
+        x = np.ascontiguousarray(np.linalg.solve(A, b))
+    except Exception:
+        ok = False
+    return x, ok
+
+
+# -- predictor and corrector --------------------------------------------------------
+
+@njit(**JIT_OPTIONS)
+def _predict(u, v, a, has_previous, H, u_previous, v_previous, s):
+    """:func:`hfdi.corrector.predict` (Eqs. 36–37): linear without history,
+    else the quartic through the two last states."""
+    n = u.shape[0]
+    out = np.empty(n)
+    if not has_previous:
+        for i in range(n):
+            out[i] = u[i] + s * v[i]
+        return out
+    sigma = s / H
+    s3 = math.pow(sigma, 3.0)
+    s4 = math.pow(sigma, 4.0)
+    for i in range(n):
+        r1 = u_previous[i] - u[i] + H * v[i] - (0.5 * H * H) * a[i]
+        r2 = v_previous[i] - v[i] + H * a[i]
+        out[i] = (u[i] + s * v[i] + (0.5 * s * s) * a[i] - (4.0 * s3 + 3.0 * s4) * r1
+                  - (H * (s3 + s4)) * r2)
+    return out
+
+
+@njit(**JIT_OPTIONS)
+def _newton_update(u, tangent, residual, k, tol, floor, previous, counters):
+    """One correction ``Δu = −tangent⁻¹ residual`` and the test of Eq. 38, as
+    :func:`hfdi.corrector.newton`: ``(status, u, done, error, |Δu|)`` with
+    ``done`` true when converged."""
+    counters[NLU] += 1
+    du, ok = _solve(tangent, -residual)
+    if not ok:
+        return TANGENT_SINGULAR, u, False, math.inf, previous
+    du2 = np.dot(du, du)
+    if not math.isfinite(du2) and not _all_finite(du):
+        return CORRECTION_NOT_FINITE, u, False, math.inf, previous
+    u = u + du
+    size = math.sqrt(np.dot(u, u))
+    step = math.sqrt(du2)
+    if step <= tol * max(size, floor):
+        if previous < math.inf:
+            rate = step / previous
+            error = step * rate / (1.0 - rate) if rate < 1.0 else step
+        else:
+            error = du2 / max(size, floor)
+        return OK, u, True, error, step
+    return OK, u, False, math.inf, step
+
+
+@njit(**JIT_OPTIONS)
+def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0,
+                   p, u, tol, floor, max_iterations, counters):
+    """Newton on ``ca M u + cv C u + f(u) = p + M a0... `` (``_InertiaStage``):
+    ``(status, u, k, error)``, ``k = −1`` when a model value failed (the
+    stage's corrections are then not counted, as on the Python path)."""
+    n = u.shape[0]
+    rhs = p - _times(Md, Mf, m_kind, a0)
+    if c_kind != NONE:
+        rhs = rhs - _times(Cd, Cf, c_kind, v0)
+    shift = np.zeros(n)
+    _add_diagonal(shift, ca, Md, m_kind)
+    _add_diagonal(shift, cv, Cd, c_kind)
+    previous = math.inf
+    for k in range(1, max_iterations + 1):
+        counters[NFEV] += 1
+        f = force(u, params)
+        if not _all_finite(f):
+            return FORCE_NOT_FINITE, u, -1, math.inf
+        residual = ca * _times(Md, Mf, m_kind, u) + f - rhs
+        if c_kind != NONE:
+            residual += cv * _times(Cd, Cf, c_kind, u)
+        counters[NJEV] += 1
+        K = stiffness(u, params)
+        if not _all_finite(K):
+            return STIFFNESS_NOT_FINITE, u, -1, math.inf
+        tangent = np.zeros((n, n))
+        _add_dense(tangent, ca, Mf, m_kind)
+        _add_dense(tangent, cv, Cf, c_kind)
+        tangent += K
+        for i in range(n):
+            tangent[i, i] += shift[i]
+        if not _all_finite(residual):
+            return RESIDUAL_NOT_FINITE, u, k - 1, math.inf
+        status, u, done, error, previous = _newton_update(u, tangent, residual, k, tol, floor,
+                                                          previous, counters)
+        if status == TANGENT_SINGULAR:
+            return status, u, k - 1, math.inf
+        if status != OK:
+            return status, u, k, math.inf
+        if done:
+            return OK, u, k, error
+    return NO_CONVERGENCE, u, max_iterations, math.inf
+
+
+@njit(**JIT_OPTIONS)
+def _newmark_coefficients(u, v, a, h, gamma, beta):
+    """``ca, cv, a0, v0`` of Newmark's relations (3)–(4) over ``h``."""
+    ca = 1.0 / (beta * h * h)
+    cv = gamma / (beta * h)
+    a0 = -ca * u - v / (beta * h) - (0.5 / beta - 1.0) * a
+    v0 = -cv * u + (1.0 - gamma / beta) * v + h * (1.0 - 0.5 * gamma / beta) * a
+    return ca, cv, a0, v0
+
+
+@njit(**JIT_OPTIONS)
+def _end_finite(out):
+    return _all_finite(out[END_U]) and _all_finite(out[END_V]) and _all_finite(out[END_A])
+
+
+@njit(**JIT_OPTIONS)
+def _hfdi_velocity(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B):
+    """``v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + c g`` (``B`` diagonal when
+    ``B`` (dense) is empty)."""
+    rhs = _times(Md, Mf, m_kind, u) + q0 + c * g
+    if B.shape[0] == 0:
+        return rhs / b_diagonal
+    return _solve(B, rhs)[0]
+
+
+@njit(**JIT_OPTIONS)
+def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_kind, u_n, v_n,
+                f_n, p_n, p, pt, h, u, tol, floor, max_iterations, counters, out):
+    """Newton on the HFDI residual ``F(u)`` of Eq. 21 with its exact tangent
+    ``S B⁻¹ S + C + 2h/3 K − h²/6 T(u)[v_D]`` (``_HFDIStage``), then the end
+    state into ``out``: ``(status, k, error)``."""
+    n = u.shape[0]
+    c = h * h / 6.0
+    c2 = 2.0 * h / 3.0
+    g_n = p_n - f_n
+    # B = 2h/3 M + h²/6 C: diagonal, or dense and factorised
+    b_diagonal = np.zeros(n)
+    B = np.zeros((0, 0))
+    if m_kind == DENSE or c_kind == DENSE:
+        B = np.zeros((n, n))
+        _add_dense(B, c2, Mf, m_kind)
+        _add_dense(B, c, Cf, c_kind)
+        d = np.zeros(n)
+        _add_diagonal(d, c2, Md, m_kind)
+        _add_diagonal(d, c, Cd, c_kind)
+        for i in range(n):
+            B[i, i] += d[i]
+        counters[NLU] += 1
+        if not _solve(B, np.zeros(n))[1]:
+            return STEP_MATRIX_SINGULAR, 0, math.inf
+    else:
+        _add_diagonal(b_diagonal, c2, Md, m_kind)
+        _add_diagonal(b_diagonal, c, Cd, c_kind)
+        for i in range(n):
+            if not (b_diagonal[i] != 0.0 and math.isfinite(b_diagonal[i])):
+                return STEP_MATRIX_SINGULAR, 0, math.inf
+    q0 = -_times(Md, Mf, m_kind, u_n + (h / 3.0) * v_n)
+    F0 = -_times(Md, Mf, m_kind, v_n) - _times(Cd, Cf, c_kind, u_n) - (h / 3.0) * g_n
+    previous = math.inf
+    converged = False
+    k_done = max_iterations
+    error = math.inf
+    for k in range(1, max_iterations + 1):
+        counters[NFEV] += 1
+        f = force(u, params)
+        if not _all_finite(f):
+            return FORCE_NOT_FINITE, -1, math.inf
+        g = p - f
+        counters[NJEV] += 1
+        K = stiffness(u, params)
+        if not _all_finite(K):
+            return STIFFNESS_NOT_FINITE, -1, math.inf
+        vD = _hfdi_velocity(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B)
+        gt = pt - np.dot(K, vD)
+        residual = _times(Md, Mf, m_kind, vD) - c2 * g + c * gt + F0
+        if c_kind != NONE:
+            residual += _times(Cd, Cf, c_kind, u)
+        counters[NTEV] += 1
+        T = derivative(u, vD, params)
+        if not _all_finite(T):
+            return DERIVATIVE_NOT_FINITE, -1, math.inf
+        # S = M − c K and R = C + c2 K − c T, summed as hfdi.linalg.combine sums them
+        S = np.zeros((n, n))
+        _add_dense(S, 1.0, Mf, m_kind)
+        S += -c * K
+        d = np.zeros(n)
+        _add_diagonal(d, 1.0, Md, m_kind)
+        for i in range(n):
+            S[i, i] += d[i]
+        tangent = np.zeros((n, n))
+        _add_dense(tangent, 1.0, Cf, c_kind)
+        tangent += c2 * K
+        tangent += -c * T
+        d[:] = 0.0
+        _add_diagonal(d, 1.0, Cd, c_kind)
+        for i in range(n):
+            tangent[i, i] += d[i]
+        # + S B⁻¹ S
+        if B.shape[0] == 0:
+            SB = S.copy()
+            for i in range(n):
+                SB[i, :] /= b_diagonal[i]
+        else:
+            SB = _solve(B, S)[0]
+        tangent += S @ SB
+        if not _all_finite(residual):
+            return RESIDUAL_NOT_FINITE, k - 1, math.inf
+        status, u, done, error, previous = _newton_update(u, tangent, residual, k, tol, floor,
+                                                          previous, counters)
+        if status == TANGENT_SINGULAR:
+            return status, k - 1, math.inf
+        if status != OK:
+            return status, k, math.inf
+        if done:
+            k_done = k
+            converged = True
+            break
+    if not converged:
+        return NO_CONVERGENCE, max_iterations, math.inf
+    # the end state: f, v_D and a = M⁻¹(p − f − C v) (Eq. 14)
+    counters[NFEV] += 1
+    f = force(u, params)
+    if not _all_finite(f):
+        out[END_U] = u
+        return FORCE_NOT_FINITE, k_done, error
+    v = _hfdi_velocity(Md, Mf, m_kind, u, q0, c, p - f, b_diagonal, B)
+    rest = p - f - _times(Cd, Cf, c_kind, v)
+    if m_kind == DENSE:
+        a = _solve(Mf, rest)[0]
+    else:
+        a = rest / Md
+    out[END_U] = u
+    out[END_V] = v
+    out[END_A] = a
+    out[END_F] = f
+    if not _end_finite(out):
+        return END_NOT_FINITE, k_done, error
+    return OK, k_done, error
+
+
+_SIGNATURE = types.Tuple((types.int64, MATRIX, INDEX_VECTOR, types.float64))(
+    FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, VECTOR,   # kernels, params
+    INDEX_VECTOR, VECTOR,                                           # config, coefficients
+    VECTOR, MATRIX, VECTOR, MATRIX,                                 # M (diag, dense), C
+    MATRIX, MATRIX, MATRIX)                                         # start, previous, loads
+
+
+@njit(_SIGNATURE, **JIT_OPTIONS)
+def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, Cd, Cf,
+            start, previous, loads):
+    """One attempt at the step ``t_start → t_end``, every stage, predictor then Newton.
+
+    Parameters
+    ----------
+    force, stiffness, derivative : compiled kernels (see :mod:`hfdi.compiled.signatures`)
+    params : ndarray (P,)
+    config : ndarray (6,) int64
+        Scheme (0 Newmark, 1 Bathe, 2 HFDI), history present, ``start`` has
+        ``f``, ``N_max``, kind of ``M`` and of ``C`` (0 none, 1 diagonal, 2 dense).
+    coefficients : ndarray (7,)
+        Scheme parameters ``γ``, ``β`` (Newmark; ``γ`` alone for Bathe),
+        ``t_start``, ``t_previous``, ``t_end``, Newton tolerance ``η`` and floor.
+    Md, Mf, Cd, Cf : ndarray (N,) and (N, N)
+        ``M`` and ``C`` as a diagonal or a dense array, whichever their kind says.
+    start : ndarray (5, N)
+        ``u, v, a, f, p`` at ``t_start``.
+    previous : ndarray (2, N)
+        ``u, v`` at ``t_previous`` (the predictor's history).
+    loads : ndarray (3, N)
+        ``p`` at Bathe's mid-step time, ``p(t_end)`` and HFDI's ``p'(t_end)``.
+
+    Returns
+    -------
+    status : int
+    out : ndarray (7, N)
+        ``u, v, a, f`` at ``t_end`` and ``u, v, a`` at Bathe's mid-step.
+    info : ndarray (8,) int64
+        Corrections per stage, stages counted, ``nfev``, ``njev``, ``ntev``,
+        ``nlu`` and the failed stage.
+    newton_error : float
+        The largest estimate over the stages of the corrector's remaining error.
+    """
+    n = start.shape[1]
+    out = np.zeros((7, n))
+    info = np.zeros(8, np.int64)
+    scheme = config[SCHEME]
+    has_previous = config[HAS_PREVIOUS] != 0
+    max_iterations = config[MAX_ITERATIONS]
+    m_kind, c_kind = config[MASS_KIND], config[DAMPING_KIND]
+    t0, t_end = coefficients[T_START], coefficients[T_END]
+    tol, floor = coefficients[TOL], coefficients[FLOOR]
+    H = t0 - coefficients[T_PREVIOUS]
+    u_n, v_n, a_n = start[0], start[1], start[2]
+    h = t_end - t0
+    newton_error = 0.0
+    if scheme == HFDI_SCHEME:
+        if config[HAS_START_FORCE] != 0:
+            f_n = start[3]
+        else:
+            info[NFEV] += 1
+            f_n = force(np.ascontiguousarray(u_n), params)
+            if not _all_finite(f_n):
+                return FORCE_NOT_FINITE, out, info, math.inf
+        guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+        status, k, error = _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd,
+                                       Cf, c_kind, u_n, v_n, f_n, start[4], loads[1], loads[2],
+                                       h, guess, tol, floor, max_iterations, info, out)
+        if k >= 0:
+            info[ITERATIONS_0] = k
+            info[STAGES_COUNTED] = 1
+        return status, out, info, error
+    if scheme == NEWMARK:
+        ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, h, coefficients[GAMMA],
+                                               coefficients[BETA])
+        guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+        status, u, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
+                                             c_kind, ca, cv, a0, v0, loads[1], guess, tol,
+                                             floor, max_iterations, info)
+        if k >= 0:
+            info[ITERATIONS_0] = k
+            info[STAGES_COUNTED] = 1
+        if status != OK:
+            return status, out, info, math.inf
+        out[END_U] = u
+        out[END_V] = cv * u + v0
+        out[END_A] = ca * u + a0
+        if not _end_finite(out):
+            return END_NOT_FINITE, out, info, math.inf
+        return OK, out, info, error
+    # Bathe: the trapezoidal rule over γ h, then the three-point backward formula
+    g = coefficients[GAMMA]
+    ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25)
+    guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h)
+    status, u, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
+                                         c_kind, ca, cv, a0, v0, loads[0], guess, tol, floor,
+                                         max_iterations, info)
+    if k >= 0:
+        info[ITERATIONS_0] = k
+        info[STAGES_COUNTED] = 1
+    if status != OK:
+        return status, out, info, math.inf
+    newton_error = error
+    mid_u = u
+    mid_v = cv * u + v0
+    mid_a = ca * u + a0
+    out[MID_U] = mid_u
+    out[MID_V] = mid_v
+    out[MID_A] = mid_a
+    if not (_all_finite(mid_u) and _all_finite(mid_v) and _all_finite(mid_a)):
+        return END_NOT_FINITE, out, info, math.inf
+    c1 = (1.0 - g) / (g * h)
+    c2 = -1.0 / ((1.0 - g) * g * h)
+    c3 = (2.0 - g) / ((1.0 - g) * h)
+    v0 = c1 * u_n + c2 * mid_u
+    a0 = c1 * v_n + c2 * mid_v + c3 * v0
+    info[FAILED_STAGE] = 1
+    guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+    status, u, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
+                                         c_kind, c3 * c3, c3, a0, v0, loads[1], guess, tol,
+                                         floor, max_iterations, info)
+    if k >= 0:
+        info[ITERATIONS_1] = k
+        info[STAGES_COUNTED] = 2
+    if status != OK:
+        return status, out, info, math.inf
+    out[END_U] = u
+    out[END_V] = c3 * u + v0
+    out[END_A] = (c3 * c3) * u + a0
+    if not _end_finite(out):
+        return END_NOT_FINITE, out, info, math.inf
+    return OK, out, info, max(newton_error, error)
+
+
+# -- the Python side -------------------------------------------------------------------
+
+_MESSAGES = {
+    RESIDUAL_NOT_FINITE: "residual is not finite",
+    TANGENT_SINGULAR: "tangent is singular (singular matrix)",
+    CORRECTION_NOT_FINITE: "Newton correction is not finite",
+    END_NOT_FINITE: "end-of-step state is not finite",
+    FORCE_NOT_FINITE: "internal_force is not finite at a trial state",
+    STIFFNESS_NOT_FINITE: "stiffness is not finite at a trial state",
+    DERIVATIVE_NOT_FINITE: "stiffness_derivative is not finite at a trial state",
+    STEP_MATRIX_SINGULAR: "model raised SingularMatrixError: the HFDI matrix "
+                          "B = 2h/3 M + h²/6 C is singular",
+}
+
+
+def _kind_and_arrays(matrix, n):
+    """``(kind, diagonal (N,), dense (N, N))`` of an Evaluator's M or C (unused one empty)."""
+    empty_vector, empty_matrix = np.zeros(0), np.zeros((0, 0))
+    if matrix is None:
+        return NONE, empty_vector, empty_matrix
+    if matrix.ndim == 1:
+        return DIAGONAL, np.ascontiguousarray(matrix, dtype=np.float64), empty_matrix
+    return DENSE, empty_vector, np.ascontiguousarray(matrix, dtype=np.float64)
+
+
+class _ResolvedKernel:
+    """A compiled kernel whose machine address and numba type are found once.
+
+    Passed to :func:`attempt` as a first-class function, a numba dispatcher
+    is resolved to its address and typed at every call (~100 µs for the
+    three kernels, more than a whole attempt costs on the small models).
+    This object carries both, found once: numba reads the type from
+    ``_numba_type_`` and the address from ``__wrapper_address__`` (numba's
+    wrapper-address protocol). It keeps the dispatcher, and with it the code
+    at that address, alive.
+    """
+
+    def __init__(self, dispatcher, signature):
+        self._dispatcher = dispatcher
+        self._signature = signature
+        self._address = _get_wrapper_address(dispatcher, signature)
+        self._numba_type_ = types.FunctionType(signature)
+
+    def __wrapper_address__(self):
+        return self._address
+
+    def signature(self):
+        return self._signature
+
+
+class CompiledStep:
+    """The compiled attempt of one model and scheme, called as
+    :func:`hfdi.corrector.solve_step` is.
+
+    Parameters
+    ----------
+    ev : Evaluator
+        Dense (``ev.n < DENSE_BELOW``), with ``M`` and ``C`` diagonal or dense.
+    scheme : Newmark, Bathe or HFDI
+    kernels : CompiledKernels
+    """
+
+    def __init__(self, ev, scheme, kernels):
+        self.ev, self.scheme, self.kernels = ev, scheme, kernels
+        self._force = _ResolvedKernel(kernels.force, FORCE)
+        self._stiffness = _ResolvedKernel(kernels.stiffness, STIFFNESS)
+        self._derivative = _ResolvedKernel(kernels.stiffness_derivative, STIFFNESS_DERIVATIVE)
+        n = ev.n
+        m_kind, self.Md, self.Mf = _kind_and_arrays(ev.mass, n)
+        c_kind, self.Cd, self.Cf = _kind_and_arrays(ev.damping, n)
+        self.config = np.zeros(6, np.int64)
+        self.config[MASS_KIND], self.config[DAMPING_KIND] = m_kind, c_kind
+        self.coefficients = np.zeros(7)
+        if type(scheme) is Newmark:
+            self.config[SCHEME] = NEWMARK
+            self.coefficients[GAMMA], self.coefficients[BETA] = scheme.gamma, scheme.beta
+        elif type(scheme) is Bathe:
+            self.config[SCHEME] = BATHE
+            self.coefficients[GAMMA] = scheme.gamma
+        elif type(scheme) is HFDI:
+            self.config[SCHEME] = HFDI_SCHEME
+        else:
+            raise TypeError(f"the compiled step knows Newmark, Bathe and HFDI, got {scheme!r}")
+        self.exact_rate = type(scheme) is HFDI and (
+            scheme.load_rate == "exact" or (scheme.load_rate == "auto" and ev.has_load_rate))
+        self._previous = np.zeros((2, n))
+        self._zero = np.zeros(n)
+
+    def _loads(self, start: State, t_end: float):
+        """``p`` at Bathe's mid-step, ``p(t_end)`` and HFDI's ``p'(t_end)`` (3, N),
+        as the Python stages evaluate them."""
+        ev, h = self.ev, t_end - start.t
+        loads = np.zeros((3, ev.n))
+        kind = self.config[SCHEME]
+        if kind == BATHE:
+            loads[0] = ev.load(start.t + self.scheme.gamma * h)
+        loads[1] = ev.load(t_end)
+        if kind == HFDI_SCHEME:
+            loads[2] = ev.load_rate(t_end) if self.exact_rate else (loads[1] - start.p) / h
+        return loads
+
+    def solve_step(self, start: State, previous, t_end: float, tol: float, floor: float,
+                   max_iterations: int) -> StepOutcome:
+        """One attempt at the step ``start.t → t_end`` from the history ``previous``
+        (``None`` after a restart): :func:`hfdi.corrector.solve_step` with the
+        predictor :func:`hfdi.corrector.predict`."""
+        ev = self.ev
+        try:
+            loads = self._loads(start, t_end)
+        except ModelError:
+            raise
+        except NonFiniteError as exc:
+            return StepOutcome(None, [], str(exc))
+        except Exception as exc:  # the load failed at some time: a failed attempt
+            return StepOutcome(None, [], f"model raised {type(exc).__name__}: {exc}")
+        config, coefficients = self.config, self.coefficients
+        config[HAS_PREVIOUS] = previous is not None
+        config[HAS_START_FORCE] = start.f is not None
+        config[MAX_ITERATIONS] = max_iterations
+        coefficients[T_START], coefficients[T_END] = start.t, t_end
+        coefficients[T_PREVIOUS] = previous.t if previous is not None else start.t
+        coefficients[TOL], coefficients[FLOOR] = tol, floor
+        history = self._previous
+        if previous is not None:
+            history[0], history[1] = previous.u, previous.v
+        start_rows = np.stack([start.u, start.v, start.a,
+                               start.f if start.f is not None else self._zero, start.p])
+        k = self.kernels
+        status, out, info, newton_error = attempt(
+            self._force, self._stiffness, self._derivative, k.params, config, coefficients,
+            self.Md, self.Mf, self.Cd, self.Cf, start_rows, history, loads)
+        ev.nfev += int(info[NFEV])
+        ev.njev += int(info[NJEV])
+        ev.ntev += int(info[NTEV])
+        ev.nlu += int(info[NLU])
+        iterations = [int(i) for i in info[:int(info[STAGES_COUNTED])]]
+        kind = config[SCHEME]
+        if status != OK:
+            if status == NO_CONVERGENCE:
+                message = f"no convergence in N_max = {max_iterations} corrections"
+            else:
+                message = _MESSAGES[int(status)]
+            if kind == BATHE and status in (RESIDUAL_NOT_FINITE, TANGENT_SINGULAR,
+                                            CORRECTION_NOT_FINITE, NO_CONVERGENCE):
+                message += f" (sub-step {int(info[FAILED_STAGE]) + 1})"
+            return StepOutcome(None, iterations, message)
+        stages = []
+        if kind == BATHE:
+            t_mid = start.t + self.scheme.gamma * (t_end - start.t)
+            stages.append(State(t_mid, out[MID_U], out[MID_V], out[MID_A], None, loads[0]))
+        f = out[END_F] if kind == HFDI_SCHEME else None
+        end = State(t_end, out[END_U], out[END_V], out[END_A], f, loads[1])
+        return StepOutcome(end, iterations, stages=stages, newton_error=float(newton_error))

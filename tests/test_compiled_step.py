@@ -1,0 +1,259 @@
+"""The compiled attempt (hfdi.compiled) against the Python attempt: the same steps,
+Newton corrections and evaluations, and the same states to rounding, on every
+paper model, scheme and mode; and when the compiled path is (not) taken."""
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+import hfdi
+from hfdi.compiled import CompiledKernels, CompiledUnavailable
+from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
+
+numba = pytest.importorskip("numba")
+
+#: Short horizons: a few hundred steps at most under error control; the
+#: iteration count's long steps get a longer one.
+PROBLEMS = {"dumbbell": (dumbbell, 0.01, 0.2), "tetrahedra": (tetrahedra, 1.5, 5.0),
+            "articulated": (articulated, 0.03, 0.2), "toss_rule": (toss_rule, 0.003, 0.012)}
+MODES = {"fixed": dict(step=1 / 40), "iterations": dict(target_iterations=3),
+         "error": dict(rtol=1e-6)}
+COUNTERS = ("steps", "accepted", "rejected", "newton_iterations", "error_test_failures",
+            "first_step_trials", "first_step_trial_iterations", "nfev", "njev", "ntev", "nlu")
+
+
+#: Models whose Python f, K, T sum their pair or element terms by BLAS products
+#: in another order than the kernels: K and T agree to rounding, not bit for bit.
+#: (The dumbbell's and the articulated system's agree bit for bit, and so do
+#: their whole runs.)
+NOT_BITWISE = ("tetrahedra", "toss_rule")
+
+
+def _assert_same_counts(python, compiled):
+    for name in COUNTERS:
+        assert getattr(compiled.stats, name) == getattr(python.stats, name), name
+    assert compiled.status == python.status
+    np.testing.assert_array_equal(compiled.iterations, python.iterations)
+
+
+def _relative_error(got, ref):
+    difference = float(np.abs(got - ref).max())
+    return difference / float(np.abs(ref).max()) if difference else 0.0
+
+
+def _assert_same_run(python, compiled, bitwise_kernels=True):
+    """Same counters and step sizes; ``u`` within 1e-12 of its largest entry in
+    the run at every step, ``v`` and ``a`` as close as their conditioning allows."""
+    _assert_same_counts(python, compiled)
+    np.testing.assert_array_equal(compiled.t, python.t)
+    assert _relative_error(compiled.u, python.u) <= 1e-12
+    # HFDI's v_D solves with B = 2h/3 M, whose lumped rotary masses on the beam
+    # are ~1e-6 of its translational ones: rounding of K reaches v amplified.
+    # a = c_a u + a_0 (c_a = 4/h² in the trapezoidal rule) cancels digits.
+    assert _relative_error(compiled.v, python.v) <= (1e-12 if bitwise_kernels else 1e-11)
+    assert _relative_error(compiled.a, python.a) <= (1e-10 if bitwise_kernels else 1e-9)
+
+
+def _cases():
+    """Every model x scheme x mode; the beam under error control (thousands of
+    steps, > 1 s) is marked slow."""
+    for problem in PROBLEMS:
+        for scheme in ("newmark", "bathe", "hfdi"):
+            for mode in MODES:
+                slow = problem == "toss_rule" and mode == "error"
+                yield pytest.param(problem, scheme, mode, id=f"{problem}-{scheme}-{mode}",
+                                   marks=[pytest.mark.slow] if slow else [])
+
+
+@pytest.mark.parametrize("problem, scheme, mode", list(_cases()))
+def test_compiled_attempt_takes_the_same_steps(problem, scheme, mode):
+    make, short, long = PROBLEMS[problem]
+    t_end = long if mode == "iterations" else short
+    options = dict(MODES[mode])
+    if mode == "fixed":
+        options["step"] *= t_end
+    python = hfdi.integrate(make(), scheme, t_end, compiled=False, **options)
+    compiled = hfdi.integrate(make(), scheme, t_end, compiled=True, **options)
+    assert python.success and python.stats.steps > 5
+    if mode != "error" or problem not in NOT_BITWISE:
+        _assert_same_run(python, compiled, problem not in NOT_BITWISE)
+        return
+    # Under error control the step sizes follow the error estimate, a
+    # difference of nearly equal states, and the controller carries it from
+    # step to step: rounding differences of K and T move the step sizes by up
+    # to ~1e-6 relative here. The counts stay equal, and the end states
+    # (both runs land on t_end) agree to ~3e-11.
+    _assert_same_counts(python, compiled)
+    np.testing.assert_allclose(compiled.t, python.t, rtol=1e-5, atol=0)
+    assert _relative_error(compiled.u[-1], python.u[-1]) < 1e-10
+    assert _relative_error(compiled.v[-1], python.v[-1]) < 1e-8
+
+
+def test_the_paths_are_chosen_as_asked():
+    model = dumbbell()
+    assert not hfdi.Integrator(model, "hfdi", step=1e-3).compiled       # default: Python
+    assert hfdi.Integrator(model, "hfdi", step=1e-3, compiled=None).compiled   # auto
+    assert hfdi.Integrator(model, "hfdi", step=1e-3, compiled=True).compiled
+    assert not hfdi.Integrator(model, "hfdi", step=1e-3, compiled=False).compiled
+    with pytest.raises(ValueError, match="compiled must be"):
+        hfdi.Integrator(model, "hfdi", step=1e-3, compiled="yes")
+
+
+def test_compiled_true_without_kernels_is_refused_with_the_reason():
+    linear = hfdi.LinearSystem(mass=[1.0], stiffness=[[4.0]], initial_displacement=[1.0])
+    assert not hfdi.Integrator(linear, "hfdi", step=0.1, compiled=None).compiled
+    with pytest.raises(CompiledUnavailable, match="no compiled kernels"):
+        hfdi.Integrator(linear, "hfdi", step=0.1, compiled=True)
+    beam = toss_rule(n_elements=50)                                     # 153 DOFs: sparse
+    assert not hfdi.Integrator(beam, "hfdi", step=1e-4, compiled=None).compiled
+    with pytest.raises(CompiledUnavailable, match="dense systems"):
+        hfdi.Integrator(beam, "hfdi", step=1e-4, compiled=True)
+
+
+def test_without_numba_the_python_path_runs_and_says_so_once(monkeypatch):
+    import hfdi.compiled as hc
+    monkeypatch.setattr(hc, "_NUMBA", (False, "numba cannot be imported (test)"))
+    monkeypatch.setattr(hc, "_SAID", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        a = hfdi.Integrator(dumbbell(), "hfdi", step=1e-3, compiled=None)
+        b = hfdi.Integrator(dumbbell(), "hfdi", step=1e-3, compiled=None)
+    assert not a.compiled and not b.compiled
+    said = [w for w in caught if "Python path" in str(w.message)]
+    assert len(said) == 1 and "numba cannot be imported" in str(said[0].message)
+    with pytest.raises(CompiledUnavailable, match="numba"):
+        hfdi.Integrator(dumbbell(), "hfdi", step=1e-3, compiled=True)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_failed_attempts_fail_alike(scheme):
+    """A corrector that cannot converge in N_max = 1 correction: the fixed
+    step stops the run with the same status and message; with N_max = 2 the
+    error control retries shorter steps in the same way."""
+    fixed = [hfdi.integrate(articulated(), scheme, 0.05, step=0.01, max_iterations=1,
+                            compiled=c) for c in (False, True)]
+    assert fixed[0].status == hfdi.Status.NEWTON_FAILED
+    assert fixed[1].message == fixed[0].message
+    _assert_same_run(*fixed)
+    retried = [hfdi.integrate(articulated(), scheme, 0.05, rtol=1e-4, max_iterations=2,
+                              compiled=c) for c in (False, True)]
+    assert retried[0].success and retried[0].stats.rejected > 0
+    _assert_same_run(*retried)
+
+
+# -- a user model with its own kernels, dense M and C -------------------------------
+# A chain of three masses with cubic springs, M dense (consistent), C dense or
+# diagonal: it exercises the dense branches the paper's models (diagonal M, no
+# C) leave out, and shows the protocol of docs/compiled.md.
+
+from numba import njit  # noqa: E402
+
+from hfdi.compiled.signatures import (FORCE, JIT_OPTIONS, POTENTIAL_ENERGY,  # noqa: E402
+                                      STIFFNESS, STIFFNESS_DERIVATIVE)
+
+
+@njit(FORCE, **JIT_OPTIONS)
+def chain_force(u, params):
+    k, c3 = params[0], params[1]
+    f = np.zeros(3)
+    for i in range(3):
+        s = u[i] - (u[i - 1] if i > 0 else 0.0)
+        t = k * s + c3 * s * s * s
+        f[i] += t
+        if i > 0:
+            f[i - 1] -= t
+    return f
+
+
+@njit(STIFFNESS, **JIT_OPTIONS)
+def chain_stiffness(u, params):
+    k, c3 = params[0], params[1]
+    K = np.zeros((3, 3))
+    for i in range(3):
+        s = u[i] - (u[i - 1] if i > 0 else 0.0)
+        e = k + 3.0 * c3 * s * s
+        K[i, i] += e
+        if i > 0:
+            K[i - 1, i - 1] += e
+            K[i, i - 1] -= e
+            K[i - 1, i] -= e
+    return K
+
+
+@njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+def chain_stiffness_derivative(u, w, params):
+    c3 = params[1]
+    T = np.zeros((3, 3))
+    for i in range(3):
+        s = u[i] - (u[i - 1] if i > 0 else 0.0)
+        z = w[i] - (w[i - 1] if i > 0 else 0.0)
+        e = 6.0 * c3 * s * z
+        T[i, i] += e
+        if i > 0:
+            T[i - 1, i - 1] += e
+            T[i, i - 1] -= e
+            T[i - 1, i] -= e
+    return T
+
+
+@njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+def chain_potential_energy(u, params):
+    k, c3 = params[0], params[1]
+    V = 0.0
+    for i in range(3):
+        s = u[i] - (u[i - 1] if i > 0 else 0.0)
+        V += 0.5 * k * s * s + 0.25 * c3 * s ** 4
+    return V
+
+
+class Chain(hfdi.SecondOrderSystem):
+    """Three masses on cubic springs, the first tied to the ground, with compiled kernels."""
+
+    name = "chain"
+    n_dof = 3
+
+    def __init__(self, damping):
+        self.params = np.array([100.0, 5e4])
+        self.mass = np.array([[2.0, 0.5, 0.0], [0.5, 2.0, 0.5], [0.0, 0.5, 2.0]])
+        self.damping = damping
+        self.initial_displacement = np.array([0.05, -0.1, 0.2])
+        self.initial_velocity = np.array([1.0, 0.0, -1.0])
+
+    def _u(self, u):
+        return np.ascontiguousarray(u, dtype=float)
+
+    def internal_force(self, u):
+        return chain_force(self._u(u), self.params)
+
+    def stiffness(self, u):
+        return chain_stiffness(self._u(u), self.params)
+
+    def stiffness_derivative(self, u, w):
+        return chain_stiffness_derivative(self._u(u), self._u(w), self.params)
+
+    def potential_energy(self, u):
+        return chain_potential_energy(self._u(u), self.params)
+
+    def load(self, t):
+        return np.array([0.0, 0.0, 3.0 * math.sin(20.0 * t)])
+
+    def load_rate(self, t):
+        return np.array([0.0, 0.0, 60.0 * math.cos(20.0 * t)])
+
+    def compiled_kernels(self):
+        return CompiledKernels(chain_force, chain_stiffness, chain_stiffness_derivative,
+                               chain_potential_energy, self.params)
+
+
+@pytest.mark.parametrize("damping", [None, np.array([0.3, 0.1, 0.2]),
+                                     np.array([[0.4, -0.1, 0.0], [-0.1, 0.3, -0.1],
+                                               [0.0, -0.1, 0.2]])],
+                         ids=["undamped", "diagonal C", "dense C"])
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_user_model_with_dense_mass_and_damping(scheme, damping):
+    model = Chain(damping)
+    assert hfdi.check_derivatives(model, samples=3, spread=0.1).ok(1e-7)
+    runs = [hfdi.integrate(model, scheme, 0.5, rtol=1e-6, compiled=c) for c in (False, True)]
+    assert runs[0].success and runs[0].stats.steps > 20
+    _assert_same_run(*runs)
