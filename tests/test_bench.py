@@ -14,6 +14,9 @@ from benchmarks.__main__ import main as benchmarks_main  # noqa: E402
 from benchmarks.precision import (_mark_inaccurate, bench_problem, goal,  # noqa: E402
                                   interpolate_wall, pareto_front, speedups)
 
+# every test here runs the benchmark commands end to end: not in the quick loop
+pytestmark = pytest.mark.slow
+
 
 def main(argv):
     """``python -m benchmarks precision ARGS`` in this process."""

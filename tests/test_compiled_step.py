@@ -251,6 +251,7 @@ class Chain(hfdi.SecondOrderSystem):
                                                [0.0, -0.1, 0.2]])],
                          ids=["undamped", "diagonal C", "dense C"])
 @pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.slow
 def test_user_model_with_dense_mass_and_damping(scheme, damping):
     model = Chain(damping)
     assert hfdi.check_derivatives(model, samples=3, spread=0.1).ok(1e-7)

@@ -31,6 +31,9 @@ from validation.cli import main
 from validation.parallel import Runner, RunnerError
 from validation.reference import IDAError
 
+# every test here runs worker processes and a Dask cluster: not in the quick loop
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 TIMING = {"cpu_time", "wall_time"}
 PROBLEMS = "dumbbell,articulated"

@@ -45,6 +45,7 @@ def dumbbell_rhs(A=1e6, sigma=math.sqrt(3.0 / 5.0)):
     return rhs
 
 
+@pytest.mark.slow
 def test_dumbbell_reference_matches_dop853(dumbbell, dumbbell_reference):
     t = np.linspace(0.0, 2.0, 201)
     y0 = np.concatenate([dumbbell.initial_displacement, dumbbell.initial_velocity])
@@ -73,6 +74,7 @@ def test_exact_outputs_and_dense_interpolation_agree(dumbbell, dumbbell_referenc
         assert eps_dense[name] == pytest.approx(eps_exact[name], rel=1e-4)
 
 
+@pytest.mark.slow
 def test_tighter_reference_changes_eps_by_less_than_a_percent(dumbbell, dumbbell_reference):
     result = hfdi.integrate(dumbbell, "hfdi", 0.5, target_iterations=3.3)
     assert result.success

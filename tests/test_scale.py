@@ -20,6 +20,9 @@ from validation.reference import _FirstOrderForm, ida_dense_reference, ida_march
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import scale  # noqa: E402
 
+# every test here runs the scale measurement's IDA runs: not in the quick loop
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def tiny_scale(tmp_path_factory):

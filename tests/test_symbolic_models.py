@@ -132,6 +132,7 @@ def test_parameters_change_the_result_without_rederivation(monkeypatch):
         assert m.potential_energy(u) == pytest.approx(fresh.potential_energy(u), rel=1e-14)
 
 
+@pytest.mark.slow
 def test_dumbbell_parameters_follow_the_hand_written_model():
     model, (A, sigma) = symbolic_dumbbell()
     model.set_parameters({A: 2.5e5, sigma: 0.7})

@@ -14,6 +14,7 @@ FIELDS = {"problem", "scheme", "target", "steps", "mean_iterations", "mean_step"
           "status", "message", "t_reached", "eps"}
 
 
+@pytest.mark.slow
 def test_table_json_has_every_field(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
     out, csv_out = tmp_path / "runs.json", tmp_path / "runs.csv"
@@ -52,6 +53,7 @@ def test_models_are_listed(capsys):
 
 @pytest.mark.parametrize("args", [["--schemes", "euler"], ["--targets", "0.5"],
                                   ["--targets", "x"], ["--t-end", "-1"]])
+@pytest.mark.slow
 def test_bad_arguments_exit_nonzero_without_traceback(args):
     proc = subprocess.run([sys.executable, "-m", "validation", "table", "dumbbell", *args],
                           capture_output=True, text=True)
@@ -82,6 +84,7 @@ def test_paper_facts_are_not_in_the_models():
             assert not hasattr(model, field), (name, field)
 
 
+@pytest.mark.slow
 def test_table_rtol_runs_are_error_controlled(tmp_path, capsys, monkeypatch):
     """``--rtol``: error-controlled runs, more accurate the tighter the tolerance,
     labelled by rtol and without the paper's rows (it has no such runs)."""

@@ -11,6 +11,9 @@ import pytest
 from hfdi.spectral import spectral_properties
 from validation.cli import main
 
+# every test here runs the figure and report commands end to end: not in the quick loop
+pytestmark = pytest.mark.slow
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 DUMBBELL_FIGURES = {
     "dumbbell_fig04_configurations.png", "dumbbell_fig05_stretch.png",
