@@ -962,13 +962,7 @@ def _ours_rtols(text):
 def _competitors(text):
     if text.strip().lower() == "none":
         return []
-    items = [s.strip().lower() for s in text.split(",") if s.strip()]
-    bad = [s for s in items if s not in COMPETITORS]
-    if bad or not items:
-        raise argparse.ArgumentTypeError(
-            f"unknown competitor(s) {', '.join(bad) or repr(text)}; choose from "
-            f"{', '.join(COMPETITORS)} (or none)")
-    return list(dict.fromkeys(items))
+    return opt.names_from(text, COMPETITORS, "competitor(s)", also=" (or none)")
 
 
 def add_parser(sub) -> None:

@@ -201,7 +201,7 @@ CASES = [
     B(expect="a command is required"),
     B("frobnicate", expect="unknown command 'frobnicate'"),
     B("precision", "--problems", "pendulum", expect="unknown problem(s) 'pendulum'"),
-    B("precision", "--competitors", "cvode", expect="unknown competitor(s) cvode"),
+    B("precision", "--competitors", "cvode", expect="unknown competitor(s) 'cvode'"),
     B("precision", "--problems", "dumbbell", "--t-end", "1e9", "--out", "{DIR}/x",
       expect="is too long for dumbbell"),
     B("scale", "--out", "{DIR}/x", "--sizes", "a", expect="--sizes"),

@@ -46,14 +46,22 @@ def numbers(text, what, low=-float("inf"), high=float("inf"), high_open=False) -
     return values
 
 
-def schemes(text) -> list:
-    """Scheme names of :data:`hfdi.SCHEMES`, comma-separated."""
-    items = [s.strip().lower() for s in text.split(",") if s.strip()]
-    bad = [s for s in items if s not in SCHEME_ORDER]
+def names_from(text, allowed, what, lower=True, also="") -> list:
+    """Comma-separated names, each one of ``allowed`` (in the order given,
+    without repeats); ``what`` names them in the message (``"scheme(s)"``),
+    ``also`` adds to the list of choices (``" (or none)"``)."""
+    items = [s.strip().lower() if lower else s.strip() for s in text.split(",") if s.strip()]
+    bad = [s for s in items if s not in allowed]
     if bad or not items:
         raise argparse.ArgumentTypeError(
-            f"unknown scheme(s) {', '.join(bad) or text!r}; choose from {', '.join(SCHEME_ORDER)}")
-    return items
+            f"unknown {what} {', '.join(map(repr, bad)) or repr(text)}; "
+            f"choose from {', '.join(allowed)}{also}")
+    return list(dict.fromkeys(items))
+
+
+def schemes(text) -> list:
+    """Scheme names of :data:`hfdi.SCHEMES`, comma-separated."""
+    return names_from(text, SCHEME_ORDER, "scheme(s)")
 
 
 def targets(text) -> list:
@@ -97,13 +105,7 @@ def ratios(text) -> list:
 
 def problems(text) -> list:
     """Benchmarks of :mod:`validation.experiments`, comma-separated."""
-    items = [s.strip() for s in text.split(",") if s.strip()]
-    bad = [s for s in items if s not in names()]
-    if bad or not items:
-        raise argparse.ArgumentTypeError(
-            f"unknown problem(s) {', '.join(map(repr, bad)) or repr(text)}; "
-            f"available: {', '.join(names())}")
-    return list(dict.fromkeys(items))
+    return names_from(text, names(), "problem(s)", lower=False)
 
 
 def positive_integer(text) -> int:
