@@ -19,6 +19,11 @@ and the fractions of one run under ``cProfile`` spent in
 Fractions are of the profiled run's total; cProfile's own overhead inflates
 the many small calls of the driver somewhat, so the split is an estimate and
 the per-iteration time is taken from the plain runs.
+
+``--paths`` instead compares the Python path with the compiled attempt
+(``compiled=True``, docs/compiled.md) on the same runs: µs per Newton
+iteration of each, best of ``--repeats`` runs made in turn, and their ratio;
+with ``--rtol R`` the runs are error-controlled instead of at ``--target``.
 """
 from __future__ import annotations
 
@@ -33,10 +38,11 @@ from pathlib import Path
 
 import hfdi
 from validation import options as opt
+from validation.atomic import write_atomic
 from validation.experiments import SCHEME_ORDER, experiment, names
 from validation.runs import integrate
 
-__all__ = ["profile_run", "main"]
+__all__ = ["profile_run", "compare_paths", "main"]
 
 _HFDI = Path(hfdi.__file__).resolve().parent
 _LINALG_METHODS = {"solve", "band", "solve_band"}
@@ -118,6 +124,59 @@ def profile_run(problem: str, scheme: str, target: float = 3.0, repeats: int = 5
             "status": result.status.name, "fractions": fractions}
 
 
+def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int = 3,
+                  t_end: float | None = None) -> dict:
+    """Wall time per Newton iteration of the Python path and of the compiled
+    attempt on the same run, best of ``repeats`` runs of each made in turn.
+
+    Returns
+    -------
+    dict
+        ``steps``, ``newton_iterations`` (Python path), ``compiled_steps``,
+        ``compiled_newton_iterations``, ``python_us``, ``compiled_us`` (µs
+        per iteration of each path's own run), ``speedup`` (their ratio) and
+        ``same_counts`` (steps and Newton corrections equal on both paths).
+    """
+    end = experiment(problem).observation_time if t_end is None else t_end
+    if rtol is not None:
+        target = None
+    best = {False: math.inf, True: math.inf}
+    counts = {}
+    for _ in range(max(1, int(repeats))):
+        for compiled in (False, True):
+            model = experiment(problem).model()
+            start = time.perf_counter()
+            result = integrate(model, scheme, end, target, rtol=rtol, compiled=compiled)
+            best[compiled] = min(best[compiled], time.perf_counter() - start)
+            counts[compiled] = (int(result.stats.steps), int(result.stats.newton_iterations))
+    steps, iterations = counts[False]
+    return {"problem": problem, "scheme": scheme, "target": target, "rtol": rtol,
+            "steps": steps, "newton_iterations": iterations,
+            "compiled_steps": counts[True][0], "compiled_newton_iterations": counts[True][1],
+            "python_us": 1e6 * best[False] / max(iterations, 1),
+            "compiled_us": 1e6 * best[True] / max(counts[True][1], 1),
+            "speedup": (best[False] / max(iterations, 1)) / (best[True] / max(counts[True][1], 1)),
+            "same_counts": counts[False] == counts[True]}
+
+
+def _print_paths(args) -> list:
+    rows = []
+    print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'python µs/it':>13s} "
+          f"{'compiled µs/it':>15s} {'ratio':>6s}")
+    for problem in args.problems or names():
+        for scheme in args.schemes:
+            row = compare_paths(problem, scheme, args.target, args.rtol, args.repeats,
+                                args.t_end)
+            rows.append(row)
+            note = "" if row["same_counts"] else (
+                f"  (compiled: {row['compiled_steps']} steps, "
+                f"{row['compiled_newton_iterations']} its)")
+            print(f"{problem:12s} {scheme:8s} {row['steps']:6d} {row['newton_iterations']:6d} "
+                  f"{row['python_us']:13.1f} {row['compiled_us']:15.1f} "
+                  f"{row['speedup']:6.2f}{note}", flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     parser = opt.Parser(prog="python -m benchmarks profile",
                         description="Cost per Newton iteration and its split.")
@@ -129,7 +188,16 @@ def main(argv=None) -> int:
                         help="plain runs, best kept (5)")
     parser.add_argument("--t-end", type=opt.positive, default=None, help="default: T_o")
     parser.add_argument("--json", default=None, metavar="FILE", type=opt.output_file)
+    parser.add_argument("--paths", action="store_true",
+                        help="compare the Python path with the compiled attempt")
+    parser.add_argument("--rtol", type=lambda s: opt.rtols(s)[0], default=None,
+                        help="with --paths: error-controlled runs at this rtol")
     args = parser.parse_args(argv)
+    if args.paths:
+        rows = _print_paths(args)
+        if args.json:
+            write_atomic(Path(args.json), json.dumps(rows, indent=1))
+        return 0
     rows = []
     print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'ms':>8s} "
           f"{'ms/it':>7s}  model  linalg  driver")
@@ -143,7 +211,7 @@ def main(argv=None) -> int:
                   f"{f['model']:5.2f}  {f['linear_algebra']:6.2f}  {f['driver']:6.2f}",
                   flush=True)
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        write_atomic(Path(args.json), json.dumps(rows, indent=1))
     return 0
 
 

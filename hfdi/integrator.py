@@ -353,7 +353,7 @@ class Integrator:
         :class:`hfdi.compiled.CompiledUnavailable`. Both paths give the same
         steps and Newton counts and states equal to rounding. Not the default
         yet: the driver around the attempt is still Python, so the gain is
-        1.2–2.6× per Newton iteration, against about 25 s of compiling on the
+        1.2–2.7× per Newton iteration, against about 25 s of compiling on the
         first use after installing (docs/compiled.md).
 
     Raises

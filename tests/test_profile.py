@@ -40,3 +40,19 @@ def test_command_line_writes_json(tmp_path, capsys):
     assert "ms/it" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         main(["--problems", "nope"])
+
+
+def test_paths_compare_the_same_runs(tmp_path, capsys):
+    pytest.importorskip("numba")
+    out = tmp_path / "paths.json"
+    assert main(["--paths", "--rtol", "1e-5", "--problems", "articulated", "--schemes",
+                 "bathe,hfdi", "--repeats", "1", "--t-end", "0.02", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["scheme"], r["rtol"], r["target"]) for r in rows] == [("bathe", 1e-5, None),
+                                                                     ("hfdi", 1e-5, None)]
+    for row in rows:
+        # both paths take the same steps and corrections; the timing itself is not asserted
+        assert row["same_counts"] and row["newton_iterations"] >= row["steps"] > 0
+        assert row["python_us"] > 0 and row["compiled_us"] > 0
+        assert math.isclose(row["speedup"], row["python_us"] / row["compiled_us"])
+    assert "compiled µs/it" in capsys.readouterr().out

@@ -78,13 +78,14 @@ def run_experiment(problem: str, scheme: str, target: float | None,
 
 
 def integrate(model, scheme: str, t_end: float, target=None, rtol=None, atol=None,
-              progress=None):
+              progress=None, compiled=False):
     """:func:`hfdi.integrate` as every run of validation and of the benchmarks
     makes it: at the target iteration count ``target`` (the paper's mode),
     under error control at ``rtol`` (and ``atol``), or both, with the energy
-    guard :data:`validation.experiments.ENERGY_LIMIT`."""
+    guard :data:`validation.experiments.ENERGY_LIMIT`; ``compiled`` as in
+    :class:`hfdi.Integrator`."""
     return hfdi.integrate(model, scheme, t_end, target_iterations=target, rtol=rtol, atol=atol,
-                          energy_limit=ENERGY_LIMIT, progress=progress)
+                          energy_limit=ENERGY_LIMIT, progress=progress, compiled=compiled)
 
 
 def make_record(problem, scheme, target, model, result, reference=None, rtol=None) -> RunRecord:
