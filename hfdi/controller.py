@@ -142,10 +142,17 @@ class Controller:
         self.first_step_trials = checks.integer("first_step_trials", first_step_trials, 1)
 
     def init(self, trial, h0: float):
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must define init(trial, h0) -> "
+                                  f"(attempt, decision): see hfdi.controller")
 
     def adapt(self, attempt: Attempt, rejections: int) -> Decision:
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must define adapt(attempt, "
+                                  f"rejections) -> Decision: see hfdi.controller")
+
+    def prepare(self, n: int, order: int) -> None:
+        """Fit the controller to a system of ``n`` degrees of freedom and a
+        scheme of order ``order``; the integrator calls it on its own copy,
+        before the first step. Refuses what does not fit (``ValueError``)."""
 
     def landing(self, h: float, remaining: float) -> float:
         """The size to take when ``remaining`` is left to the next time to reach
@@ -341,8 +348,9 @@ class ErrorControl(Controller):
     atol : float or array_like (N,) or (2N,)
         Absolute tolerance, ``> 0``, laid out as ``rtol``; in the units of
         ``u`` (and of ``v`` for the second half of a (2N,) array).
-    order : int
-        Order ``p`` of the scheme.
+    order : int, optional
+        Order ``p`` of the scheme; by default the order of the scheme of the
+        integrator that uses the controller.
     safety, grow, shrink : float
         The usual factors: 0.9, 5 and 0.2.
     """
@@ -350,8 +358,8 @@ class ErrorControl(Controller):
     uses_error_estimate = True
     max_iterations = 10
 
-    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, order: int, safety=0.9, grow=5.0,
-                 shrink=0.2, **limits):
+    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, order: int | None = None, safety=0.9,
+                 grow=5.0, shrink=0.2, **limits):
         self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
         self.atol = _tolerance("atol", 1e-3 * np.min(self.rtol) if atol is None else atol,
                                0.0, math.inf)
@@ -359,11 +367,17 @@ class ErrorControl(Controller):
             # a weight atol + rtol·|u| of zero would fail every step at u = 0
             raise ValueError(f"atol must be > 0 (a finite number or one per degree of freedom), "
                              f"got {atol!r}")
-        self.order = checks.integer("order", order, 1)
+        self.order = None if order is None else checks.integer("order", order, 1)
         self.safety = checks.real("safety", safety, low=0.0, high=1.0, high_closed=True)
         self.grow = checks.real("grow", grow, low=1.0, high=math.inf)
         self.shrink = checks.real("shrink", shrink, low=0.0, high=1.0)
         super().__init__(**limits)
+
+    def prepare(self, n: int, order: int) -> None:
+        """Take the scheme's order unless one was given; see :meth:`check_size`."""
+        if self.order is None:
+            self.order = order
+        self.check_size(n)
 
     def check_size(self, n: int):
         """Refuse tolerances given per degree of freedom for another size, and
@@ -457,8 +471,9 @@ class Combined(Controller):
         self.max_rejections = iteration.max_rejections
         self.first_step_trials = iteration.first_step_trials
 
-    def check_size(self, n):
-        self.error.check_size(n)
+    def prepare(self, n, order):
+        self.iteration.prepare(n, order)
+        self.error.prepare(n, order)
 
     def adapt(self, attempt, rejections):
         a = self.iteration.adapt(attempt, rejections)

@@ -298,7 +298,11 @@ class Integrator:
         Fixed step size. Steps land on ``t0 + k·step``: ``(t_end − t0)/n``
         takes exactly ``n`` steps.
     controller : Controller, optional
-        A step-size controller object (see :mod:`hfdi.controller`).
+        A step-size controller object (see :mod:`hfdi.controller`), defining
+        ``init`` and ``adapt``. The integrator works on its own copy
+        (``Integrator.controller``), fitted to the system's size and, for an
+        :class:`~hfdi.controller.ErrorControl` without ``order``, to the
+        scheme's order; the object given can serve other integrators.
     t0 : float
         Initial time.
     u0, v0 : array_like (N,), optional
@@ -402,8 +406,7 @@ class Integrator:
             controller, rtol, atol, target_iterations, step, span, min_step, max_step,
             max_halvings, first_step_trials, float(getattr(system, "u_scale", 1.0) or 1.0))
         c = self.controller
-        if hasattr(c, "check_size"):
-            c.check_size(ev.n)
+        c.prepare(ev.n, self.scheme.order)
         self.min_step, self.max_step = c.min_step, c.max_step
         self.fixed = isinstance(c, FixedStep)
         self.max_iterations = c.max_iterations if max_iterations is None else \
@@ -459,7 +462,14 @@ class Integrator:
             if not isinstance(controller, Controller):
                 raise TypeError(f"controller must be a hfdi.controller.Controller, got "
                                 f"{type(controller).__name__}")
-            return controller
+            missing = [name for name in ("init", "adapt")
+                       if getattr(type(controller), name) is getattr(Controller, name)]
+            if missing:
+                raise TypeError(f"controller {type(controller).__name__} must define "
+                                f"{' and '.join(missing)} (see hfdi.controller)")
+            # its own copy: prepare() fits it to this system and scheme, and
+            # the caller's object stays usable for another integrator
+            return copy.deepcopy(controller)
         if step is not None and len(given) > 1:
             others = ", ".join(f"{name}={value!r}" for name, value in given.items()
                                if name != "step")

@@ -391,3 +391,30 @@ if __name__ == "__main__":
         write_doc_table("accuracy", table, Path(__file__).parents[1] / "docs" / "accuracy.md")
     else:
         print(table)
+
+
+def test_an_injected_controller_takes_the_order_of_the_scheme_and_stays_reusable():
+    """``ErrorControl`` without ``order`` gets each integrator's scheme order,
+    on the integrator's own copy: one object serves Bathe (p = 2) and HFDI
+    (p = 3) and a system of another size, each as its own tolerances would."""
+    model, _ = exact_problems.kepler()
+    shared = hfdi.ErrorControl(1e-6, [1e-9, 1e-9])                 # per DOF of the Kepler problem
+    for scheme in ("bathe", "hfdi"):
+        run = hfdi.integrate(model, scheme, 2.0, controller=shared)
+        same = hfdi.integrate(model, scheme, 2.0, rtol=1e-6, atol=[1e-9, 1e-9])
+        assert run.success and run.stats.steps == same.stats.steps
+        np.testing.assert_array_equal(run.u, same.u)
+    assert shared.order is None and np.shape(shared.atol) == (2,)  # the caller's object untouched
+    chain, _ = exact_problems.damped_chain()
+    with pytest.raises(ValueError, match=r"atol given per degree of freedom must have shape \(3,\)"):
+        hfdi.Integrator(chain, "hfdi", controller=shared)
+
+
+def test_a_controller_without_its_rules_is_refused_by_name():
+    class Incomplete(hfdi.Controller):
+        def adapt(self, attempt, rejections):
+            return hfdi.controller.Decision(True, attempt.h)
+
+    model, _ = exact_problems.duffing()
+    with pytest.raises(TypeError, match="controller Incomplete must define init"):
+        hfdi.Integrator(model, "hfdi", controller=Incomplete())
