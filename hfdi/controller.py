@@ -37,7 +37,7 @@ from . import checks
 
 __all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
            "FixedStep", "IterationCountController", "TARGET_ITERATIONS_RANGE",
-           "DEFAULT_RTOL"]
+           "DEFAULT_RTOL", "RTOL_RANGE", "tolerance"]
 
 #: Allowed target Newton corrections per (sub-)step. Above 100 the corrector's
 #: ``N_max = 2 N̄`` no longer bounds the work of a diverging attempt usefully.
@@ -360,8 +360,8 @@ class ErrorControl(Controller):
 
     def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, order: int | None = None, safety=0.9,
                  grow=5.0, shrink=0.2, **limits):
-        self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
-        self.atol = _tolerance("atol", 1e-3 * np.min(self.rtol) if atol is None else atol,
+        self.rtol = tolerance("rtol", rtol, *RTOL_RANGE)
+        self.atol = tolerance("atol", 1e-3 * np.min(self.rtol) if atol is None else atol,
                                0.0, math.inf)
         if np.any(np.asarray(self.atol) <= 0.0):
             # a weight atol + rtol·|u| of zero would fail every step at u = 0
@@ -497,8 +497,11 @@ class Combined(Controller):
         return f"Combined({self.iteration!r}, {self.error!r})"
 
 
-def _tolerance(name, value, low, high):
+def tolerance(name, value, low, high):
     """A tolerance as a float or a 1-D float array, every entry in ``[low, high)``."""
+    if isinstance(value, (str, bytes)) or np.asarray(value).dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
+                         f"of freedom) in [{low:g}, {high:g}), got {value!r}")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):

@@ -24,8 +24,8 @@ import numpy as np
 
 from . import checks, serial
 from .compiled import compiled_step
-from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
-                         IterationCount)
+from .controller import (DEFAULT_RTOL, RTOL_RANGE, Attempt, Combined, Controller, ErrorControl,
+                         FixedStep, IterationCount, tolerance)
 from .corrector import local_error, predict, solve_step
 from .dense import Solution, hermite_quintic
 from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
@@ -500,7 +500,7 @@ class Integrator:
             IterationCount(target, self.scheme.n_stages, **limits)
         if iteration is not None and rtol is None:
             return iteration
-        rtol = DEFAULT_RTOL if rtol is None else rtol
+        rtol = DEFAULT_RTOL if rtol is None else tolerance("rtol", rtol, *RTOL_RANGE)
         if atol is None:
             atol = 1e-3 * np.min(rtol) * u_scale
         error = ErrorControl(rtol, atol, order=self.scheme.order, **limits)
