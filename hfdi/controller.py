@@ -408,6 +408,9 @@ class ErrorControl(Controller):
         return min(self.grow, max(self.shrink, self.safety * err ** -exponent))
 
     def _exponent(self, attempt):
+        if self.order is None:
+            raise ValueError("ErrorControl has no order: give order=p, or let an integrator "
+                             "fit it to its scheme (prepare)")
         # without history the estimate is the Taylor predictor's O(h³) error
         return 1.0 / (self.order + 1) if attempt.history else 1.0 / 3.0
 
