@@ -166,35 +166,38 @@ def chain_force(u, params):
     return f
 
 
+@njit(**JIT_OPTIONS)
+def _spring_matrix(e):
+    """The (3, 3) matrix of springs with the coefficients ``e`` (ground to 1, 1–2, 2–3)."""
+    A = np.zeros((3, 3))
+    for i in range(3):
+        A[i, i] += e[i]
+        if i > 0:
+            A[i - 1, i - 1] += e[i]
+            A[i, i - 1] -= e[i]
+            A[i - 1, i] -= e[i]
+    return A
+
+
 @njit(STIFFNESS, **JIT_OPTIONS)
 def chain_stiffness(u, params):
     k, c3 = params[0], params[1]
-    K = np.zeros((3, 3))
+    e = np.empty(3)
     for i in range(3):
         s = u[i] - (u[i - 1] if i > 0 else 0.0)
-        e = k + 3.0 * c3 * s * s
-        K[i, i] += e
-        if i > 0:
-            K[i - 1, i - 1] += e
-            K[i, i - 1] -= e
-            K[i - 1, i] -= e
-    return K
+        e[i] = k + 3.0 * c3 * s * s
+    return _spring_matrix(e)
 
 
 @njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
 def chain_stiffness_derivative(u, w, params):
     c3 = params[1]
-    T = np.zeros((3, 3))
+    e = np.empty(3)
     for i in range(3):
         s = u[i] - (u[i - 1] if i > 0 else 0.0)
         z = w[i] - (w[i - 1] if i > 0 else 0.0)
-        e = 6.0 * c3 * s * z
-        T[i, i] += e
-        if i > 0:
-            T[i - 1, i - 1] += e
-            T[i, i - 1] -= e
-            T[i - 1, i] -= e
-    return T
+        e[i] = 6.0 * c3 * s * z
+    return _spring_matrix(e)
 
 
 @njit(POTENTIAL_ENERGY, **JIT_OPTIONS)

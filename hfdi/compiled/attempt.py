@@ -221,6 +221,16 @@ def _end_finite(out):
 
 
 @njit(**JIT_OPTIONS)
+def _inertia_end(out, u, ca, cv, a0, v0):
+    """The end state of an inertia stage, ``v = cv u + v0``, ``a = ca u + a0``,
+    into ``out``: ``OK`` or ``END_NOT_FINITE``."""
+    out[END_U] = u
+    out[END_V] = cv * u + v0
+    out[END_A] = ca * u + a0
+    return OK if _end_finite(out) else END_NOT_FINITE
+
+
+@njit(**JIT_OPTIONS)
 def _hfdi_velocity(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B):
     """``v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + c g`` (``B`` diagonal when
     ``B`` (dense) is empty)."""
@@ -428,12 +438,8 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
             info[STAGES_COUNTED] = 1
         if status != OK:
             return status, out, info, math.inf
-        out[END_U] = u
-        out[END_V] = cv * u + v0
-        out[END_A] = ca * u + a0
-        if not _end_finite(out):
-            return END_NOT_FINITE, out, info, math.inf
-        return OK, out, info, error
+        status = _inertia_end(out, u, ca, cv, a0, v0)
+        return status, out, info, (error if status == OK else math.inf)
     # Bathe: the trapezoidal rule over γ h, then the three-point backward formula
     g = coefficients[GAMMA]
     ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25)
@@ -470,12 +476,8 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
         info[STAGES_COUNTED] = 2
     if status != OK:
         return status, out, info, math.inf
-    out[END_U] = u
-    out[END_V] = c3 * u + v0
-    out[END_A] = (c3 * c3) * u + a0
-    if not _end_finite(out):
-        return END_NOT_FINITE, out, info, math.inf
-    return OK, out, info, max(newton_error, error)
+    status = _inertia_end(out, u, c3 * c3, c3, a0, v0)
+    return status, out, info, (max(newton_error, error) if status == OK else math.inf)
 
 
 # -- the Python side -------------------------------------------------------------------
