@@ -16,7 +16,7 @@ import time
 
 import hfdi
 from validation import options as opt
-from validation.atomic import write_atomic
+from hfdi.files import write_atomic
 from validation.experiments import SCHEME_ORDER, experiment
 
 __all__ = ["benchmark", "main"]

@@ -87,7 +87,7 @@ import hfdi
 
 from hfdi.linalg import normalise_matrix
 from validation import options as opt
-from validation.atomic import write_atomic
+from hfdi.files import write_atomic
 from validation.errors import error_norm
 from validation.experiments import ENERGY_LIMIT, SCHEME_COLOURS, SCHEME_ORDER, experiment, names
 from validation.reference import cached_reference, default_atol, ida_solve

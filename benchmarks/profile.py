@@ -38,7 +38,7 @@ from pathlib import Path
 
 import hfdi
 from validation import options as opt
-from validation.atomic import write_atomic
+from hfdi.files import write_atomic
 from validation.experiments import SCHEME_ORDER, experiment, names
 from validation.runs import integrate
 

@@ -42,6 +42,8 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
+from hfdi.files import atomic_file
+
 from . import metadata
 
 __all__ = ["BuildError", "problems", "build", "build_all"]
@@ -224,20 +226,13 @@ def _assemble(draft: Path, library: Path, entry: str, config: dict, target: Path
         identifier = root.find("CoSimulation").get("modelIdentifier")
         config = dict(config, guid=root.get("guid"))
         python = f"{_python_library()}\n{sys.base_prefix}\n{entry}\n"
-        fd, temporary = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-        os.close(fd)
-        try:
-            with zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED) as new:
-                for item in old.infolist():
-                    if not item.filename.startswith("binaries/"):
-                        new.writestr(item, old.read(item.filename))
-                new.write(library, f"binaries/linux64/{identifier}.so")
-                new.writestr("resources/hfdi_fmu_python.txt", python)
-                new.writestr("resources/hfdi_fmu.json", json.dumps(config, indent=1))
-            os.replace(temporary, target)
-        except BaseException:
-            Path(temporary).unlink(missing_ok=True)
-            raise
+        with atomic_file(target) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as new:
+            for item in old.infolist():
+                if not item.filename.startswith("binaries/"):
+                    new.writestr(item, old.read(item.filename))
+            new.write(library, f"binaries/linux64/{identifier}.so")
+            new.writestr("resources/hfdi_fmu_python.txt", python)
+            new.writestr("resources/hfdi_fmu.json", json.dumps(config, indent=1))
     return target
 
 

@@ -1,10 +1,10 @@
-"""Atomic output files of the validation tools."""
+"""Atomic output files (hfdi.files), used by the validation tools, the benchmarks and the FMU build."""
 import os
 import stat
 
 import pytest
 
-from validation.atomic import atomic_file, write_atomic
+from hfdi.files import atomic_file, write_atomic
 
 
 def test_written_file_has_the_usual_permissions(tmp_path):

@@ -10,7 +10,7 @@ from pathlib import Path
 import hfdi
 
 from . import options as opt
-from .atomic import write_atomic
+from hfdi.files import write_atomic
 from .experiments import SCHEME_ORDER, experiment, names
 from .options import UsageError, check_problem, check_runs, out_dir
 from .reference import IDAError

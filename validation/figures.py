@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 
 
-from .atomic import write_atomic  # noqa: E402
+from hfdi.files import write_atomic  # noqa: E402
 from .experiments import (EXPERIMENTS, FIGURE_SUBJECTS, SCHEME_COLOURS,  # noqa: E402
                           SCHEME_ORDER, Quantity)
 from .runs import ProblemRuns, run_label, scheme_title  # noqa: E402

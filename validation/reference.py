@@ -77,7 +77,7 @@ import hfdi
 from hfdi.dense import hermite_quintic
 from hfdi.linalg import normalise_matrix
 
-from .atomic import atomic_file
+from hfdi.files import atomic_file, cache_dir
 
 __all__ = [
     "Reference",
@@ -900,9 +900,9 @@ def ida_march(model, t_end, *, t_eval=None, callback=None, rtol=1e-12, atol=None
 # -- cache ---------------------------------------------------------------------------
 
 def default_cache_dir() -> Path:
-    """``$HFDI_CACHE_DIR``, or ``~/.cache/hfdi``."""
-    env = os.environ.get("HFDI_CACHE_DIR")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "hfdi"
+    """The reference cache: :func:`hfdi.files.cache_dir` (``$HFDI_CACHE_DIR``
+    or ``~/.cache/hfdi``)."""
+    return cache_dir()
 
 
 def _json_default(obj):

@@ -41,7 +41,7 @@ import numpy as np
 import hfdi
 
 from .errors import error_norms
-from .atomic import write_atomic
+from hfdi.files import write_atomic
 from .experiments import EXPERIMENTS, SCHEME_ORDER, experiment, names
 from .figures import figure_specs, write_figures
 from .reference import IDAError

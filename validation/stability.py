@@ -12,7 +12,7 @@ import numpy as np
 
 from hfdi.spectral import spectral_properties
 
-from .atomic import write_atomic
+from hfdi.files import write_atomic
 from .experiments import SCHEME_COLOURS, SCHEME_ORDER
 from .figures import figure_png, plt
 from .runs import Progress, scheme_title

@@ -1,4 +1,5 @@
-"""Atomic file output: a killed run leaves the old file or none, never half of one."""
+"""Files: atomic output (a killed run leaves the old file or none, never half
+of one) and the directory of the project's caches."""
 from __future__ import annotations
 
 import contextlib
@@ -6,7 +7,14 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_file", "write_atomic"]
+__all__ = ["atomic_file", "write_atomic", "cache_dir"]
+
+
+def cache_dir() -> Path:
+    """``$HFDI_CACHE_DIR``, or ``~/.cache/hfdi``: IDA references
+    (``validation``) and generated kernels (:mod:`hfdi.compiled.symbolic`)."""
+    env = os.environ.get("HFDI_CACHE_DIR")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "hfdi"
 
 
 def _umask() -> int:
