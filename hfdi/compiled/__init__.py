@@ -111,7 +111,10 @@ def kernels_of(system):
     if not ok:
         return None, why
     if factory is None:
-        kernels = system.compiled_kernels()
+        try:
+            kernels = system.compiled_kernels()
+        except CompiledUnavailable as exc:
+            return None, str(exc)
     else:
         from . import models
         kernels = getattr(models, factory)(system)

@@ -535,6 +535,24 @@ class EnergyModel(SecondOrderSystem):
         other.set_parameters(values, **by_name)
         return other
 
+    # -- compiled kernels ------------------------------------------------------------
+    def compiled_kernels(self):
+        """Compiled (numba) kernels generated from the model's expressions, for
+        ``compiled=True`` or ``None`` (:mod:`hfdi.compiled.symbolic`); they read
+        the parameter values the model has now.
+
+        Raises
+        ------
+        hfdi.compiled.CompiledUnavailable
+            When an expression has no compiled form (the Python path runs).
+        """
+        from ..compiled import CompiledUnavailable
+        from ..compiled.symbolic import KernelSourceError, energy_model_kernels
+        try:
+            return energy_model_kernels(self)
+        except KernelSourceError as exc:
+            raise CompiledUnavailable(f"model {self.name!r}: {exc}") from None
+
     # -- mechanics -----------------------------------------------------------------
     def _state(self, u, what="u"):
         u = np.asarray(u, dtype=float)

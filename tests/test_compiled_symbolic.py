@@ -1,0 +1,129 @@
+"""Compiled kernels generated from an EnergyModel's sympy expressions
+(hfdi.compiled.symbolic): against the model's Python f, K, T and V, the same
+runs on both paths, parameters, the disk cache, and the fallback when an
+expression has no compiled form."""
+import numpy as np
+import pytest
+import sympy
+
+import hfdi
+from hfdi.compiled import CompiledKernels, kernels_of
+from hfdi.models import EnergyModel, elastic_pendulum, spring_chain
+
+numba = pytest.importorskip("numba")
+
+# every model's kernels are generated and compiled once per session (about a
+# second each): not in the quick loop
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(autouse=True)
+def _kernel_cache(tmp_path_factory, monkeypatch):
+    """The generated sources go to a cache of this session, not the user's."""
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "hfdi-cache"))
+
+
+def _dense(a):
+    return a.toarray() if hasattr(a, "toarray") else np.asarray(a)
+
+
+def _relative(a, b):
+    scale = np.abs(b).max()
+    return float(np.abs(a - b).max() / scale) if scale else float(np.abs(a - b).max())
+
+
+def _models():
+    """A bar on a hinge with a transcendental energy and dense mass and damping,
+    beside the two ready-made models (the chain sparse in the Python path)."""
+    x, y = sympy.symbols("x y")
+    k, g, c = sympy.symbols("k g c", positive=True)
+    energy = k * (sympy.sqrt(x ** 2 + y ** 2) - 1) ** 2 / 2 + g * y + c * sympy.cos(x) ** 3
+    bar = EnergyModel((x, y), energy, [[2.0, 0.3], [0.3, 1.5]],
+                      parameters={k: 40.0, g: 9.81, c: 0.7},
+                      damping=[[0.2, -0.05], [-0.05, 0.1]],
+                      load=lambda t: np.array([np.sin(2.0 * t), 0.0]),
+                      initial_displacement=[0.4, -0.9], name="bar")
+    return {"pendulum": elastic_pendulum(), "chain": spring_chain(n_masses=6), "bar": bar}
+
+
+MODELS = _models()
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_generated_kernels_reproduce_the_model(name):
+    model = MODELS[name]
+    kernels, why = kernels_of(model)
+    assert isinstance(kernels, CompiledKernels), why
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        u = model.initial_displacement + 0.2 * rng.standard_normal(model.n_dof)
+        w = rng.standard_normal(model.n_dof)
+        p = kernels.params
+        assert _relative(kernels.force(u, p), model.internal_force(u)) < 1e-14
+        assert _relative(kernels.stiffness(u, p), _dense(model.stiffness(u))) < 1e-14
+        assert _relative(kernels.stiffness_derivative(u, w, p),
+                         _dense(model.stiffness_derivative(u, w))) < 1e-14
+        V = model.potential_energy(u)
+        assert abs(kernels.potential_energy(u, p) - V) <= 1e-14 * max(abs(V), 1.0)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("name", list(MODELS))
+def test_both_paths_take_the_same_run(name, scheme):
+    model = MODELS[name]
+    runs = [hfdi.integrate(model, scheme, 1.5, rtol=1e-6, compiled=c) for c in (False, True)]
+    python, compiled = runs
+    assert python.success and compiled.success and python.stats.steps > 20
+    for counter in ("steps", "rejected", "newton_iterations", "nfev", "njev", "ntev"):
+        assert getattr(compiled.stats, counter) == getattr(python.stats, counter), counter
+    # the generated code and lambdify's round some operations differently
+    # (powers, sums in another order): f differs in the last bit, and under
+    # error control the step sizes carry that from step to step (~1e-6
+    # relative); the end states, on t_end for both, agree far closer
+    np.testing.assert_allclose(compiled.t, python.t, rtol=1e-5, atol=0)
+    assert _relative(compiled.u[-1], python.u[-1]) < 1e-10
+
+
+def test_kernels_read_the_parameters_of_the_model():
+    stiff = elastic_pendulum().with_parameters(k=300.0)
+    kernels, _ = kernels_of(stiff)
+    u = np.array([0.3, -1.2])
+    np.testing.assert_allclose(kernels.force(u, kernels.params), stiff.internal_force(u),
+                               rtol=1e-14)
+    assert not np.allclose(stiff.internal_force(u), elastic_pendulum().internal_force(u))
+
+
+def test_generated_source_is_cached_by_its_text(tmp_path, monkeypatch):
+    from hfdi.compiled import symbolic
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(symbolic, "_IMPORTED", {})
+    model = elastic_pendulum()
+    first = symbolic.energy_model_kernels(model)
+    files = sorted((tmp_path / "kernels").glob("*.py"))
+    assert len(files) == 1 and files[0].read_text() == symbolic.kernel_source(model)
+    again = symbolic.energy_model_kernels(elastic_pendulum(k=10.0))     # same expressions
+    assert again.force is first.force
+    assert sorted((tmp_path / "kernels").glob("*.py")) == files
+
+
+def test_an_expression_without_a_compiled_form_is_refused_when_printed():
+    from hfdi.compiled.symbolic import KernelSourceError, kernel_source
+    x = sympy.Symbol("x")
+    model = EnergyModel((x,), sympy.besselj(0, x) + x ** 2, [1.0], initial_displacement=[0.5])
+    with pytest.raises(KernelSourceError, match="besselj"):
+        kernel_source(model)
+
+
+def test_a_model_whose_kernels_cannot_be_made_runs_on_the_python_path(monkeypatch):
+    from hfdi.compiled import symbolic
+
+    def refuse(model):
+        raise symbolic.KernelSourceError("Unsupported by the printer: besselj")
+
+    monkeypatch.setattr(symbolic, "kernel_source", refuse)
+    model = elastic_pendulum()
+    kernels, why = kernels_of(model)
+    assert kernels is None and "besselj" in why
+    assert not hfdi.Integrator(model, "hfdi", step=0.01, compiled=None).compiled
+    with pytest.raises(hfdi.compiled.CompiledUnavailable, match="besselj"):
+        hfdi.Integrator(model, "hfdi", step=0.01, compiled=True)
