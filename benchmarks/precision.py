@@ -150,12 +150,12 @@ class _Budget(Exception):
 
 # -- the runs -------------------------------------------------------------------------
 
-def _run_ours(model, scheme, t_end, target=None, rtol=None):
+def _run_ours(model, scheme, t_end, target=None, rtol=None, compiled=False):
     # error control with the competitors' absolute tolerances, (u, v) alike
     atol = None if rtol is None else default_atol(model, rtol, t_end)
     cpu = time.process_time()
     start = time.perf_counter()
-    result = integrate(model, scheme, t_end, target, rtol, atol)
+    result = integrate(model, scheme, t_end, target, rtol, atol, compiled=compiled)
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu
     st = result.stats
@@ -293,13 +293,15 @@ def _run_scipy(model, method, t_end, rtol, max_nfev):
     }
 
 
-def _solve(problem, method, setting, t_end, max_nfev):
-    """One run of ``method`` at ``setting`` (target or rtol) on a fresh model."""
+def _solve(problem, method, setting, t_end, max_nfev, compiled=False):
+    """One run of ``method`` at ``setting`` (target or rtol) on a fresh model;
+    ours on the compiled path when ``compiled``."""
     model = hfdi.models.get(problem)
     if method in SCHEMES:
-        return model, _run_ours(model, method, t_end, setting)
+        return model, _run_ours(model, method, t_end, setting, compiled=compiled)
     if method in ERROR_CONTROLLED:
-        return model, _run_ours(model, method.split("-")[0], t_end, rtol=setting)
+        return model, _run_ours(model, method.split("-")[0], t_end, rtol=setting,
+                                compiled=compiled)
     if method == "ida":
         return model, _run_ida(model, t_end, setting, max_nfev)
     return model, _run_scipy(model, {"radau": "Radau", "bdf": "BDF"}[method], t_end, setting,
@@ -392,7 +394,8 @@ def _skipped(problem, method, setting, why):
 def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS,
                   ours_rtols=DEFAULT_OURS_RTOLS, competitors=COMPETITORS, t_end=None, repeats=REPEATS,
                   repeat_below=REPEAT_BELOW, reference_rtol=REFERENCE_RTOL,
-                  max_nfev=MAX_NFEV, skip_nfev=SKIP_NFEV, progress=None) -> dict:
+                  max_nfev=MAX_NFEV, skip_nfev=SKIP_NFEV, progress=None,
+                  compiled=False) -> dict:
     """Work–precision runs of every method on one problem, one after another.
 
     Parameters
@@ -424,6 +427,8 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
         tighter ``rtol`` values of that competitor are skipped.
     progress : callable, optional
         Called with one line of text per run.
+    compiled : bool
+        Our runs on the compiled attempt (``compiled=True``, docs/compiled.md).
 
     Returns
     -------
@@ -459,7 +464,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     for method, settings in methods:
         # warm-up, untimed: imports and first-call costs belong to no run
         try:
-            _solve(problem, method, settings[0], 0.1 * t_end, max_nfev)
+            _solve(problem, method, settings[0], 0.1 * t_end, max_nfev, compiled)
         except Exception:
             pass
     # Round robin over the methods, loosest settings first: the load of the
@@ -476,10 +481,10 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
                 runs[method, k] = _skipped(problem, method, setting, skip_reason[method])
                 say(f"  {problem:11s} {method:8s} {_label(method, setting):12s} skipped")
                 continue
-            fresh, raw = _solve(problem, method, setting, t_end, max_nfev)
+            fresh, raw = _solve(problem, method, setting, t_end, max_nfev, compiled)
             raws = [raw]
             while len(raws) < repeats and raw["wall"] < repeat_below:
-                raws.append(_solve(problem, method, setting, t_end, max_nfev)[1])
+                raws.append(_solve(problem, method, setting, t_end, max_nfev, compiled)[1])
             rec = _record(problem, method, setting, raws, fresh, reference)
             runs[method, k] = rec
             say(f"  {problem:11s} {method:8s} {rec['label']:12s} {rec['wall'] * 1e3:9.1f} ms  "
@@ -500,7 +505,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
             "ours_rtols": list(ours_rtols), "competitors": list(competitors), "rtols": list(rtols), "repeats": int(repeats),
             "repeat_below": float(repeat_below), "reference_rtol": float(reference_rtol),
             "max_nfev": int(max_nfev), "skip_nfev": int(skip_nfev),
-            "inaccurate_factor": INACCURATE_FACTOR,
+            "compiled": bool(compiled), "inaccurate_factor": INACCURATE_FACTOR,
             "atol_rule": ATOL_RULE, "newton_tol_ours": "hfdi's default: 1e-8 (targets), "
             "min(1e-8, max(1e-12, rtol/1000)) (error control)", "energy_limit_ours": ENERGY_LIMIT,
             "timing": "wall: time.perf_counter, cpu: time.process_time, around the solve "
@@ -995,6 +1000,8 @@ def add_parser(sub) -> None:
                        help=f"work budget of a competitor run, in evaluations (default "
                             f"{MAX_NFEV}); tighter rtols are skipped after a run above "
                             f"half of it")
+    bench.add_argument("--compiled", action="store_true",
+                       help="our runs on the compiled attempt (compiled=True; docs/compiled.md)")
     opt.add_parallel_options(bench)
 
 
@@ -1007,7 +1014,7 @@ def run_command(args) -> int:
                "rtols": list(args.rtols), "ours_rtols": list(args.ours_rtols),
                "competitors": list(args.competitors),
                "t_end": args.t_end, "repeats": args.repeats, "max_nfev": args.max_nfev,
-               "skip_nfev": max(1, args.max_nfev // 2)}
+               "skip_nfev": max(1, args.max_nfev // 2), "compiled": args.compiled}
     started = time.perf_counter()
     results = opt.runner_from_args(args).map(bench_task, [(p, options) for p in problems])
     written = write_outputs(results, out)

@@ -285,3 +285,21 @@ def test_cosim_runs_and_reports_a_ratio():
     assert result["internal_steps_fmu"] == result["internal_steps_in_process"]
     assert result["communication_steps"] >= 1
     assert result["ratio"] > 0 and result["in_process_s"] > 0 and result["fmu_s"] > 0
+
+
+def test_compiled_runs_give_the_records_of_the_python_path(tiny, tmp_path):
+    """``--compiled``: our runs on the compiled attempt; on the dumbbell (whose
+    kernels agree bit for bit with the Python model) every record but the
+    times is the one of the Python path."""
+    pytest.importorskip("numba")
+    out = tmp_path / "compiled"
+    assert main(["--problems", "dumbbell", "--out", str(out), "--competitors", "none",
+                 "--compiled", *TINY]) == 0
+    compiled = _load(out, "dumbbell")
+    assert compiled["settings"]["compiled"] is True
+    assert _load(tiny, "dumbbell")["settings"]["compiled"] is False
+    python = {(r["method"], r["target"], r["rtol"]): r for r in _load(tiny, "dumbbell")["records"]}
+    for record in compiled["records"]:
+        reference = python[(record["method"], record["target"], record["rtol"])]
+        for key in set(record) - TIMING_KEYS:
+            assert record[key] == reference[key], (record["method"], key)
