@@ -261,3 +261,14 @@ def test_user_model_with_dense_mass_and_damping(scheme, damping):
     runs = [hfdi.integrate(model, scheme, 0.5, rtol=1e-6, compiled=c) for c in (False, True)]
     assert runs[0].success and runs[0].stats.steps > 20
     _assert_same_run(*runs)
+
+
+def test_kernels_passed_as_plain_dispatchers_give_the_same_run(monkeypatch):
+    """Without numba's address lookup (another numba version) the attempt gets
+    the dispatchers themselves: slower, the same run."""
+    from hfdi.compiled import attempt
+    resolved = hfdi.integrate(articulated(), "hfdi", 0.03, rtol=1e-6, compiled=True)
+    monkeypatch.setattr(attempt, "_get_wrapper_address", None)
+    plain = hfdi.integrate(articulated(), "hfdi", 0.03, rtol=1e-6, compiled=True)
+    _assert_same_counts(resolved, plain)
+    np.testing.assert_array_equal(plain.u, resolved.u)

@@ -25,7 +25,10 @@ import math
 
 import numpy as np
 from numba import njit, types
-from numba.experimental.function_type import _get_wrapper_address
+try:   # numba's own lookup of a first-class function's address (not public API)
+    from numba.experimental.function_type import _get_wrapper_address
+except ImportError:                               # pragma: no cover - another numba
+    _get_wrapper_address = None
 
 from ..corrector import StepOutcome
 from ..evaluation import ModelError, NonFiniteError, State
@@ -544,9 +547,15 @@ class CompiledStep:
 
     def __init__(self, ev, scheme, kernels):
         self.ev, self.scheme, self.kernels = ev, scheme, kernels
-        self._force = _ResolvedKernel(kernels.force, FORCE)
-        self._stiffness = _ResolvedKernel(kernels.stiffness, STIFFNESS)
-        self._derivative = _ResolvedKernel(kernels.stiffness_derivative, STIFFNESS_DERIVATIVE)
+        if _get_wrapper_address is None:
+            # the dispatchers themselves: the same results, resolved at every call
+            self._force, self._stiffness, self._derivative = (
+                kernels.force, kernels.stiffness, kernels.stiffness_derivative)
+        else:
+            self._force = _ResolvedKernel(kernels.force, FORCE)
+            self._stiffness = _ResolvedKernel(kernels.stiffness, STIFFNESS)
+            self._derivative = _ResolvedKernel(kernels.stiffness_derivative,
+                                               STIFFNESS_DERIVATIVE)
         n = ev.n
         m_kind, self.Md, self.Mf = _kind_and_arrays(ev.mass, n)
         c_kind, self.Cd, self.Cf = _kind_and_arrays(ev.damping, n)
