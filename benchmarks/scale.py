@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hfdi.files import write_atomic
 from validation.errors import relative_error
 from validation.experiments import experiment
 from validation.options import Parser
@@ -320,12 +321,7 @@ def _fits(records):
 
 
 def _write_json(path, data):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1, default=float, allow_nan=True) + "\n")
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, json.dumps(data, indent=1, default=float, allow_nan=True) + "\n")
 
 
 def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, threads=1,
