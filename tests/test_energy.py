@@ -90,6 +90,17 @@ def energy_map(scheme, tau):
 NORM_ROUNDOFF = {"hfdi": 1e-12, "bathe": 5e-12, "newmark": 5e-12}
 
 
+def _assert_normal_contraction(E, tol):
+    """``‖E‖₂ ≤ 1`` and ``E`` normal (it commutes with ``Eᵀ``), so that its
+    norm is its spectral radius, each to ``tol``; returns the radius."""
+    norm = np.linalg.norm(E, 2)
+    radius = np.abs(np.linalg.eigvals(E)).max()
+    assert norm <= 1.0 + tol
+    assert abs(norm - radius) <= tol
+    assert np.abs(E @ E.T - E.T @ E).max() <= tol
+    return radius
+
+
 @PROPERTY
 @given(tau=taus)
 def test_every_step_ends_in_equilibrium(tau):
@@ -108,13 +119,7 @@ def test_hfdi_energy_norm_is_its_spectral_radius(tau):
     E, A = energy_map("hfdi", tau)
     # HFDI's next state does not depend on a_n: the third column is zero.
     assert np.all(A[:, 2] == 0.0)
-    norm = np.linalg.norm(E, 2)
-    radius = np.abs(np.linalg.eigvals(E)).max()
-    tol = NORM_ROUNDOFF["hfdi"]
-    assert norm <= 1.0 + tol
-    assert abs(norm - radius) <= tol
-    # normal: the norm is the spectral radius because E commutes with Eᵀ
-    assert np.abs(E @ E.T - E.T @ E).max() <= tol
+    radius = _assert_normal_contraction(E, NORM_ROUNDOFF["hfdi"])
     # the spectral radius is |R(iτ)|, R the (1,2) Padé approximant of exp
     z = 1j * tau
     assert radius == pytest.approx(abs((1 + z / 3) / (1 - 2 * z / 3 + z * z / 6)), rel=1e-9)
@@ -124,12 +129,7 @@ def test_hfdi_energy_norm_is_its_spectral_radius(tau):
 @given(tau=taus)
 def test_bathe_never_increases_the_energy_of_an_equilibrium_state(tau):
     E, A = energy_map("bathe", tau)
-    norm = np.linalg.norm(E, 2)
-    radius = np.abs(np.linalg.eigvals(E)).max()
-    tol = NORM_ROUNDOFF["bathe"]
-    assert norm <= 1.0 + tol
-    assert abs(norm - radius) <= tol
-    assert np.abs(E @ E.T - E.T @ E).max() <= tol
+    _assert_normal_contraction(E, NORM_ROUNDOFF["bathe"])
 
 
 @PROPERTY
