@@ -37,7 +37,7 @@ from . import checks
 
 __all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
            "FixedStep", "IterationCountController", "TARGET_ITERATIONS_RANGE",
-           "DEFAULT_RTOL", "RTOL_RANGE", "tolerance"]
+           "DEFAULT_RTOL", "RTOL_RANGE"]
 
 #: Allowed target Newton corrections per (sub-)step. Above 100 the corrector's
 #: ``N_max = 2 N̄`` no longer bounds the work of a diverging attempt usefully.
@@ -345,9 +345,12 @@ class ErrorControl(Controller):
         Relative tolerance, in :data:`RTOL_RANGE`. A scalar or an (N,) array
         applies to ``u`` and ``v`` alike; a (2N,) array gives ``u``'s, then
         ``v``'s.
-    atol : float or array_like (N,) or (2N,)
+    atol : float or array_like (N,) or (2N,), optional
         Absolute tolerance, ``> 0``, laid out as ``rtol``; in the units of
-        ``u`` (and of ``v`` for the second half of a (2N,) array).
+        ``u`` (and of ``v`` for the second half of a (2N,) array). Default
+        ``1e-3 · min(rtol) · u_scale``.
+    u_scale : float
+        The model's length scale, for the default ``atol`` (1).
     order : int, optional
         Order ``p`` of the scheme; by default the order of the scheme of the
         integrator that uses the controller.
@@ -358,11 +361,11 @@ class ErrorControl(Controller):
     uses_error_estimate = True
     max_iterations = 10
 
-    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, order: int | None = None, safety=0.9,
-                 grow=5.0, shrink=0.2, **limits):
-        self.rtol = tolerance("rtol", rtol, *RTOL_RANGE)
-        self.atol = tolerance("atol", 1e-3 * np.min(self.rtol) if atol is None else atol,
-                               0.0, math.inf)
+    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, u_scale=1.0, order: int | None = None,
+                 safety=0.9, grow=5.0, shrink=0.2, **limits):
+        self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
+        self.atol = _tolerance("atol", 1e-3 * np.min(self.rtol) * u_scale if atol is None
+                               else atol, 0.0, math.inf)
         if np.any(np.asarray(self.atol) <= 0.0):
             # a weight atol + rtol·|u| of zero would fail every step at u = 0
             raise ValueError(f"atol must be > 0 (a finite number or one per degree of freedom), "
@@ -500,7 +503,7 @@ class Combined(Controller):
         return f"Combined({self.iteration!r}, {self.error!r})"
 
 
-def tolerance(name, value, low, high):
+def _tolerance(name, value, low, high):
     """A tolerance as a float or a 1-D float array, every entry in ``[low, high)``."""
     if isinstance(value, (str, bytes)) or np.asarray(value).dtype.kind not in "iuf":
         raise ValueError(f"{name} must be a number or an array of numbers (one per degree "

@@ -24,8 +24,8 @@ import numpy as np
 
 from . import checks, serial
 from .compiled import compiled_step
-from .controller import (DEFAULT_RTOL, RTOL_RANGE, Attempt, Combined, Controller, ErrorControl,
-                         FixedStep, IterationCount, tolerance)
+from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
+                         IterationCount)
 from .corrector import local_error, predict, solve_step
 from .dense import Solution, hermite_quintic
 from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
@@ -500,10 +500,8 @@ class Integrator:
             IterationCount(target, self.scheme.n_stages, **limits)
         if iteration is not None and rtol is None:
             return iteration
-        rtol = DEFAULT_RTOL if rtol is None else tolerance("rtol", rtol, *RTOL_RANGE)
-        if atol is None:
-            atol = 1e-3 * np.min(rtol) * u_scale
-        error = ErrorControl(rtol, atol, order=self.scheme.order, **limits)
+        error = ErrorControl(DEFAULT_RTOL if rtol is None else rtol, atol, u_scale=u_scale,
+                             order=self.scheme.order, **limits)
         return error if iteration is None else Combined(iteration, error)
 
     def _newton_tolerance(self, tol):
