@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import checks, serial
-from .compiled import compiled_step
+from .compiled import compiled_step, driver_reason
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import local_error, predict, solve_step
@@ -432,6 +432,10 @@ class Integrator:
         start = time.process_time()
         current, K0, potential = self._initial_state(u0, v0)
         self._compiled = compiled_step(ev, self.scheme, compiled)
+        self._driver = None
+        if self._compiled is not None and not driver_reason(self):
+            from .compiled.driver import CompiledDriver
+            self._driver = CompiledDriver(self)
         if self.fixed:
             proposed = c.step
         else:
@@ -893,13 +897,20 @@ class Integrator:
         st.t_reached = new.t
         if self.energy_limit is not None and math.isfinite(increment) \
                 and s.energy_error > self.energy_limit * max(s.energy_scale, 1e-300):
-            return self._fail(Status.ENERGY_GROWTH,
-                              f"energy balance broke down: spurious energy {s.energy_error:.4g} "
-                              f"exceeds {self.energy_limit:g} x energy scale {s.energy_scale:.4g}")
-        if self.finished:
-            s.status = int(Status.SUCCESS)
-            s.message = f"reached t_bound = {self.t_bound!r}"
+            return self._energy_growth()
+        self._mark_finished()
         return True
+
+    def _energy_growth(self) -> bool:
+        s = self._s
+        return self._fail(Status.ENERGY_GROWTH,
+                          f"energy balance broke down: spurious energy {s.energy_error:.4g} "
+                          f"exceeds {self.energy_limit:g} x energy scale {s.energy_scale:.4g}")
+
+    def _mark_finished(self):
+        if self.finished:
+            self._s.status = int(Status.SUCCESS)
+            self._s.message = f"reached t_bound = {self.t_bound!r}"
 
     def step(self, t_limit: float = math.inf) -> bool:
         """Take one accepted step, not beyond ``t_limit``.
@@ -910,6 +921,11 @@ class Integrator:
         :attr:`state` is the last good state), or the integrator is
         :attr:`finished` (status ``SUCCESS``).
         """
+        return self._step(t_limit)
+
+    def _step(self, t_limit: float, rejections: int = 0) -> bool:
+        """:meth:`step`, for a step that has had ``rejections`` rejected attempts
+        already (in the compiled driver, which hands such a step over)."""
         if self.failed or self.finished:
             return False
         if not t_limit > self.t:
@@ -920,7 +936,7 @@ class Integrator:
         try:
             if self._s.first_step_pending:
                 return self._first_step(self._limit(t_limit))
-            return self._regular_step(t_limit)
+            return self._regular_step(t_limit, rejections)
         except ModelError as exc:
             # a wrong shape mid-run: retrying cannot help, and raising would
             # lose the run of integrate(); stop with the last good state
@@ -930,11 +946,10 @@ class Integrator:
             self._sync_counters()
             self._cpu(start)
 
-    def _regular_step(self, t_limit):
+    def _regular_step(self, t_limit, rejections=0):
         s = self._s
         st = s.statistics
         limit = self._limit(t_limit)
-        rejections = 0
         while True:
             if st.steps >= self.max_steps:
                 before = f" before t = {t_limit:.10g}" if math.isfinite(t_limit) else ""
@@ -1010,6 +1025,8 @@ class Integrator:
             raise ValueError(f"t_stop must be finite and >= t = {self.t}, got {t_stop!r}")
         if self.t_bound is not None and t_stop > self.t_bound:
             raise ValueError(f"t_stop must be <= t_bound = {self.t_bound}, got {t_stop!r}")
+        if callback is None and self._driver is not None:
+            return self._drive(t_stop)
         while self.t < t_stop:
             ok = self.step(t_stop)
             if callback is not None and self.statistics.accepted and (ok or self._s.status ==
@@ -1017,6 +1034,50 @@ class Integrator:
                 callback(self)
             if not ok:
                 return False
+        return True
+
+    def _drive(self, t_stop: float, rows=None, callback=None) -> bool:
+        """:meth:`advance` through the compiled driver (:mod:`hfdi.compiled.driver`).
+
+        The driver takes the ordinary steps; the first step and every step it
+        hands over (a breakpoint, a stop, ``max_steps``) run here, each
+        followed by ``callback(self)``. ``rows(arrays)`` receives the driver's
+        accepted steps in bulk (the arrays of :class:`Result`), in order with
+        the callbacks.
+        """
+        from .compiled.driver import ENERGY_CHECK, HAND_OVER
+        while self.t < t_stop:
+            if self.failed or self.finished:
+                return False
+            if self._s.first_step_pending:
+                ok = self._step(t_stop)
+                if callback is not None and self.statistics.accepted and (
+                        ok or self._s.status == Status.ENERGY_GROWTH):
+                    callback(self)
+                if not ok:
+                    return False
+                continue
+            start = time.process_time()
+            limit = t_stop if self.t_bound is None else min(t_stop, self.t_bound)
+            reason, taken, arrays, pending = self._driver.run(self, limit, rows is not None)
+            self._cpu(start)
+            self._sync_counters()
+            if taken:
+                self._arrival = self._s.current
+                if rows is not None:
+                    rows(arrays)
+            if reason == ENERGY_CHECK:
+                self._energy_growth()
+                return False
+            self._mark_finished()
+            if reason == HAND_OVER:
+                # this step runs in Python, from the rejections the driver made
+                ok = self._step(t_stop, pending)
+                if callback is not None and self.statistics.accepted and (
+                        ok or self._s.status == Status.ENERGY_GROWTH):
+                    callback(self)
+                if not ok:
+                    return False
         return True
 
 

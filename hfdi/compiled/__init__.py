@@ -14,8 +14,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-__all__ = ["CompiledKernels", "CompiledUnavailable", "compiled_step", "kernels_of",
-           "numba_available"]
+__all__ = ["CompiledKernels", "CompiledUnavailable", "compiled_step", "driver_reason",
+           "kernels_of", "numba_available"]
 
 _log = logging.getLogger("hfdi.compiled")
 
@@ -31,10 +31,16 @@ class CompiledKernels(NamedTuple):
     potential_energy : numba function ``(u, params) -> V`` (float)
     params : ndarray (P,), float64, C-contiguous
         The model's data, read by the kernels and never written.
+    load : numba function ``(t, load_params) -> p (N,)``, optional
+        The model's load ``p(t)``; with it the whole run of steps is compiled
+        (:mod:`hfdi.compiled.driver`), without it only each attempt.
+        :func:`hfdi.compiled.loads.hat_load` is the zero load and sums of hat pulses.
+    load_params : ndarray (Q,), float64, C-contiguous, optional
+        The load's data.
 
     Each function is compiled with the signature of
     :mod:`hfdi.compiled.signatures` (``FORCE``, ``STIFFNESS``,
-    ``STIFFNESS_DERIVATIVE``, ``POTENTIAL_ENERGY``).
+    ``STIFFNESS_DERIVATIVE``, ``POTENTIAL_ENERGY``, ``LOAD``).
     """
 
     force: Callable
@@ -42,6 +48,8 @@ class CompiledKernels(NamedTuple):
     stiffness_derivative: Callable
     potential_energy: Callable
     params: np.ndarray
+    load: Callable | None = None
+    load_params: np.ndarray | None = None
 
 
 class CompiledUnavailable(RuntimeError):
@@ -121,7 +129,46 @@ def kernels_of(system):
     if not isinstance(kernels, CompiledKernels):
         raise TypeError(f"{cls.__name__}.compiled_kernels() must return a "
                         f"hfdi.compiled.CompiledKernels, got {type(kernels).__name__}")
+    if kernels.load is not None:
+        # the driver also runs the load and V: a subclass that redefines them
+        # keeps the compiled attempt, not the compiled driver
+        for name in _DRIVER_METHODS:
+            method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
+            if not issubclass(owner, method_owner):
+                kernels = kernels._replace(load=None, load_params=None)
+                break
     return kernels, ""
+
+
+_DRIVER_METHODS = ("load", "load_rate", "load_breakpoints", "potential_energy")
+
+
+def driver_reason(integrator) -> str:
+    """Why ``integrator``'s steps cannot run in the compiled driver
+    (:mod:`hfdi.compiled.driver`), or ``""`` when they can.
+
+    The driver needs the compiled attempt, a compiled load (``CompiledKernels.load``),
+    no ``extra_load``, no exact load rate for HFDI (the paper's models have
+    none) and one of the built-in controllers.
+    """
+    from ..controller import Combined, ErrorControl, FixedStep, IterationCount
+    step = integrator._compiled
+    if step is None:
+        return "the attempt is not compiled"
+    if step.kernels.load is None:
+        return f"model {type(integrator.system).__name__} has no compiled load"
+    if integrator.ev.extra_load is not None:
+        return "an extra_load is given"
+    if step.exact_rate:
+        return "HFDI takes the model's exact load rate, which has no compiled form"
+    c = integrator.controller
+    parts = (c.iteration, c.error) if type(c) is Combined else (c,)
+    if type(c) is Combined and not (type(parts[0]) is IterationCount
+                                    and type(parts[1]) is ErrorControl):
+        return f"controller {c!r} is not built from IterationCount and ErrorControl"
+    if type(c) not in (FixedStep, IterationCount, ErrorControl, Combined):
+        return f"controller {type(c).__name__} is not one of the built-in controllers"
+    return ""
 
 
 _SAID = set()

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from . import CompiledKernels
+from .loads import hat_load, hat_load_params
 from .signatures import FORCE, JIT_OPTIONS, POTENTIAL_ENERGY, STIFFNESS, STIFFNESS_DERIVATIVE
 
 __all__ = ["dumbbell_kernels", "tetrahedra_kernels", "articulated_kernels",
@@ -182,7 +183,8 @@ def dumbbell_kernels(model) -> CompiledKernels:
     """Kernels of a :class:`~hfdi.models.dumbbell.Dumbbell`; ``params = (A, σ)``."""
     return CompiledKernels(dumbbell_force, dumbbell_stiffness, dumbbell_stiffness_derivative,
                            dumbbell_potential_energy,
-                           np.array([model.A, model.sigma], dtype=np.float64))
+                           np.array([model.A, model.sigma], dtype=np.float64),
+                           hat_load, hat_load_params(model.n_dof))
 
 
 # -- tetrahedra: params = (r0³, k/3, −2k, k, r0), six entries each -------------
@@ -251,7 +253,8 @@ def tetrahedra_kernels(model) -> CompiledKernels:
     params = np.concatenate([r03, k3, m2k, model.spring_constant, model.rest_length])
     return CompiledKernels(tetrahedra_force, tetrahedra_stiffness,
                            tetrahedra_stiffness_derivative, tetrahedra_potential_energy,
-                           np.ascontiguousarray(params, dtype=np.float64))
+                           np.ascontiguousarray(params, dtype=np.float64), hat_load,
+                           hat_load_params(12, [(0, model.load_amplitude, model.load_time)]))
 
 
 # -- articulated: params = (k_e, k_f, h) ---------------------------------------
@@ -368,7 +371,9 @@ def articulated_kernels(model) -> CompiledKernels:
     """Kernels of an :class:`~hfdi.models.articulated.Articulated`; ``params = (k_e, k_f, h)``."""
     return CompiledKernels(articulated_force, articulated_stiffness,
                            articulated_stiffness_derivative, articulated_potential_energy,
-                           np.array([model.k_e, model.k_f, model.h], dtype=np.float64))
+                           np.array([model.k_e, model.k_f, model.h], dtype=np.float64),
+                           hat_load,
+                           hat_load_params(6, [(1, model.load_amplitude, model.load_time)]))
 
 
 # -- toss rule: params = (N_el, EA, GA, EJ, h_e, 1/h_e, α̂_e) -------------------
@@ -526,4 +531,7 @@ def toss_rule_kernels(model) -> CompiledKernels:
                              model._h, model._inv_h, model._alpha_hat])
     return CompiledKernels(toss_rule_force, toss_rule_stiffness,
                            toss_rule_stiffness_derivative, toss_rule_potential_energy,
-                           np.ascontiguousarray(params, dtype=np.float64))
+                           np.ascontiguousarray(params, dtype=np.float64), hat_load,
+                           hat_load_params(model.n_dof,
+                                           [(1, model.force_amplitude, model.load_time),
+                                            (2, model.moment_amplitude, model.load_time)]))

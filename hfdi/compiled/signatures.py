@@ -10,6 +10,10 @@ disk once for all models (see docs/compiled.md):
 - ``stiffness_derivative(u, w, params) -> T``    :data:`STIFFNESS_DERIVATIVE`
 - ``potential_energy(u, params) -> V``           :data:`POTENTIAL_ENERGY`
 
+and, for the compiled driver (:mod:`hfdi.compiled.driver`), a fifth:
+
+- ``load(t, load_params) -> p``                  :data:`LOAD`
+
 ``u``, ``w`` and ``params`` are C-contiguous float64 vectors, ``f`` a new
 C-contiguous (N,) vector, ``K`` and ``T`` new C-contiguous (N, N) arrays.
 """
@@ -17,9 +21,9 @@ from __future__ import annotations
 
 from numba import types
 
-__all__ = ["VECTOR", "MATRIX", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
-           "POTENTIAL_ENERGY", "FORCE_TYPE", "STIFFNESS_TYPE", "STIFFNESS_DERIVATIVE_TYPE",
-           "JIT_OPTIONS"]
+__all__ = ["VECTOR", "MATRIX", "INDEX_VECTOR", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
+           "POTENTIAL_ENERGY", "LOAD", "FORCE_TYPE", "STIFFNESS_TYPE",
+           "STIFFNESS_DERIVATIVE_TYPE", "POTENTIAL_ENERGY_TYPE", "LOAD_TYPE", "JIT_OPTIONS"]
 
 VECTOR = types.float64[::1]
 MATRIX = types.float64[:, ::1]
@@ -33,10 +37,14 @@ STIFFNESS = MATRIX(VECTOR, VECTOR)
 STIFFNESS_DERIVATIVE = MATRIX(VECTOR, VECTOR, VECTOR)
 #: ``V(u, params)``
 POTENTIAL_ENERGY = types.float64(VECTOR, VECTOR)
+#: ``p(t, load_params)``
+LOAD = VECTOR(types.float64, VECTOR)
 
 FORCE_TYPE = types.FunctionType(FORCE)
 STIFFNESS_TYPE = types.FunctionType(STIFFNESS)
 STIFFNESS_DERIVATIVE_TYPE = types.FunctionType(STIFFNESS_DERIVATIVE)
+POTENTIAL_ENERGY_TYPE = types.FunctionType(POTENTIAL_ENERGY)
+LOAD_TYPE = types.FunctionType(LOAD)
 
 #: Options of every compiled function here: cached on disk; division by zero
 #: gives inf/NaN as in numpy (a non-finite value fails the attempt, as a

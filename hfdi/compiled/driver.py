@@ -1,0 +1,667 @@
+"""The compiled driver: a run of ordinary steps in one call from Python.
+
+:meth:`hfdi.Integrator.advance` hands its state to :func:`drive`, which takes
+steps until ``t_stop`` (or until its row buffer is full) with everything a
+step needs compiled: the model's kernels (f, K, T, V and the load p), the
+attempt of :mod:`hfdi.compiled.attempt` (predictor, stages, Newton), the
+error estimate (:func:`hfdi.corrector.local_error`), the built-in controllers'
+rules (:mod:`hfdi.controller`: :class:`~hfdi.controller.FixedStep`,
+:class:`~hfdi.controller.IterationCount`, :class:`~hfdi.controller.ErrorControl`,
+:class:`~hfdi.controller.Combined`), landing, the statistics and the energy
+balance (Eqs. 40–41).
+
+It hands the step back to the Python driver, before the attempt that needs it
+and with the rejections of the step so far, whenever a step is not ordinary:
+an attempt that lands on a load breakpoint (one-sided loads and the load's
+right limit after it), a decision that would stop the run (the controller's
+message), ``max_steps``, a step below the resolution of time. The Python
+driver then takes that one step as always, so that the statuses and messages
+have one source. After a step that breaks the energy limit it returns at
+once, and Python applies its own test.
+
+Every formula restates, operation for operation and in the same order, the
+Python code it stands for (named in each function), so that on models whose
+kernels agree bit for bit with their Python methods the two drivers take the
+same steps; numpy's pairwise sum is restated for the error norm's mean.
+``tests/test_compiled_driver.py`` holds the two drivers against each other.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, types
+
+from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
+                      NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt)
+from .attempt import HAS_PREVIOUS as A_HAS_PREVIOUS
+from .attempt import HAS_START_FORCE as A_HAS_START_FORCE
+from .attempt import FLOOR as A_FLOOR
+from .attempt import GAMMA as A_GAMMA
+from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
+from .attempt import TOL as A_TOL
+from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, LOAD_TYPE, MATRIX,
+                         POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
+
+__all__ = ["drive"]
+
+_EPS = float(np.finfo(float).eps)
+
+# -- why drive() returned ------------------------------------------------------------
+REACHED = 0          # t_stop reached
+FULL = 1             # the row buffer is full: call again
+HAND_OVER = 2        # the Python driver takes the next attempt (rejections so far kept)
+ENERGY_CHECK = 3     # the last accepted step broke the energy limit
+
+# -- controllers -----------------------------------------------------------------------
+FIXED, ITERATION, ERROR, COMBINED = range(4)
+
+# -- entries of ``settings`` (float64, read only) --------------------------------------
+(FIXED_STEP, IT_TARGET, IT_MIN_STEP, IT_MAX_STEP, ER_MIN_STEP, ER_MAX_STEP, SAFETY, GROW,
+ SHRINK, ENERGY_LIMIT, T_STOP) = range(11)
+# -- entries of ``switches`` (int64, read only) ----------------------------------------
+(CONTROLLER, IT_MAX_REJECTIONS, ER_MAX_REJECTIONS, ORDER, MAX_STEPS, SAVE_ROWS,
+ EXACT_LOAD_RATE) = range(7)
+# -- entries of ``scalars`` (float64, read and written) --------------------------------
+(T_CURRENT, T_PREV, PROPOSED, POTENTIAL, INITIAL_POTENTIAL, WORK, ENERGY_ERROR,
+ ENERGY_SCALE, LAST_STEP, LAST_ENERGY_INCREMENT, GRID_ORIGIN) = range(11)
+# -- entries of ``counters`` (int64, read and written) ---------------------------------
+(HAS_PREV, CURRENT_HAS_F, PREVIOUS_HAS_F, GRID_STEPS, STEPS, ACCEPTED, REJECTED,
+ NEWTON_ITERATIONS, ERROR_TEST_FAILURES, C_NFEV, C_NJEV, C_NTEV, C_NLU, C_NPEV,
+ LAST_ITERATIONS, REJECTIONS, ROWS) = range(17)
+# -- rows of ``current`` and ``previous`` (5, N) ---------------------------------------
+U, V, A, F, P = range(5)
+# -- columns of ``row_scalars`` (R, 5): t, h, iterations, ΔE, W, work -------------------
+R_T, R_H, R_ITERATIONS, R_INCREMENT, R_ENERGY, R_WORK = range(6)
+
+
+# -- numpy's arithmetic, restated -------------------------------------------------------
+
+@njit(**JIT_OPTIONS)
+def _block_sum(a, lo, n):
+    """numpy's pairwise summation of ``a[lo:lo + n]`` for ``n <= 128`` (one block)."""
+    if n < 8:
+        total = -0.0
+        for i in range(lo, lo + n):
+            total += a[i]
+        return total
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        j = lo + i
+        r0 += a[j]
+        r1 += a[j + 1]
+        r2 += a[j + 2]
+        r3 += a[j + 3]
+        r4 += a[j + 4]
+        r5 += a[j + 5]
+        r6 += a[j + 6]
+        r7 += a[j + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        total += a[lo + i]
+        i += 1
+    return total
+
+
+@njit(**JIT_OPTIONS)
+def _pairwise_sum(a):
+    """``np.add.reduce(a)`` for a contiguous float64 vector: numpy's pairwise
+    summation (``pairwise_sum`` of its loops), in its order. Above a block of
+    128 numpy splits at half (rounded down to a multiple of 8) and adds the
+    two halves' sums; the recursion runs here on an explicit stack (numba
+    cannot cache recursive functions)."""
+    n = a.shape[0]
+    if n <= 128:
+        return _block_sum(a, 0, n)
+    depth = 64
+    starts = np.empty(depth, np.int64)
+    sizes = np.empty(depth, np.int64)
+    phase = np.zeros(depth, np.int64)       # 0: new, 1: left half pending, 2: right half
+    lefts = np.empty(depth)
+    top = 0
+    starts[0], sizes[0] = 0, n
+    while True:
+        m = sizes[top]
+        if m > 128 and phase[top] == 0:
+            half = m // 2
+            half -= half % 8
+            phase[top] = 1
+            top += 1
+            starts[top], sizes[top], phase[top] = starts[top - 1], half, 0
+            continue
+        value = _block_sum(a, starts[top], m)
+        top -= 1
+        while True:               # hand the value to the halves waiting for it
+            if top < 0:
+                return value
+            if phase[top] == 1:
+                lefts[top] = value
+                phase[top] = 2
+                half = sizes[top] // 2
+                half -= half % 8
+                top += 1
+                starts[top] = starts[top - 1] + half
+                sizes[top] = sizes[top - 1] - half
+                phase[top] = 0
+                break
+            value = lefts[top] + value
+            top -= 1
+
+
+@njit(**JIT_OPTIONS)
+def _mass_dot(Md, Mf, m_kind, v):
+    """``v · (M v)`` (the kinetic energy's quadratic form)."""
+    if m_kind == 2:
+        return float(np.dot(v, np.dot(Mf, v)))
+    return float(np.dot(v, Md * v))
+
+
+# -- the error estimate (hfdi.corrector.local_error) -----------------------------------
+
+@njit(**JIT_OPTIONS)
+def _local_error(current, previous, t_current, t_previous, has_previous, new, h, order):
+    """:func:`hfdi.corrector.local_error` (with :func:`~hfdi.corrector.predict_from_rates`
+    and :func:`~hfdi.corrector.velocity_history_factor`): ``(2N,)``, ``u``'s then ``v``'s."""
+    n = current.shape[1]
+    e = np.empty(2 * n)
+    if not has_previous:
+        for i in range(n):
+            Q = current[U, i] + h * current[V, i] + (0.5 * h * h) * current[A, i]
+            e[i] = new[END_U, i] - Q
+            e[n + i] = new[END_V, i] - (current[V, i] + h * current[A, i])
+        return e
+    H = t_current - t_previous
+    s = h
+    s2 = s * s
+    sigma = h / H
+    factor = 1.0 + (3.0 + 2.0 * sigma) * math.pow(sigma, 1.0 - order)
+    H3 = math.pow(H, 3.0)
+    for i in range(n):
+        r2 = previous[V, i] - current[V, i] + H * current[A, i]
+        r3 = previous[A, i] - current[A, i]
+        c3 = r2 / (H * H) + r3 / (3.0 * H)
+        c4 = (2.0 * r2 + H * r3) / (4.0 * H3)
+        Q = (current[U, i] + s * current[V, i] + (0.5 * s2) * current[A, i] + (s2 * s) * c3
+             + (s2 * s2) * c4)
+        dQ = current[V, i] + s * current[A, i] + (3.0 * s2) * c3 + (4.0 * s2 * s) * c4
+        e[i] = new[END_U, i] - Q
+        e[n + i] = (new[END_V, i] - dQ) / factor
+    return e
+
+
+@njit(**JIT_OPTIONS)
+def _error_norm(error, current, new, rtol, atol, noise):
+    """:meth:`hfdi.controller.ErrorControl.error_norm`: the weighted RMS norm."""
+    n = current.shape[1]
+    ratio = np.empty(2 * n)
+    for i in range(2 * n):
+        row = U if i < n else V
+        j = i if i < n else i - n
+        end_row = END_U if i < n else END_V
+        scale = atol[i] + rtol[i] * max(abs(current[row, j]), abs(new[end_row, j]))
+        if noise != 0.0 and i >= n:
+            scale += noise
+        if error[i] == 0.0:
+            ratio[i] = 0.0
+        else:
+            r = error[i] / scale
+            ratio[i] = r * r
+    return math.sqrt(_pairwise_sum(ratio) / (2 * n))
+
+
+# -- the controllers' rules (hfdi.controller) -----------------------------------------
+
+@njit(**JIT_OPTIONS)
+def _clamp(h, low, high):
+    return min(max(h, low), high)
+
+
+@njit(**JIT_OPTIONS)
+def _retry(rejections, max_rejections, h_next, min_step):
+    """:meth:`Controller._retry`: ``(accept=False, h_next, stops)``."""
+    if rejections + 1 > max_rejections:
+        return False, h_next, True
+    if h_next < min_step:
+        return False, h_next, True
+    return False, h_next, False
+
+
+@njit(**JIT_OPTIONS)
+def _iteration_adapt(settings, switches, h, proposed, clipped, converged, iterations,
+                     rejections):
+    """:meth:`IterationCount.adapt` (with ``next_step``)."""
+    if converged:
+        target = settings[IT_TARGET]
+        if clipped and iterations <= target:
+            new = proposed
+        else:
+            new = h * math.sqrt(target / max(iterations, 1))
+        return True, _clamp(new, settings[IT_MIN_STEP], settings[IT_MAX_STEP]), False
+    return _retry(rejections, switches[IT_MAX_REJECTIONS], 0.5 * h, settings[IT_MIN_STEP])
+
+
+@njit(**JIT_OPTIONS)
+def _error_adapt(settings, switches, h, proposed, clipped, converged, err, history,
+                 rejections):
+    """:meth:`ErrorControl.adapt` (with ``_factor`` and ``_exponent``)."""
+    max_rejections, min_step = switches[ER_MAX_REJECTIONS], settings[ER_MIN_STEP]
+    if not converged:
+        return _retry(rejections, max_rejections, 0.5 * h, min_step)
+    if not math.isfinite(err):
+        return _retry(rejections, max_rejections, 0.5 * h, min_step)
+    grow = settings[GROW]
+    exponent = 1.0 / (switches[ORDER] + 1) if history else 1.0 / 3.0
+    if err == 0.0:
+        factor = grow
+    else:
+        factor = min(grow, max(settings[SHRINK], settings[SAFETY] * math.pow(err, -exponent)))
+    if err <= 1.0:
+        if rejections:
+            factor = min(factor, 1.0)
+        h_next = h * factor
+        if clipped:
+            h_next = max(h_next, min(proposed, h * grow))
+        return True, _clamp(h_next, min_step, settings[ER_MAX_STEP]), False
+    return _retry(rejections, max_rejections, h * factor, min_step)
+
+
+@njit(**JIT_OPTIONS)
+def _landing(kind, h, remaining):
+    """The controller's ``landing`` (IterationCount's own; the base rule else)."""
+    if kind == ITERATION:
+        if h >= remaining or remaining - h <= 0.01 * h:
+            return remaining
+        return h
+    if remaining <= 1.1 * h:
+        return remaining
+    if remaining < 2.0 * h:
+        return 0.5 * remaining
+    return h
+
+
+@njit(**JIT_OPTIONS)
+def _limit(breakpoints, t, t_limit):
+    """:meth:`Integrator._limit`: ``t_limit`` or the next breakpoint before it."""
+    if breakpoints.shape[0]:
+        i = np.searchsorted(breakpoints, t, side="right")
+        if i < breakpoints.shape[0] and breakpoints[i] < t_limit:
+            return breakpoints[i]
+    return t_limit
+
+
+@njit(**JIT_OPTIONS)
+def _is_breakpoint(breakpoints, t):
+    if breakpoints.shape[0] == 0:
+        return False
+    i = np.searchsorted(breakpoints, t)
+    return i < breakpoints.shape[0] and breakpoints[i] == t
+
+
+_SIGNATURE = types.Tuple((types.int64, types.int64))(
+    FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE, LOAD_TYPE,
+    VECTOR, VECTOR,                                   # params, load_params
+    INDEX_VECTOR, VECTOR,                             # the attempt's config and coefficients
+    VECTOR, MATRIX, VECTOR, MATRIX,                   # M, C
+    VECTOR, INDEX_VECTOR, VECTOR, VECTOR, VECTOR,     # settings, switches, rtol, atol, bps
+    VECTOR, INDEX_VECTOR,                             # scalars, counters
+    MATRIX, MATRIX,                                   # current, previous
+    MATRIX, types.float64[:, :, ::1])                 # row scalars, row states
+
+
+@njit(_SIGNATURE, **JIT_OPTIONS)
+def drive(force, stiffness, derivative, potential_energy, load, params, load_params, config,
+          coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints, scalars,
+          counters, current, previous, row_scalars, row_states):
+    """Take ordinary steps towards ``settings[T_STOP]``; see the module's docstring.
+
+    Parameters
+    ----------
+    force, stiffness, derivative, potential_energy, load : compiled kernels
+    params, load_params : ndarray (P,), (Q,)
+    config, coefficients : the attempt's (see :func:`hfdi.compiled.attempt.attempt`),
+        scheme, ``N_max``, kinds of ``M`` and ``C``, ``γ``, ``β``, ``η`` and floor set
+    Md, Mf, Cd, Cf : ``M`` and ``C`` (see :func:`~hfdi.compiled.attempt.attempt`)
+    settings : ndarray (11,)
+        The controllers' sizes and factors, the energy limit (``inf``: none) and ``t_stop``.
+    switches : ndarray (7,) int64
+        Controller kind, its ``max_rejections`` (iteration, error), the scheme's
+        order, ``max_steps``, whether to write rows, whether HFDI takes the exact
+        load rate (not compiled: always 0 here).
+    rtol, atol : ndarray (2N,)
+        Tolerances over ``(u, v)`` (unused without error control).
+    breakpoints : ndarray (B,)
+        Sorted load breakpoints (empty unless the controller uses the error estimate).
+    scalars : ndarray (11,), counters : ndarray (17,) int64
+        The integrator's state and statistics, updated in place.
+    current, previous : ndarray (5, N)
+        ``u, v, a, f, p`` of the current and the previous state, updated in place.
+    row_scalars : ndarray (R, 6), row_states : ndarray (R, 3, N)
+        Written with ``t, h, iterations, ΔE, W, work`` and ``u, v, a`` of each
+        accepted step when ``switches[SAVE_ROWS]``; ``R`` bounds the steps of one call.
+
+    Returns
+    -------
+    reason : int
+        :data:`REACHED`, :data:`FULL`, :data:`HAND_OVER` or :data:`ENERGY_CHECK`.
+    rows : int
+        Accepted steps taken (and rows written).
+    """
+    n = current.shape[1]
+    kind = switches[CONTROLLER]
+    scheme = config[0]
+    uses_error = kind == ERROR or kind == COMBINED
+    m_kind, c_kind = config[4], config[5]
+    t_stop = settings[T_STOP]
+    save = switches[SAVE_ROWS] != 0
+    capacity = row_scalars.shape[0] if save else 1 << 62
+    loads = np.zeros((3, n))
+    history = np.empty((2, n))
+    taken = 0
+    rejections = 0
+    while scalars[T_CURRENT] < t_stop:
+        if taken >= capacity:
+            counters[REJECTIONS] = rejections
+            return FULL, taken
+        t = scalars[T_CURRENT]
+        limit = _limit(breakpoints, t, t_stop)
+        if counters[STEPS] >= switches[MAX_STEPS]:
+            counters[REJECTIONS] = rejections
+            return HAND_OVER, taken
+        # Integrator._clip
+        proposed = scalars[PROPOSED]
+        remaining = limit - t
+        if kind == FIXED:
+            t_next = scalars[GRID_ORIGIN] + (counters[GRID_STEPS] + 1) * proposed
+            if t_next >= limit - 1e-6 * proposed:
+                t_end, clipped = limit, True
+            else:
+                t_end, clipped = t_next, False
+        else:
+            take = _landing(kind, proposed, remaining)
+            if take >= remaining:
+                t_end, clipped = limit, True
+            else:
+                t_end, clipped = t + take, take != proposed
+        h = t_end - t
+        if not h > 0.0 or _is_breakpoint(breakpoints, t_end):
+            counters[REJECTIONS] = rejections
+            return HAND_OVER, taken
+        # the loads at the stage times (CompiledStep._loads)
+        if scheme == BATHE:
+            loads[0] = load(t + coefficients[A_GAMMA] * h, load_params)
+        loads[1] = load(t_end, load_params)
+        if scheme == HFDI_SCHEME:
+            loads[2] = (loads[1] - current[P]) / h
+        has_previous = counters[HAS_PREV] != 0
+        config[A_HAS_PREVIOUS] = 1 if has_previous else 0
+        config[A_HAS_START_FORCE] = counters[CURRENT_HAS_F]
+        coefficients[T_START], coefficients[T_END] = t, t_end
+        coefficients[T_PREVIOUS] = scalars[T_PREV] if has_previous else t
+        if has_previous:
+            history[0] = previous[U]
+            history[1] = previous[V]
+        status, out, info, newton_error = attempt(
+            force, stiffness, derivative, params, config, coefficients, Md, Mf, Cd, Cf,
+            current, history, loads)
+        converged = status == OK
+        iterations = 0
+        for i in range(info[STAGES_COUNTED]):
+            iterations += info[i]
+        # the controller's verdict
+        err = math.inf
+        if uses_error and converged:
+            error = _local_error(current, previous, t, scalars[T_PREV], has_previous, out, h,
+                                 switches[ORDER])
+            largest = 0.0
+            for i in range(n):
+                largest = max(largest, abs(out[END_U, i]))
+            noise = 3.0 * (newton_error + _EPS * largest) / h
+            err = _error_norm(error, current, out, rtol, atol, noise)
+        if kind == FIXED:
+            accept, h_next, stops = converged, settings[FIXED_STEP], not converged
+        elif kind == ITERATION:
+            accept, h_next, stops = _iteration_adapt(settings, switches, h, proposed, clipped,
+                                                     converged, iterations, rejections)
+        elif kind == ERROR:
+            accept, h_next, stops = _error_adapt(settings, switches, h, proposed, clipped,
+                                                 converged, err, has_previous, rejections)
+        else:
+            a_accept, a_next, a_stops = _iteration_adapt(settings, switches, h, proposed,
+                                                         clipped, converged, iterations,
+                                                         rejections)
+            b_accept, b_next, b_stops = _error_adapt(settings, switches, h, proposed, clipped,
+                                                     converged, err, has_previous, rejections)
+            accept, h_next = a_accept and b_accept, min(a_next, b_next)
+            stops = a_stops or b_stops
+        if stops:
+            # the run stops here: the Python driver redoes this attempt and says why
+            counters[REJECTIONS] = rejections
+            return HAND_OVER, taken
+        counters[STEPS] += 1
+        counters[NEWTON_ITERATIONS] += iterations
+        counters[C_NFEV] += info[NFEV]
+        counters[C_NJEV] += info[NJEV]
+        counters[C_NTEV] += info[NTEV]
+        counters[C_NLU] += info[NLU]
+        scalars[PROPOSED] = h_next
+        if not accept:
+            counters[REJECTED] += 1
+            if converged:
+                counters[ERROR_TEST_FAILURES] += 1
+            rejections += 1
+            continue
+        # Integrator._accept: the energy balance (Eqs. 40-41) and the new state
+        rejections = 0
+        counters[C_NPEV] += 1
+        potential = potential_energy(np.ascontiguousarray(out[END_U]), params)
+        kinetic_old = 0.5 * _mass_dot(Md, Mf, m_kind, current[V])
+        kinetic_new = 0.5 * _mass_dot(Md, Mf, m_kind, out[END_V])
+        if scheme == BATHE:
+            work = 0.5 * float(np.dot(out[MID_U] - current[U], current[P] + loads[0]))
+            work += 0.5 * float(np.dot(out[END_U] - out[MID_U], loads[0] + loads[1]))
+        else:
+            work = 0.5 * float(np.dot(out[END_U] - current[U], current[P] + loads[1]))
+        increment = potential - scalars[POTENTIAL] + kinetic_new - kinetic_old - work
+        previous[:, :] = current
+        counters[PREVIOUS_HAS_F] = counters[CURRENT_HAS_F]
+        scalars[T_PREV] = t
+        counters[HAS_PREV] = 1
+        current[U] = out[END_U]
+        current[V] = out[END_V]
+        current[A] = out[END_A]
+        if scheme == HFDI_SCHEME:
+            current[F] = out[END_F]
+            counters[CURRENT_HAS_F] = 1
+        else:
+            current[F] = 0.0
+            counters[CURRENT_HAS_F] = 0
+        current[P] = loads[1]
+        scalars[T_CURRENT] = t_end
+        if kind == FIXED:
+            grid_next = scalars[GRID_ORIGIN] + (counters[GRID_STEPS] + 1) * h
+            if clipped and t_end != grid_next and abs(
+                    t_end - (scalars[GRID_ORIGIN] + (counters[GRID_STEPS] + 1) * proposed)) \
+                    > 1e-6 * proposed:
+                scalars[GRID_ORIGIN] = t_end
+                counters[GRID_STEPS] = 0
+            else:
+                counters[GRID_STEPS] += 1
+        scalars[WORK] += work
+        scalars[ENERGY_ERROR] += increment
+        scalars[ENERGY_SCALE] = max(scalars[ENERGY_SCALE], kinetic_new + abs(
+            potential - scalars[INITIAL_POTENTIAL]) + abs(scalars[WORK]))
+        scalars[POTENTIAL] = potential
+        scalars[LAST_STEP] = h
+        counters[LAST_ITERATIONS] = iterations
+        scalars[LAST_ENERGY_INCREMENT] = increment
+        counters[ACCEPTED] += 1
+        if save:
+            row = row_scalars[taken]
+            row[R_T] = t_end
+            row[R_H] = h
+            row[R_ITERATIONS] = iterations
+            row[R_INCREMENT] = increment
+            row[R_ENERGY] = potential + kinetic_new
+            row[R_WORK] = scalars[WORK]
+            row_states[taken, 0] = current[U]
+            row_states[taken, 1] = current[V]
+            row_states[taken, 2] = current[A]
+        taken += 1
+        limit_value = settings[ENERGY_LIMIT]
+        if math.isfinite(limit_value) and math.isfinite(increment) and \
+                scalars[ENERGY_ERROR] > limit_value * max(scalars[ENERGY_SCALE], 1e-300):
+            return ENERGY_CHECK, taken
+    return REACHED, taken
+
+
+# -- the Python side -------------------------------------------------------------------
+
+#: Rows of one call of :func:`drive` when the steps are kept (integrate()):
+#: the buffer is handed over (and progress reported) every this many steps.
+ROWS_PER_CALL = 2048
+
+
+class CompiledDriver:
+    """:func:`drive` for one :class:`hfdi.Integrator`: its fixed inputs, set up once.
+
+    Parameters
+    ----------
+    integrator : Integrator
+        With a compiled attempt (``integrator._compiled``), a compiled load and a
+        built-in controller (see :func:`hfdi.compiled.driver_reason`).
+    """
+
+    def __init__(self, integrator):
+        from ..controller import Combined, ErrorControl, FixedStep, IterationCount
+        step = integrator._compiled
+        kernels = step.kernels
+        self.step = step
+        self._potential = _resolved(kernels.potential_energy, "POTENTIAL_ENERGY")
+        self._load = _resolved(kernels.load, "LOAD")
+        self.load_params = np.ascontiguousarray(kernels.load_params, dtype=np.float64)
+        n = integrator.ev.n
+        c = integrator.controller
+        settings = np.zeros(11)
+        switches = np.zeros(7, np.int64)
+        iteration = c.iteration if isinstance(c, Combined) else c
+        error = c.error if isinstance(c, Combined) else c
+        self.rtol = np.zeros(2 * n)
+        self.atol = np.zeros(2 * n)
+        if isinstance(c, FixedStep):
+            switches[CONTROLLER] = FIXED
+            settings[FIXED_STEP] = c.step
+        elif isinstance(c, IterationCount):
+            switches[CONTROLLER] = ITERATION
+        elif isinstance(c, ErrorControl):
+            switches[CONTROLLER] = ERROR
+        else:
+            switches[CONTROLLER] = COMBINED
+        if isinstance(iteration, IterationCount):
+            settings[IT_TARGET] = iteration.target
+            settings[IT_MIN_STEP], settings[IT_MAX_STEP] = iteration.min_step, iteration.max_step
+            switches[IT_MAX_REJECTIONS] = iteration.max_rejections
+        if isinstance(error, ErrorControl):
+            settings[ER_MIN_STEP], settings[ER_MAX_STEP] = error.min_step, error.max_step
+            settings[SAFETY], settings[GROW], settings[SHRINK] = (error.safety, error.grow,
+                                                                  error.shrink)
+            switches[ER_MAX_REJECTIONS] = error.max_rejections
+            switches[ORDER] = error.order
+            self.rtol[:] = error.rtol
+            self.atol[:] = error.atol
+        settings[ENERGY_LIMIT] = math.inf if integrator.energy_limit is None else \
+            integrator.energy_limit
+        switches[MAX_STEPS] = integrator.max_steps
+        self.settings, self.switches = settings, switches
+        self.breakpoints = np.ascontiguousarray(integrator.breakpoints, dtype=np.float64)
+        self.config = step.config.copy()
+        self.config[A_MAX_ITERATIONS] = integrator.max_iterations
+        self.coefficients = step.coefficients.copy()
+        self.coefficients[A_TOL], self.coefficients[A_FLOOR] = integrator.tol, integrator.floor
+        self.n = n
+
+    def run(self, integrator, t_stop: float, save_rows: bool):
+        """Steps of ``integrator`` towards ``t_stop`` (``<= t_bound``), its state
+        updated: ``(reason, rows, rejections)`` with ``rows`` a dict of arrays
+        (``None`` unless ``save_rows``) and ``rejections`` those of the step
+        handed over."""
+        from ..evaluation import State
+        s = integrator._s
+        ev = integrator.ev
+        st = s.statistics
+        n = self.n
+        cur, prev = s.current, s.previous
+        current = np.empty((5, n))
+        current[U], current[V], current[A], current[P] = cur.u, cur.v, cur.a, cur.p
+        current[F] = cur.f if cur.f is not None else 0.0
+        previous = np.zeros((5, n))
+        if prev is not None:
+            previous[U], previous[V], previous[A] = prev.u, prev.v, prev.a
+            previous[F] = prev.f if prev.f is not None else 0.0
+            previous[P] = prev.p
+        scalars = np.array([cur.t, prev.t if prev is not None else cur.t, s.proposed_step,
+                            s.potential, s.initial_potential, s.work, s.energy_error,
+                            s.energy_scale, s.last_step, s.last_energy_increment,
+                            s.grid_origin])
+        counters = np.array([prev is not None, cur.f is not None,
+                             prev is not None and prev.f is not None, s.grid_steps, st.steps,
+                             st.accepted, st.rejected, st.newton_iterations,
+                             st.error_test_failures, ev.nfev, ev.njev, ev.ntev, ev.nlu, ev.npev,
+                             s.last_iterations, 0, 0], dtype=np.int64)
+        self.settings[T_STOP] = t_stop
+        self.switches[SAVE_ROWS] = save_rows
+        size = ROWS_PER_CALL if save_rows else 0
+        row_scalars = np.empty((size, 6))
+        row_states = np.empty((size, 3, n))
+        step = self.step
+        kernels = step.kernels
+        reason, taken = drive(
+            step._force, step._stiffness, step._derivative, self._potential, self._load,
+            kernels.params, self.load_params, self.config, self.coefficients, step.Md, step.Mf,
+            step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
+            self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
+        # the integrator's state and statistics from the arrays
+        ev.nfev, ev.njev, ev.ntev, ev.nlu, ev.npev = (int(x) for x in counters[C_NFEV:C_NPEV + 1])
+        st.steps, st.accepted, st.rejected = (int(counters[STEPS]), int(counters[ACCEPTED]),
+                                              int(counters[REJECTED]))
+        st.newton_iterations = int(counters[NEWTON_ITERATIONS])
+        st.error_test_failures = int(counters[ERROR_TEST_FAILURES])
+        s.proposed_step = float(scalars[PROPOSED])
+        if taken:
+            s.current = State(float(scalars[T_CURRENT]), current[U].copy(), current[V].copy(),
+                              current[A].copy(),
+                              current[F].copy() if counters[CURRENT_HAS_F] else None,
+                              current[P].copy())
+            s.previous = State(float(scalars[T_PREV]), previous[U].copy(), previous[V].copy(),
+                               previous[A].copy(),
+                               previous[F].copy() if counters[PREVIOUS_HAS_F] else None,
+                               previous[P].copy())
+            s.potential, s.work = float(scalars[POTENTIAL]), float(scalars[WORK])
+            s.energy_error = float(scalars[ENERGY_ERROR])
+            s.energy_scale = float(scalars[ENERGY_SCALE])
+            s.last_step = float(scalars[LAST_STEP])
+            s.last_energy_increment = float(scalars[LAST_ENERGY_INCREMENT])
+            s.last_iterations = int(counters[LAST_ITERATIONS])
+            s.grid_origin, s.grid_steps = float(scalars[GRID_ORIGIN]), int(counters[GRID_STEPS])
+            st.t_reached = s.current.t
+        rows = None
+        if save_rows:
+            rows = {"t": row_scalars[:taken, R_T].copy(), "u": row_states[:taken, 0].copy(),
+                    "v": row_states[:taken, 1].copy(), "a": row_states[:taken, 2].copy(),
+                    "step_size": row_scalars[:taken, R_H].copy(),
+                    "iterations": row_scalars[:taken, R_ITERATIONS].astype(int),
+                    "energy_increment": row_scalars[:taken, R_INCREMENT].copy(),
+                    "total_energy": row_scalars[:taken, R_ENERGY].copy(),
+                    "external_work": row_scalars[:taken, R_WORK].copy()}
+        return int(reason), taken, rows, int(counters[REJECTIONS])
+
+
+def _resolved(kernel, signature_name):
+    """The kernel as :func:`drive` takes it (see ``attempt._ResolvedKernel``)."""
+    from . import signatures
+    from .attempt import _ResolvedKernel, _get_wrapper_address
+    if _get_wrapper_address is None:
+        return kernel
+    return _ResolvedKernel(kernel, getattr(signatures, signature_name))
