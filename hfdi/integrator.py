@@ -540,6 +540,13 @@ class Integrator:
         return self._compiled is not None
 
     @property
+    def driven(self) -> bool:
+        """Whether :meth:`advance` runs its ordinary steps in the compiled
+        driver (:mod:`hfdi.compiled.driver`): compiled attempts, a model with
+        a compiled load, no ``extra_load`` and a built-in controller."""
+        return self._driver is not None
+
+    @property
     def state(self) -> State:
         """The current (last accepted) :class:`State`."""
         return self._s.current
@@ -1199,6 +1206,16 @@ class _Rows:
         d["external_work"][i] = work
         self.size += 1
 
+    def extend(self, arrays: dict):
+        """Append the rows of ``arrays`` (the keys of :meth:`arrays`), in bulk."""
+        k = arrays["t"].shape[0]
+        capacity = self.data["t"].shape[0]
+        if self.size + k > capacity:
+            self._alloc(max(2 * capacity, self.size + k))
+        for key, arr in self.data.items():
+            arr[self.size:self.size + k] = arrays[key]
+        self.size += k
+
     def arrays(self) -> dict:
         return {key: arr[:self.size].copy() for key, arr in self.data.items()}
 
@@ -1350,7 +1367,34 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
             clock[0] = time.monotonic()
             progress(new.t, itg.statistics)
 
-    ok = integrator.advance(t_end, callback=record)
+    def record_rows(arrays: dict):
+        """:func:`record` for the steps of the compiled driver, in bulk."""
+        t = arrays["t"]
+        if t_eval is not None and pending[0] < t_eval.size:
+            stop = int(np.searchsorted(t_eval, t[-1], side="right"))
+            if stop > pending[0]:
+                old = last[0]
+                nodes = np.concatenate([[old.t], t])
+                u, v, _ = hermite_quintic(nodes, np.vstack([old.u[None], arrays["u"]]),
+                                          np.vstack([old.v[None], arrays["v"]]),
+                                          np.vstack([old.a[None], arrays["a"]]),
+                                          t_eval[pending[0]:stop])
+                u_eval[pending[0]:stop], v_eval[pending[0]:stop] = u, v
+                pending[0] = stop
+        if save_steps:
+            rows.extend(arrays)
+        last[:] = [State(float(t[-1]), arrays["u"][-1], arrays["v"][-1], arrays["a"][-1], None,
+                         None), float(arrays["step_size"][-1]), int(arrays["iterations"][-1]),
+                   float(arrays["energy_increment"][-1]), float(arrays["total_energy"][-1]),
+                   float(arrays["external_work"][-1])]
+        if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
+            clock[0] = time.monotonic()
+            progress(float(t[-1]), integrator.statistics)
+
+    if integrator.driven:
+        ok = integrator._drive(t_end, rows=record_rows, callback=record)
+    else:
+        ok = integrator.advance(t_end, callback=record)
     if progress is not None:
         progress(integrator.t, integrator.statistics)
     if not save_steps and rows.size == 1 and integrator.statistics.accepted:

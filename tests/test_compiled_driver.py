@@ -1,0 +1,268 @@
+"""The compiled driver (hfdi.compiled.driver) against the Python driver.
+
+Both drive the same compiled attempt, so every difference would be the
+driver's: the runs must agree bit for bit (steps, Newton counts, evaluations,
+states, energies) on every paper model, scheme and controller, through
+integrate()'s rows and dense output, and where the driver hands a step back
+(breakpoints, stops, max_steps, the energy limit). tests/test_compiled_step.py
+holds the compiled path against the Python path.
+"""
+import math
+
+import numpy as np
+import pytest
+
+import hfdi
+from hfdi.compiled import CompiledKernels, driver_reason
+from hfdi.controller import Combined, ErrorControl, IterationCount
+from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
+
+numba = pytest.importorskip("numba")
+
+PROBLEMS = {"dumbbell": (dumbbell, 0.01, 0.2), "tetrahedra": (tetrahedra, 2.5, 5.0),
+            "articulated": (articulated, 0.06, 0.2), "toss_rule": (toss_rule, 0.003, 0.012)}
+MODES = {"fixed": dict(step=1 / 40), "iterations": dict(target_iterations=3),
+         "error": dict(rtol=1e-6), "combined": dict(target_iterations=3, rtol=1e-5)}
+COUNTERS = ("steps", "accepted", "rejected", "newton_iterations", "error_test_failures",
+            "first_step_trials", "first_step_trial_iterations", "nfev", "njev", "ntev", "npev",
+            "nlu", "t_reached")
+STATE = ("proposed_step", "potential", "work", "energy_error", "energy_scale", "last_step",
+         "last_iterations", "last_energy_increment", "grid_origin", "grid_steps", "status",
+         "message", "first_step_pending")
+
+
+def _pair(make, scheme, **options):
+    """Two integrators of the same run: the compiled driver's, and the Python
+    driver's around the same compiled attempt."""
+    driven = hfdi.Integrator(make(), scheme, compiled=True, **options)
+    python = hfdi.Integrator(make(), scheme, compiled=True, **options)
+    assert driven.driven, driver_reason(driven)
+    python._driver = None                       # the Python driver, same attempt
+    return driven, python
+
+
+def _assert_same_state(a, b):
+    for name in COUNTERS:
+        assert getattr(a.statistics, name) == getattr(b.statistics, name), name
+    sa, sb = a.get_state(), b.get_state()
+    for name in STATE:
+        assert getattr(sa, name) == getattr(sb, name), name
+    for which in ("current", "previous"):
+        x, y = getattr(sa, which), getattr(sb, which)
+        assert (x is None) == (y is None), which
+        if x is None:
+            continue
+        assert x.t == y.t
+        for field in ("u", "v", "a", "f", "p"):
+            fx, fy = getattr(x, field), getattr(y, field)
+            assert (fx is None) == (fy is None), (which, field)
+            if fx is not None:
+                np.testing.assert_array_equal(fx, fy, err_msg=f"{which}.{field}")
+
+
+@pytest.mark.parametrize("mode", list(MODES))
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("problem", list(PROBLEMS))
+def test_the_driver_takes_the_python_drivers_steps_bit_for_bit(problem, scheme, mode):
+    make, short, long = PROBLEMS[problem]
+    t_end = long if mode == "iterations" else short
+    options = dict(MODES[mode])
+    if mode == "fixed":
+        options["step"] *= t_end
+    driven, python = _pair(make, scheme, t_bound=t_end, **options)
+    # in two calls, the first ending between steps
+    for t_stop in (0.37 * t_end, t_end):
+        assert driven.advance(t_stop) == python.advance(t_stop)
+        _assert_same_state(driven, python)
+    assert driven.status == hfdi.Status.SUCCESS and driven.statistics.steps > 5
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_integrate_gives_the_same_rows_and_dense_output(scheme):
+    """integrate() takes the driver's rows in bulk: the same arrays as step by
+    step, the t_eval outputs included, across the load's breakpoints."""
+    t_end = 0.1
+    t_eval = np.linspace(0.0, t_end, 41)
+    runs = []
+    for drive in (True, False):
+        if not drive:
+            import hfdi.integrator as module
+            original = module.Integrator.driven
+            module.Integrator.driven = property(lambda self: False)
+        try:
+            runs.append(hfdi.integrate(articulated(), scheme, t_end, rtol=1e-6, t_eval=t_eval,
+                                       compiled=True))
+            runs.append(hfdi.integrate(articulated(), scheme, t_end, rtol=1e-6, t_eval=t_eval,
+                                       compiled=True, save_steps=False))
+        finally:
+            if not drive:
+                module.Integrator.driven = original
+    driven, driven_light, python, python_light = runs
+    assert driven.success and driven.stats.steps > 50
+    for key in ("t", "u", "v", "a", "step_size", "iterations", "energy_increment",
+                "total_energy", "external_work", "u_eval", "v_eval"):
+        np.testing.assert_array_equal(getattr(driven, key), getattr(python, key), err_msg=key)
+        np.testing.assert_array_equal(getattr(driven_light, key), getattr(python_light, key),
+                                      err_msg=key)
+    assert driven_light.t.size == 2
+    # the breakpoints (0.025, 0.05) were landed on, by the Python driver
+    assert {0.025, 0.05} <= set(driven.t)
+
+
+def test_progress_is_reported_from_the_driver(monkeypatch):
+    monkeypatch.setattr(hfdi.integrator, "PROGRESS_INTERVAL", 0.0)
+    seen = []
+    result = hfdi.integrate(toss_rule(), "hfdi", 0.004, rtol=1e-7, compiled=True,
+                            progress=lambda t, st: seen.append((t, st.accepted)))
+    assert result.success
+    assert len(seen) >= 2 and seen[-1][0] == 0.004
+    assert [t for t, _ in seen] == sorted(t for t, _ in seen)
+
+
+def _stops():
+    """Runs that the driver hands back to Python to stop: each must stop with
+    the status, message and last good state of the Python driver."""
+    yield "max_steps", articulated, dict(rtol=1e-6, max_steps=57), "MAX_STEPS"
+    # a tiny first step, then growth until an error test fails
+    yield "halvings", dumbbell, dict(rtol=1e-6, max_halvings=0, first_step=1e-6), \
+        "HALVINGS_EXHAUSTED"
+    yield "min_step", dumbbell, dict(rtol=1e-6, min_step=3e-5, first_step=1e-6), \
+        "STEP_BELOW_MINIMUM"
+    yield "fixed", articulated, dict(step=0.004, max_iterations=2), "NEWTON_FAILED"
+    yield "energy", tetrahedra, dict(target_iterations=6, energy_limit=1e-9), "ENERGY_GROWTH"
+
+
+@pytest.mark.parametrize("name, make, options, status", list(_stops()),
+                         ids=[s[0] for s in _stops()])
+def test_stops_are_the_python_drivers(name, make, options, status):
+    t_end = 0.2 if make is not tetrahedra else 5.0
+    driven, python = _pair(make, "hfdi", t_bound=t_end, **options)
+    ok = [itg.advance(t_end) for itg in (driven, python)]
+    assert ok == [False, False]
+    assert driven.status == hfdi.Status[status], driven.message
+    assert driven.message == python.message
+    assert driven.statistics.accepted > 0
+    _assert_same_state(driven, python)
+
+
+def test_state_saved_mid_run_continues_bit_for_bit():
+    whole, _ = _pair(tetrahedra, "hfdi", rtol=1e-6, t_bound=4.0)
+    whole.advance(1.3)
+    whole.advance(4.0)
+    first, _ = _pair(tetrahedra, "hfdi", rtol=1e-6, t_bound=4.0)
+    first.advance(1.3)
+    saved = hfdi.IntegratorState.from_bytes(first.get_state().to_bytes())
+    second, _ = _pair(tetrahedra, "hfdi", rtol=1e-6, t_bound=4.0)
+    second.set_state(saved)
+    second.advance(4.0)
+    _assert_same_state(second, whole)
+
+
+def test_a_callback_runs_the_python_driver_with_the_same_steps():
+    seen = []
+    driven, _ = _pair(dumbbell, "bathe", rtol=1e-6, t_bound=0.01)
+    stepped, _ = _pair(dumbbell, "bathe", rtol=1e-6, t_bound=0.01)
+    driven.advance(0.01)
+    stepped.advance(0.01, callback=lambda itg: seen.append(itg.t))
+    assert len(seen) == stepped.statistics.accepted
+    _assert_same_state(driven, stepped)
+
+
+# -- when the driver is (not) used ---------------------------------------------------
+
+class _Subclass(type(articulated())):
+    def load(self, t):
+        return 2.0 * super().load(t)
+
+
+class _Counting(ErrorControl):
+    pass
+
+
+@pytest.mark.parametrize("why, build", [
+    ("extra_load", lambda: hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6, compiled=True,
+                                           extra_load=lambda t: np.zeros(4))),
+    ("no compiled load", lambda: hfdi.Integrator(_Subclass(), "hfdi", rtol=1e-6,
+                                                 compiled=True)),
+    ("built-in controllers", lambda: hfdi.Integrator(
+        dumbbell(), "hfdi", controller=_Counting(1e-6), compiled=True)),
+    ("not compiled", lambda: hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6)),
+])
+def test_the_driver_is_not_used_where_it_would_compute_another_run(why, build):
+    itg = build()
+    assert not itg.driven
+    assert why in driver_reason(itg)
+
+
+def test_an_injected_built_in_controller_is_driven():
+    c = Combined(IterationCount(3), ErrorControl(1e-5))
+    driven, python = _pair(dumbbell, "hfdi", controller=c, t_bound=0.01)
+    driven.advance(0.01)
+    python.advance(0.01)
+    _assert_same_state(driven, python)
+
+
+def test_a_redefined_load_runs_on_the_python_driver_with_its_own_load():
+    """A subclass that changes the load keeps the compiled attempt (its loads come
+    from Python) but not the driver, whose compiled load is the parent's."""
+    doubled = hfdi.integrate(_Subclass(), "hfdi", 0.05, rtol=1e-6, compiled=True)
+    python = hfdi.integrate(_Subclass(), "hfdi", 0.05, rtol=1e-6)
+    assert doubled.stats.steps == python.stats.steps
+    np.testing.assert_array_equal(doubled.u, python.u)
+
+
+# -- a user model with a compiled load, dense M and C -------------------------------
+
+from numba import njit  # noqa: E402
+
+from hfdi.compiled.signatures import JIT_OPTIONS, LOAD  # noqa: E402
+from test_compiled_step import Chain  # noqa: E402
+
+
+@njit(LOAD, **JIT_OPTIONS)
+def chain_load(t, load_params):
+    p = np.zeros(3)
+    p[2] = load_params[0] * math.sin(load_params[1] * t)
+    return p
+
+
+class DrivenChain(Chain):
+    """The chain of test_compiled_step with its load compiled too."""
+
+    def load(self, t):
+        return np.array([0.0, 0.0, 3.0 * math.sin(20.0 * t)])
+
+    load_rate = None    # HFDI takes the difference quotient, as the driver does
+
+    def compiled_kernels(self):
+        return super().compiled_kernels()._replace(load=chain_load,
+                                                   load_params=np.array([3.0, 20.0]))
+
+
+@pytest.mark.parametrize("damping", [None, np.array([0.3, 0.1, 0.2]),
+                                     np.array([[0.4, -0.1, 0.0], [-0.1, 0.3, -0.1],
+                                               [0.0, -0.1, 0.2]])],
+                         ids=["undamped", "diagonal C", "dense C"])
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_user_model_with_compiled_load_and_dense_matrices(scheme, damping):
+    driven, python = _pair(lambda: DrivenChain(damping), scheme, rtol=1e-6, t_bound=0.5)
+    for itg in (driven, python):
+        assert itg.advance(0.5)
+    assert driven.statistics.steps > 20
+    _assert_same_state(driven, python)
+    # and the Python path, to rounding (its loads and products are numpy's)
+    reference = hfdi.Integrator(DrivenChain(damping), scheme, rtol=1e-6, t_bound=0.5)
+    reference.advance(0.5)
+    assert reference.statistics.steps == driven.statistics.steps
+    np.testing.assert_allclose(driven.state.u, reference.state.u, rtol=0, atol=1e-12)
+
+
+def test_hat_load_kernel_is_the_models_load():
+    from hfdi.compiled import kernels_of
+    for make in (dumbbell, tetrahedra, articulated, toss_rule):
+        model = make()
+        kernels, _ = kernels_of(model)
+        for t in np.concatenate([np.linspace(-0.01, 0.06, 71), model.load_breakpoints()
+                                 if hasattr(model, "load_breakpoints") else []]):
+            np.testing.assert_array_equal(kernels.load(float(t), kernels.load_params),
+                                          model.load(float(t)))
