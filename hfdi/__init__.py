@@ -12,7 +12,7 @@ from .dense import Solution
 from .evaluation import ModelError, State
 from .integrator import Integrator, IntegratorState, Result, Statistics, Status, integrate
 from .schemes import HFDI, SCHEMES, Bathe, Newmark, Scheme, get_scheme
-from .system import (DerivativeCheck, LinearSystem, SecondOrderSystem, System,
+from .system import (DerivativeCheck, HeldLoad, LinearSystem, SecondOrderSystem, System,
                      check_derivatives)
 
 __version__ = "0.1.0"
@@ -22,6 +22,6 @@ __all__ = [
     "Scheme", "Newmark", "Bathe", "HFDI", "SCHEMES", "get_scheme",
     "Controller", "ErrorControl", "IterationCount", "Combined", "FixedStep",
     "IterationCountController", "DEFAULT_RTOL", "Solution",
-    "SecondOrderSystem", "System", "LinearSystem", "check_derivatives", "DerivativeCheck",
+    "SecondOrderSystem", "System", "LinearSystem", "HeldLoad", "check_derivatives", "DerivativeCheck",
     "ModelError", "models", "spectral",
 ]

@@ -1035,13 +1035,18 @@ class Integrator:
         if callback is None and self._driver is not None:
             return self._drive(t_stop)
         while self.t < t_stop:
-            ok = self.step(t_stop)
-            if callback is not None and self.statistics.accepted and (ok or self._s.status ==
-                                                                      Status.ENERGY_GROWTH):
-                callback(self)
-            if not ok:
+            if not self._python_step(t_stop, callback):
                 return False
         return True
+
+    def _python_step(self, t_stop, callback, rejections=0) -> bool:
+        """One step of the Python driver (from ``rejections`` rejected attempts),
+        then ``callback(self)`` after an accepted one."""
+        ok = self._step(t_stop, rejections)
+        if callback is not None and self.statistics.accepted and (
+                ok or self._s.status == Status.ENERGY_GROWTH):
+            callback(self)
+        return ok
 
     def _drive(self, t_stop: float, rows=None, callback=None) -> bool:
         """:meth:`advance` through the compiled driver (:mod:`hfdi.compiled.driver`).
@@ -1054,19 +1059,19 @@ class Integrator:
         """
         from .compiled.driver import ENERGY_CHECK, HAND_OVER
         while self.t < t_stop:
-            if self.failed or self.finished:
+            if self.failed:
                 return False
-            if self._s.first_step_pending:
-                ok = self._step(t_stop)
-                if callback is not None and self.statistics.accepted and (
-                        ok or self._s.status == Status.ENERGY_GROWTH):
-                    callback(self)
-                if not ok:
+            held = self._driver.held_load(self)
+            if self._s.first_step_pending or held is None:
+                # the controller's init; or a faulty held load, which the
+                # Python driver reports as it does any faulty load
+                if not self._python_step(t_stop, callback):
                     return False
                 continue
             start = time.process_time()
             limit = t_stop if self.t_bound is None else min(t_stop, self.t_bound)
-            reason, taken, arrays, pending = self._driver.run(self, limit, rows is not None)
+            reason, taken, arrays, pending = self._driver.run(self, limit, rows is not None,
+                                                              held)
             self._cpu(start)
             self._sync_counters()
             if taken:
@@ -1074,17 +1079,10 @@ class Integrator:
                 if rows is not None:
                     rows(arrays)
             if reason == ENERGY_CHECK:
-                self._energy_growth()
-                return False
+                return self._energy_growth()
             self._mark_finished()
-            if reason == HAND_OVER:
-                # this step runs in Python, from the rejections the driver made
-                ok = self._step(t_stop, pending)
-                if callback is not None and self.statistics.accepted and (
-                        ok or self._s.status == Status.ENERGY_GROWTH):
-                    callback(self)
-                if not ok:
-                    return False
+            if reason == HAND_OVER and not self._python_step(t_stop, callback, pending):
+                return False
         return True
 
 

@@ -265,6 +265,38 @@ class LinearSystem(SecondOrderSystem):
         return 0.5 * float(u @ (self._K @ u))
 
 
+class HeldLoad:
+    """An ``extra_load`` constant in time, changed only from outside between
+    runs: a co-simulation input held over a communication step.
+
+    ``HeldLoad(source)`` is called as any ``extra_load`` (``load(t)`` returns
+    ``source()``, whatever ``t``), and says so: being constant over each
+    :meth:`Integrator.advance`, it is added by the compiled driver
+    (:mod:`hfdi.compiled.driver`) as one vector per call, where any other
+    ``extra_load`` keeps the steps on the Python driver.
+
+    Parameters
+    ----------
+    source : callable ``() -> (N,)``
+        The load now. Its value may change only between calls of
+        :meth:`~hfdi.Integrator.advance` or :meth:`~hfdi.Integrator.step`,
+        followed by :meth:`~hfdi.Integrator.load_changed` (the load jumps
+        there).
+    """
+
+    def __init__(self, source):
+        if not callable(source):
+            raise ValueError(f"HeldLoad: source must be callable as source() -> (N,), got "
+                             f"{source!r}")
+        self.source = source
+
+    def __call__(self, t):
+        return self.source()
+
+    def __repr__(self):
+        return f"HeldLoad({self.source!r})"
+
+
 def _matching_matrix(name, value, n):
     """A matrix of the model checked to be (n,) (a diagonal) or (n, n)."""
     a = checks.square_matrix(name, value)

@@ -148,7 +148,7 @@ def driver_reason(integrator) -> str:
     (:mod:`hfdi.compiled.driver`), or ``""`` when they can.
 
     The driver needs the compiled attempt, a compiled load (``CompiledKernels.load``),
-    no ``extra_load``, no exact load rate for HFDI (the paper's models have
+    no ``extra_load`` but a :class:`~hfdi.HeldLoad`, no exact load rate for HFDI (the paper's models have
     none) and one of the built-in controllers.
     """
     from ..controller import Combined, ErrorControl, FixedStep, IterationCount
@@ -157,8 +157,10 @@ def driver_reason(integrator) -> str:
         return "the attempt is not compiled"
     if step.kernels.load is None:
         return f"model {type(integrator.system).__name__} has no compiled load"
-    if integrator.ev.extra_load is not None:
-        return "an extra_load is given"
+    from ..system import HeldLoad
+    extra = integrator.ev.extra_load
+    if extra is not None and not isinstance(extra, HeldLoad):
+        return "an extra_load is given that is not a hfdi.HeldLoad"
     if step.exact_rate:
         return "HFDI takes the model's exact load rate, which has no compiled form"
     c = integrator.controller

@@ -302,7 +302,7 @@ def _is_breakpoint(breakpoints, t):
 
 _SIGNATURE = types.Tuple((types.int64, types.int64))(
     FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE, LOAD_TYPE,
-    VECTOR, VECTOR,                                   # params, load_params
+    VECTOR, VECTOR, VECTOR,                           # params, load_params, held load
     INDEX_VECTOR, VECTOR,                             # the attempt's config and coefficients
     VECTOR, MATRIX, VECTOR, MATRIX,                   # M, C
     VECTOR, INDEX_VECTOR, VECTOR, VECTOR, VECTOR,     # settings, switches, rtol, atol, bps
@@ -312,8 +312,8 @@ _SIGNATURE = types.Tuple((types.int64, types.int64))(
 
 
 @njit(_SIGNATURE, **JIT_OPTIONS)
-def drive(force, stiffness, derivative, potential_energy, load, params, load_params, config,
-          coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints, scalars,
+def drive(force, stiffness, derivative, potential_energy, load, params, load_params, held,
+          config, coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints, scalars,
           counters, current, previous, row_scalars, row_states):
     """Take ordinary steps towards ``settings[T_STOP]``; see the module's docstring.
 
@@ -321,6 +321,8 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
     ----------
     force, stiffness, derivative, potential_energy, load : compiled kernels
     params, load_params : ndarray (P,), (Q,)
+    held : ndarray (N,) or (0,)
+        A :class:`~hfdi.HeldLoad`'s value, added to the load (none: empty).
     config, coefficients : the attempt's (see :func:`hfdi.compiled.attempt.attempt`),
         scheme, ``N_max``, kinds of ``M`` and ``C``, ``γ``, ``β``, ``η`` and floor set
     Md, Mf, Cd, Cf : ``M`` and ``C`` (see :func:`~hfdi.compiled.attempt.attempt`)
@@ -390,9 +392,14 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
             counters[REJECTIONS] = rejections
             return HAND_OVER, taken
         # the loads at the stage times (CompiledStep._loads)
+        # (Evaluator.load: the model's load, then + the extra load)
         if scheme == BATHE:
             loads[0] = load(t + coefficients[A_GAMMA] * h, load_params)
+            if held.shape[0]:
+                loads[0] = loads[0] + held
         loads[1] = load(t_end, load_params)
+        if held.shape[0]:
+            loads[1] = loads[1] + held
         if scheme == HFDI_SCHEME:
             loads[2] = (loads[1] - current[P]) / h
         has_previous = counters[HAS_PREV] != 0
@@ -582,9 +589,25 @@ class CompiledDriver:
         self.coefficients[A_TOL], self.coefficients[A_FLOOR] = integrator.tol, integrator.floor
         self.n = n
 
-    def run(self, integrator, t_stop: float, save_rows: bool):
-        """Steps of ``integrator`` towards ``t_stop`` (``<= t_bound``), its state
-        updated: ``(reason, rows, rejections)`` with ``rows`` a dict of arrays
+    def held_load(self, integrator):
+        """The :class:`~hfdi.HeldLoad`'s value as :func:`drive` adds it (empty
+        without one), or ``None`` when it is not a finite (N,) vector: the
+        Python driver then takes the steps and reports the fault."""
+        extra = integrator.ev.extra_load
+        if extra is None:
+            return np.zeros(0)
+        try:
+            value = np.asarray(extra.source(), dtype=np.float64)
+        except Exception:
+            return None
+        if value.shape != (self.n,) or not np.all(np.isfinite(value)):
+            return None
+        return np.ascontiguousarray(value)
+
+    def run(self, integrator, t_stop: float, save_rows: bool, held):
+        """Steps of ``integrator`` towards ``t_stop`` (``<= t_bound``) with the held
+        load ``held`` (:meth:`held_load`), its state updated:
+        ``(reason, taken, rows, rejections)`` with ``rows`` a dict of arrays
         (``None`` unless ``save_rows``) and ``rejections`` those of the step
         handed over."""
         from ..evaluation import State
@@ -612,6 +635,7 @@ class CompiledDriver:
                              s.last_iterations, 0, 0], dtype=np.int64)
         self.settings[T_STOP] = t_stop
         self.switches[SAVE_ROWS] = save_rows
+        self.switches[MAX_STEPS] = integrator.max_steps
         size = ROWS_PER_CALL if save_rows else 0
         row_scalars = np.empty((size, 6))
         row_states = np.empty((size, 3, n))
@@ -619,7 +643,7 @@ class CompiledDriver:
         kernels = step.kernels
         reason, taken = drive(
             step._force, step._stiffness, step._derivative, self._potential, self._load,
-            kernels.params, self.load_params, self.config, self.coefficients, step.Md, step.Mf,
+            kernels.params, self.load_params, held, self.config, self.coefficients, step.Md, step.Mf,
             step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
             self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
         # the integrator's state and statistics from the arrays
