@@ -18,10 +18,12 @@ that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
   (0: not used), ``rtol`` (error control; 0: the master's tolerance of
   ``fmi2SetupExperiment`` when defined), ``tolerance`` (Newton tolerance η;
   0: automatic), ``initial_step`` (0: automatic),
-  ``max_step`` (0: no limit) and every scalar constructor parameter of the
+  ``max_step`` (0: no limit), ``max_internal_steps``, ``compiled`` (the
+  compiled driver of :mod:`hfdi.compiled`; false by default) and every scalar constructor parameter of the
   model (``model.NAME`` when the bare name is taken);
 * inputs: ``F[i]``, an external force added to the model's load through
-  ``extra_load`` and held constant over each communication step;
+  ``extra_load`` (a :class:`hfdi.HeldLoad`) and held constant over each
+  communication step;
 * outputs: ``u[i]``, ``v[i]``, ``a[i]``, the model's quantities of interest
   (``NAME`` or ``NAME[k]``; ``z.NAME`` when the bare name is taken; a
   quantity equal to the displacement is not repeated), ``W`` (total energy),
@@ -72,7 +74,7 @@ _STATE_HEADER = ("model", "bundle", "phase", "params", "mparams", "start_time", 
 
 _SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "rtol": 0.0, "tolerance": 0.0,
                     "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000,
-                    "master_rtol": 0.0}
+                    "compiled": False, "master_rtol": 0.0}
 #: Largest target_iterations: Newton may run 2 N-bar corrections per attempt
 #: and 31 attempts per step, each unbounded in time when it cannot converge.
 _MAX_TARGET_ITERATIONS = 100.0
@@ -102,11 +104,6 @@ _DERIVED = {"m": ("m/s", "m/s2", "N"), "rad": ("rad/s", "rad/s2", "N.m"),
 
 class FmuError(Exception):
     """A request the FMU refuses (reported to the master as ``fmi2Error``)."""
-
-
-class _BudgetExhausted(Exception):
-    """Stops ``Integrator.advance`` (from its callback) when one ``doStep`` has
-    taken ``max_internal_steps`` internal steps without reaching its end."""
 
 
 def _like(what, saved, mine):
@@ -314,6 +311,12 @@ class HfdiSlave(Fmi2Slave):
             self.register_variable(_Real(key, unit=unit, description=text,
                                          getter=(lambda k=key: self._params[k]),
                                          setter=self._param_setter(key, float), **fixed))
+        self.register_variable(Boolean(
+            "compiled", description="take the internal steps in compiled code (numba: "
+            "hfdi.Integrator(compiled=True)); the first instantiation after the FMU is "
+            "extracted compiles for about a minute. false: the Python path",
+            getter=lambda: self._params["compiled"],
+            setter=self._param_setter("compiled", bool), **fixed))
         self.register_variable(Integer(
             "max_internal_steps", description="internal steps (diverged attempts included) "
             "one doStep may take, >= 1; a communication step needing more is discarded",
@@ -573,13 +576,17 @@ class HfdiSlave(Fmi2Slave):
         # the mode: the paper's rule, error control, or both (docs: fmu/README.md)
         rtol = float(rtol) or float(params.get("master_rtol", 0.0)) or None
         target = float(target) or None
+        compiled = bool(params["compiled"])
         try:
             itg = hfdi.Integrator(model, key, target_iterations=target, rtol=rtol,
                                   tol=float(tol) or None,
                                   t0=float(start_time),
                                   first_step=float(params["initial_step"]) or None,
                                   max_step=float(params["max_step"]) or None,
-                                  max_steps=_UNLIMITED_STEPS, extra_load=self._extra_load)
+                                  max_steps=_UNLIMITED_STEPS, compiled=compiled,
+                                  extra_load=hfdi.HeldLoad(self._held_input))
+        except hfdi.compiled.CompiledUnavailable as exc:
+            raise FmuError(f"parameter compiled = true: {exc}") from None
         except Exception as exc:
             model_part = "".join(f", {k} = {v!r}" for k, v in changed.items())
             raise FmuError(f"the integrator rejected the parameters (scheme = {scheme!r}, "
@@ -603,8 +610,8 @@ class HfdiSlave(Fmi2Slave):
                 return f"quantity {qname!r} no longer has {width} component(s)"
         return ""
 
-    def _extra_load(self, t):
-        # the input held over the current communication step
+    def _held_input(self):
+        # the input held over the current communication step (a hfdi.HeldLoad)
         return self._F_applied
 
     # -- stepping -------------------------------------------------------------------
@@ -646,20 +653,21 @@ class HfdiSlave(Fmi2Slave):
             if not math.isfinite(t_end):
                 return self._discard(f"doStep({t}, {h}): the end time overflows")
             budget = int(self._itg_key[0]["max_internal_steps"])
-            first = itg.statistics.steps
-
-            def count(integrator):
-                if integrator.t < t_end and integrator.statistics.steps - first >= budget:
-                    raise _BudgetExhausted
             snapshot = (itg.get_state(), self._F_applied.copy())
             self._apply_inputs()
+            # the budget of this doStep as the integrator's step limit: it holds
+            # in the compiled driver as in the Python one
+            itg.max_steps = itg.statistics.steps + budget
             try:
-                ok = itg.advance(t_end, callback=count)
-                reason = "" if ok else f"{itg.status.name}: {itg.message}"
-            except _BudgetExhausted:
-                ok = False
-                reason = (f"max_internal_steps = {budget} internal steps reached at "
-                          f"t = {itg.t!r}")
+                ok = itg.advance(t_end)
+            finally:
+                itg.max_steps = _UNLIMITED_STEPS
+            reason = ""
+            if not ok:
+                reason = f"{itg.status.name}: {itg.message}"
+                if itg.status == self._hfdi.Status.MAX_STEPS:
+                    reason = (f"max_internal_steps = {budget} internal steps reached at "
+                              f"t = {itg.t!r}")
             self._cache = None
             if ok:
                 return True
@@ -853,7 +861,7 @@ class HfdiSlave(Fmi2Slave):
                     itg = self._itg
                 else:
                     # The integrator checks its initial state, made with the inputs
-                    # _extra_load returns; set_state replaces that state, so it is
+                    # _held_input returns; set_state replaces that state, so it is
                     # made without inputs, which the model was valid with.
                     current, self._F_applied = self._F_applied, np.zeros(self._n)
                     try:

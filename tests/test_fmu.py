@@ -202,6 +202,54 @@ def test_input_step_moves_the_centre_of_mass_exactly(dumbbell_fmu, scheme):
     assert abs(x.mean() - exact) < 1e-9 * abs(exact)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_compiled_fmu_reproduces_the_compiled_integrator(dumbbell_fmu, scheme):
+    """``compiled = true``: the FMU takes its internal steps in the compiled driver
+    (its own bundled copy, compiled on first use), with inputs changing between
+    communication steps, a discarded step and the step budget: the same outputs
+    as the compiled in-process integrator fed the same inputs, and the same
+    internal steps as the FMU on the Python path."""
+    parameters = {"scheme": scheme, "target_iterations": 0.0, "rtol": 1e-6}
+    fast = unit(dumbbell_fmu, dict(parameters, compiled=True), "fast")
+    slow = unit(dumbbell_fmu, parameters, "slow")
+    held = np.zeros(N)
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), scheme, rtol=1e-6, compiled=True,
+                          extra_load=hfdi.HeldLoad(lambda: held), max_steps=2 ** 62)
+    assert itg.driven
+    t, h, rows, refs = 0.0, 0.01, [], []
+    for k in range(25):
+        inputs = {"F[1]": 30.0 * math.sin(k), "F[4]": -20.0 * math.cos(k)}
+        for v in (fast, slow):
+            v.set(inputs)
+        if k == 12:                              # a step no budget of 3 can take
+            fast.set({"F[3]": HUGE})
+            assert not fast.step(t, h)
+            fast.set({"F[3]": 0.0})
+        for v in (fast, slow):
+            assert v.step(t, h)
+        changed = np.zeros(N)
+        changed[0], changed[3] = inputs["F[1]"], inputs["F[4]"]
+        if not np.array_equal(changed, held):
+            held[:] = changed
+            itg.load_changed()
+        t += h
+        assert itg.advance(t)
+        rows.append(fast.get(OBSERVED))
+        refs.append(reference_row(itg))
+        assert fast.get(["internal_steps"]) == slow.get(["internal_steps"])
+    assert_rows_close(rows, refs, rtol=0.0)
+    np.testing.assert_array_equal(fast.get(STATE), slow.get(STATE))
+    assert rows[-1][OBSERVED.index("internal_steps")] > 100
+    budget = unit(dumbbell_fmu, dict(parameters, compiled=True, max_internal_steps=3),
+                  "budget")
+    assert not budget.step(0.0, 0.5)
+    assert "max_internal_steps = 3 internal steps reached" in budget.messages[-1][2]
+    assert budget.last_successful_time() == 0.0
+    for v in (fast, slow, budget):
+        v.close()
+
+
 # -- FMU state -------------------------------------------------------------------------------
 @pytest.mark.parametrize("scheme", ["bathe", "hfdi"])
 def test_rollback_and_serialization_are_bit_identical(dumbbell_fmu, scheme):

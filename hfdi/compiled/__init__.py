@@ -74,26 +74,10 @@ def numba_available() -> tuple[bool, str]:
 
 _METHODS = ("internal_force", "stiffness", "stiffness_derivative")
 
-#: The paper's models: class (module, name) -> factory in hfdi.compiled.models.
-_BUILTIN = {("hfdi.models.dumbbell", "Dumbbell"): "dumbbell_kernels",
-            ("hfdi.models.tetrahedra", "Tetrahedra"): "tetrahedra_kernels",
-            ("hfdi.models.articulated", "Articulated"): "articulated_kernels",
-            ("hfdi.models.toss_rule", "TossRule"): "toss_rule_kernels"}
-
 
 def _provider(cls):
-    """The class of ``cls``'s MRO that provides kernels and how: ``(owner, factory)``.
-
-    ``factory`` is the name of a function of :mod:`hfdi.compiled.models` for
-    the paper's models, ``None`` for a ``compiled_kernels()`` method.
-    """
-    for c in cls.__mro__:
-        if "compiled_kernels" in vars(c):
-            return c, None
-        factory = _BUILTIN.get((c.__module__, c.__qualname__))
-        if factory is not None:
-            return c, factory
-    return None, None
+    """The class of ``cls``'s MRO that defines ``compiled_kernels``, or ``None``."""
+    return next((c for c in cls.__mro__ if "compiled_kernels" in vars(c)), None)
 
 
 def kernels_of(system):
@@ -101,13 +85,13 @@ def kernels_of(system):
     Python methods, else ``(None, why)``.
 
     A model offers kernels through a ``compiled_kernels()`` method returning
-    :class:`CompiledKernels`; the paper's four models have theirs in
-    :mod:`hfdi.compiled.models`. A subclass that overrides ``internal_force``,
+    :class:`CompiledKernels` (the paper's four models return those of
+    :mod:`hfdi.compiled.models`). A subclass that overrides ``internal_force``,
     ``stiffness`` or ``stiffness_derivative`` but not ``compiled_kernels``
     would have kernels that compute another model: it runs on the Python path.
     """
     cls = type(system)
-    owner, factory = _provider(cls)
+    owner = _provider(cls)
     if owner is None:
         return None, f"model {cls.__name__} has no compiled kernels"
     for name in _METHODS:
@@ -118,14 +102,10 @@ def kernels_of(system):
     ok, why = numba_available()
     if not ok:
         return None, why
-    if factory is None:
-        try:
-            kernels = system.compiled_kernels()
-        except CompiledUnavailable as exc:
-            return None, str(exc)
-    else:
-        from . import models
-        kernels = getattr(models, factory)(system)
+    try:
+        kernels = system.compiled_kernels()
+    except CompiledUnavailable as exc:
+        return None, str(exc)
     if not isinstance(kernels, CompiledKernels):
         raise TypeError(f"{cls.__name__}.compiled_kernels() must return a "
                         f"hfdi.compiled.CompiledKernels, got {type(kernels).__name__}")

@@ -282,6 +282,12 @@ class Articulated(SecondOrderSystem):
         hinge = (g @ w) * G + np.outer(g, Gw) + np.outer(Gw, g) + delta * D
         return T + self.k_f * hinge
 
+    def compiled_kernels(self):
+        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.articulated_kernels`;
+        imports numba)."""
+        from ..compiled.models import articulated_kernels
+        return articulated_kernels(self)
+
     def potential_energy(self, u):
         u = np.asarray(u, dtype=float)
         r = self.link_lengths(u)

@@ -137,6 +137,12 @@ class Dumbbell(SecondOrderSystem):
                             b * (wx * dy + dx * wy) + c * dx * dy,
                             2.0 * b * wy * dy + c * dy * dy + bs)
 
+    def compiled_kernels(self):
+        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.dumbbell_kernels`;
+        imports numba)."""
+        from ..compiled.models import dumbbell_kernels
+        return dumbbell_kernels(self)
+
     def potential_energy(self, u):
         r = self._bond(u)[2]
         A, s = self.A, self.sigma

@@ -197,6 +197,12 @@ class Tetrahedra(SecondOrderSystem):
         return self._pair.stiffness_derivative(u, np.asarray(w, dtype=float), d1, d2, d3,
                                                geometry)
 
+    def compiled_kernels(self):
+        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.tetrahedra_kernels`;
+        imports numba)."""
+        from ..compiled.models import tetrahedra_kernels
+        return tetrahedra_kernels(self)
+
     def potential_energy(self, u):
         return float(self._phi(self.distances(u), 0).sum())
 

@@ -357,6 +357,12 @@ class TossRule(SecondOrderSystem):
         eps, gam, _, _ = self._strains(p, q, a)
         return eps, gam, chi
 
+    def compiled_kernels(self):
+        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.toss_rule_kernels`;
+        imports numba)."""
+        from ..compiled.models import toss_rule_kernels
+        return toss_rule_kernels(self)
+
     def potential_energy(self, u):
         """Strain energy ``V = Σ_e ½ h_e (EA ε² + GA γ² + EJ χ²)`` (Eq. 50, one-point rule)."""
         eps, gam, chi = self.element_strains(u)
