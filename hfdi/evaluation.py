@@ -103,6 +103,12 @@ class State:
     f: np.ndarray
     p: np.ndarray
 
+    def copy(self) -> "State":
+        """A copy owning copies of its arrays (``copy.deepcopy``, at a tenth of its cost)."""
+        return State(self.t, self.u.copy(), self.v.copy(), self.a.copy(),
+                     None if self.f is None else self.f.copy(),
+                     None if self.p is None else self.p.copy())
+
 
 class Evaluator:
     """Counting wrapper around a :class:`~hfdi.system.SecondOrderSystem`.
