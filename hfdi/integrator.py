@@ -147,10 +147,11 @@ class IntegratorState:
         """A deep copy (``copy.deepcopy`` field by field; a co-simulation step
         saves one before every communication step, where deepcopy's generic
         walk cost more than the step)."""
-        return dataclasses.replace(
-            self, current=self.current.copy(),
-            previous=None if self.previous is None else self.previous.copy(),
-            statistics=dataclasses.replace(self.statistics))
+        new = copy.copy(self)
+        new.current = self.current.copy()
+        new.previous = None if self.previous is None else self.previous.copy()
+        new.statistics = copy.copy(self.statistics)
+        return new
 
     def to_bytes(self) -> bytes:
         """The state as bytes: arrays in binary, everything else in a JSON header."""
