@@ -20,10 +20,14 @@ Fractions are of the profiled run's total; cProfile's own overhead inflates
 the many small calls of the driver somewhat, so the split is an estimate and
 the per-iteration time is taken from the plain runs.
 
-``--paths`` instead compares the Python path with the compiled attempt
-(``compiled=True``, docs/compiled.md) on the same runs: µs per Newton
-iteration of each, best of ``--repeats`` runs made in turn, and their ratio;
-with ``--rtol R`` the runs are error-controlled instead of at ``--target``.
+``--paths`` instead compares the Python path with the compiled path
+(``compiled=True``: the compiled driver, docs/compiled.md) on the same runs:
+µs per Newton iteration of each, best of ``--repeats`` runs made in turn,
+and their ratio; with ``--rtol R`` the runs are error-controlled instead of
+at ``--target``. The compiled run's time is split into the model's kernels,
+the dense linear algebra and the rest (the compiled driver) from its
+evaluation counts and the unit costs of each kernel and of a solve and a
+product, timed in compiled loops (:func:`compiled_unit_costs`).
 """
 from __future__ import annotations
 
@@ -42,7 +46,7 @@ from hfdi.files import write_atomic
 from validation.experiments import SCHEME_ORDER, experiment, names
 from validation.runs import integrate
 
-__all__ = ["profile_run", "compare_paths", "main"]
+__all__ = ["profile_run", "compare_paths", "compiled_unit_costs", "compiled_split", "main"]
 
 _HFDI = Path(hfdi.__file__).resolve().parent
 _LINALG_METHODS = {"solve", "band", "solve_band"}
@@ -141,7 +145,7 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
     if rtol is not None:
         target = None
     best = {False: math.inf, True: math.inf}
-    counts = {}
+    counts, results = {}, {}
     for _ in range(max(1, int(repeats))):
         for compiled in (False, True):
             model = experiment(problem).model()
@@ -149,8 +153,13 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
             result = integrate(model, scheme, end, target, rtol=rtol, compiled=compiled)
             best[compiled] = min(best[compiled], time.perf_counter() - start)
             counts[compiled] = (int(result.stats.steps), int(result.stats.newton_iterations))
+            results[compiled] = result
     steps, iterations = counts[False]
+    model = experiment(problem).model()
+    costs = compiled_unit_costs(model, results[True].u[-1])
+    split = compiled_split({"scheme": scheme}, results[True], costs, best[True])
     return {"problem": problem, "scheme": scheme, "target": target, "rtol": rtol,
+            "unit_costs_us": costs, "compiled_split": split,
             "steps": steps, "newton_iterations": iterations,
             "compiled_steps": counts[True][0], "compiled_newton_iterations": counts[True][1],
             "python_us": 1e6 * best[False] / max(iterations, 1),
@@ -159,10 +168,106 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
             "same_counts": counts[False] == counts[True]}
 
 
+def compiled_unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
+    """µs per call, in compiled loops, of the model's kernels at ``u`` (``f``, ``K``,
+    ``T[w]``, ``V``) and of the dense linear algebra of one Newton correction
+    (a solve with an (N, N) matrix, LAPACK's gesv as the attempt calls it, and
+    an (N, N) product, HFDI's ``S B⁻¹ S``); best of ``repeats``."""
+    import numpy as np
+    from numba import njit
+
+    from hfdi.compiled import kernels_of
+
+    kernels, why = kernels_of(model)
+    if kernels is None:
+        raise ValueError(f"no compiled kernels: {why}")
+
+    @njit
+    def vector_calls(kernel, u, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, params)[0]
+        return total
+
+    @njit
+    def matrix_calls(kernel, u, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, params)[0, 0]
+        return total
+
+    @njit
+    def derivative_calls(kernel, u, w, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, w, params)[0, 0]
+        return total
+
+    @njit
+    def scalar_calls(kernel, u, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, params)
+        return total
+
+    @njit
+    def solves(A, b, n):
+        total = 0.0
+        for _ in range(n):
+            total += np.linalg.solve(A, b)[0]
+        return total
+
+    @njit
+    def products(A, B, n):
+        total = 0.0
+        for _ in range(n):
+            total += (A @ B)[0, 0]
+        return total
+
+    u = np.ascontiguousarray(u, dtype=float)
+    w = np.sin(np.arange(1, u.size + 1.0))
+    p = kernels.params
+    K = kernels.stiffness(u, p)
+    A = np.ascontiguousarray(K + np.diag(np.abs(K).sum(axis=1) + 1.0))
+    runs = {"force": lambda n: vector_calls(kernels.force, u, p, n),
+            "stiffness": lambda n: matrix_calls(kernels.stiffness, u, p, n),
+            "stiffness_derivative": lambda n: derivative_calls(kernels.stiffness_derivative,
+                                                               u, w, p, n),
+            "potential_energy": lambda n: scalar_calls(kernels.potential_energy, u, p, n),
+            "solve": lambda n: solves(A, w, n), "product": lambda n: products(A, A, n)}
+    costs = {}
+    for name, run in runs.items():
+        run(1)                                   # compile
+        best = math.inf
+        for _ in range(repeats):
+            start = time.perf_counter()
+            run(calls)
+            best = min(best, time.perf_counter() - start)
+        costs[name] = 1e6 * best / calls
+    return costs
+
+
+def compiled_split(row: dict, result, costs: dict, wall_s: float) -> dict:
+    """Fractions of a compiled run's wall time in the model's kernels, in the
+    dense linear algebra and in the rest (the driver: predictor, residuals and
+    tangents' assembly, error estimate, controller, energy balance), estimated
+    from the run's evaluation counts and the unit costs of
+    :func:`compiled_unit_costs`."""
+    st = result.stats
+    model = (st.nfev * costs["force"] + st.njev * costs["stiffness"]
+             + st.ntev * costs["stiffness_derivative"] + st.npev * costs["potential_energy"])
+    linalg = st.nlu * costs["solve"]
+    if row["scheme"] == "hfdi":
+        linalg += st.newton_iterations * costs["product"]      # S B⁻¹ S per correction
+    total = 1e6 * wall_s
+    return {"model": model / total, "linear_algebra": linalg / total,
+            "driver": 1.0 - (model + linalg) / total}
+
+
 def _print_paths(args) -> list:
     rows = []
     print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'python µs/it':>13s} "
-          f"{'compiled µs/it':>15s} {'ratio':>6s}")
+          f"{'compiled µs/it':>15s} {'ratio':>6s}  compiled: model  linalg  driver")
     for problem in args.problems or names():
         for scheme in args.schemes:
             row = compare_paths(problem, scheme, args.target, args.rtol, args.repeats,
@@ -171,9 +276,11 @@ def _print_paths(args) -> list:
             note = "" if row["same_counts"] else (
                 f"  (compiled: {row['compiled_steps']} steps, "
                 f"{row['compiled_newton_iterations']} its)")
+            f = row["compiled_split"]
             print(f"{problem:12s} {scheme:8s} {row['steps']:6d} {row['newton_iterations']:6d} "
                   f"{row['python_us']:13.1f} {row['compiled_us']:15.1f} "
-                  f"{row['speedup']:6.2f}{note}", flush=True)
+                  f"{row['speedup']:6.2f}  {f['model']:15.2f}  {f['linear_algebra']:6.2f}  "
+                  f"{f['driver']:6.2f}{note}", flush=True)
     return rows
 
 

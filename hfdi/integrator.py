@@ -357,18 +357,21 @@ class Integrator:
         Check ``K(u0)`` against a finite difference of ``f`` (one extra
         force evaluation) and refuse a model whose ``K`` is not ``∂f/∂u``
         (default). Turn off only for a force with a kink at ``u0``.
-    compiled : {False, None, True}
-        Run each attempt of a step (predictor, stages, Newton) as one
-        compiled function (:mod:`hfdi.compiled`, numba) with the model's
-        compiled kernels. ``False`` (default): the Python path. ``None``
-        (auto): compiled when the model has kernels, numba imports and the
-        system is dense (``N < 128``); else the Python path, with a warning
-        once when numba is missing. ``True``: compiled or
-        :class:`hfdi.compiled.CompiledUnavailable`. Both paths give the same
-        steps and Newton counts and states equal to rounding. Not the default
-        yet: the driver around the attempt is still Python, so the gain is
-        1.2–2.7× per Newton iteration, against about 25 s of compiling on the
-        first use after installing (docs/compiled.md).
+    compiled : {None, True, False}
+        Take the steps in compiled code (:mod:`hfdi.compiled`, numba; see
+        docs/compiled.md). ``None`` (default, auto): compiled when the model
+        has compiled kernels, numba imports and the system is dense
+        (``N < 128``), with a warning once per process when only numba is
+        missing; the Python path otherwise. ``True``: compiled or
+        :class:`hfdi.compiled.CompiledUnavailable` naming the reason.
+        ``False``: the Python path. Compiled, each attempt (predictor,
+        stages, Newton) is one compiled call; with a compiled load too (the
+        paper's models), :meth:`advance` runs whole sequences of steps in
+        the compiled driver (:attr:`driven`), 10–30× faster per Newton
+        iteration than the Python path. Both paths take the same steps and
+        Newton counts; states agree to rounding (bit for bit where the
+        kernels compute ``f``, ``K`` and ``T`` as the Python model does).
+        Compiling costs about 40 s once per installation.
 
     Raises
     ------
@@ -390,7 +393,7 @@ class Integrator:
                  tol=None, first_step=None, min_step=None, max_step=None, max_halvings=30,
                  max_steps=1_000_000, max_iterations=None, first_step_trials=40, t_bound=None,
                  energy_limit=None, extra_load=None, breakpoints=None, check_stiffness=True,
-                 compiled=False):
+                 compiled=None):
         self.scheme: Scheme = get_scheme(scheme)
         checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
         if not isinstance(check_stiffness, bool):

@@ -192,7 +192,7 @@ class _Counting(ErrorControl):
                                                  compiled=True)),
     ("built-in controllers", lambda: hfdi.Integrator(
         dumbbell(), "hfdi", controller=_Counting(1e-6), compiled=True)),
-    ("not compiled", lambda: hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6)),
+    ("not compiled", lambda: hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6, compiled=False)),
 ])
 def test_the_driver_is_not_used_where_it_would_compute_another_run(why, build):
     itg = build()

@@ -92,7 +92,7 @@ def test_compiled_attempt_takes_the_same_steps(problem, scheme, mode):
 
 def test_the_paths_are_chosen_as_asked():
     model = dumbbell()
-    assert not hfdi.Integrator(model, "hfdi", step=1e-3).compiled       # default: Python
+    assert hfdi.Integrator(model, "hfdi", step=1e-3).compiled           # default: auto
     assert hfdi.Integrator(model, "hfdi", step=1e-3, compiled=None).compiled   # auto
     assert hfdi.Integrator(model, "hfdi", step=1e-3, compiled=True).compiled
     assert not hfdi.Integrator(model, "hfdi", step=1e-3, compiled=False).compiled

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import sys
+import weakref
 
 import numpy as np
 
@@ -30,6 +31,8 @@ __all__ = ["energy_model_kernels", "kernel_source", "KernelSourceError"]
 
 #: Generated modules imported in this process, by digest.
 _IMPORTED: dict = {}
+#: model -> its kernels' module, for as long as the model lives.
+_MODULE_OF = weakref.WeakKeyDictionary()
 
 
 class KernelSourceError(ValueError):
@@ -136,14 +139,25 @@ def energy_model_kernels(model) -> CompiledKernels:
         When an expression has no compiled form; the model then runs on the
         Python path.
     """
-    source = kernel_source(model)
-    try:
-        module = _import(source)
-    except OSError:
-        raise
-    except Exception as exc:      # numba refused the generated code
-        raise KernelSourceError(f"numba could not compile the generated kernels: "
-                                f"{type(exc).__name__}: {str(exc).splitlines()[0]}") from None
+    module = _MODULE_OF.get(model)
+    if module is None:
+        source = kernel_source(model)
+        try:
+            module = _import(source)
+        except OSError:
+            raise
+        except Exception as exc:      # numba refused the generated code
+            raise KernelSourceError(f"numba could not compile the generated kernels: "
+                                    f"{type(exc).__name__}: {str(exc).splitlines()[0]}") \
+                from None
+        # printing the expressions costs tens of ms, more than a short run:
+        # once per model (its expressions are fixed at construction)
+        _MODULE_OF[model] = module
     params = np.ascontiguousarray(np.array(model._param_values, dtype=float).reshape(-1))
-    return CompiledKernels(module.force, module.stiffness, module.stiffness_derivative,
-                           module.potential_energy, params)
+    kernels = CompiledKernels(module.force, module.stiffness, module.stiffness_derivative,
+                              module.potential_energy, params)
+    if model._load is None:
+        # no load: the zero load, compiled, so that whole runs are compiled
+        from .loads import hat_load, hat_load_params
+        kernels = kernels._replace(load=hat_load, load_params=hat_load_params(model.n_dof))
+    return kernels
