@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import checks, serial
-from .compiled import compiled_step, driver_reason
+from .compiled import compiled_driver, compiled_step
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import local_error, predict, solve_step
@@ -445,10 +445,7 @@ class Integrator:
         start = time.process_time()
         current, K0, potential = self._initial_state(u0, v0)
         self._compiled = compiled_step(ev, self.scheme, compiled)
-        self._driver = None
-        if self._compiled is not None and not driver_reason(self):
-            from .compiled.driver import CompiledDriver
-            self._driver = CompiledDriver(self)
+        self._driver = None if self._compiled is None else compiled_driver(self)
         if self.fixed:
             proposed = c.step
         else:

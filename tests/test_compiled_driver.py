@@ -305,3 +305,66 @@ def test_a_faulty_held_load_fails_the_run_as_on_the_python_path():
     assert itg.t == 0.01 and "not finite" in itg.message
     with pytest.raises(ValueError, match="source must be callable"):
         hfdi.HeldLoad(np.zeros(6))
+
+
+def test_compiled_code_that_cannot_be_loaded_leaves_the_python_path(monkeypatch):
+    """numba failing to compile or cache (a read-only installation without a
+    user cache, say): the default runs on, on the Python path, and says so
+    once; compiled=True names the reason."""
+    import warnings
+
+    import hfdi.compiled as hc
+
+    def broken(self):
+        raise RuntimeError("cannot cache function: no locator available")
+
+    monkeypatch.setattr(type(articulated()), "compiled_kernels", broken)
+    monkeypatch.setattr(hc, "_SAID", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        runs = [hfdi.integrate(articulated(), "hfdi", 0.02, rtol=1e-6) for _ in range(2)]
+    assert all(r.success for r in runs)
+    said = [w for w in caught if "no locator available" in str(w.message)]
+    assert len(said) == 1 and "Python path runs" in str(said[0].message)
+    with pytest.raises(hc.CompiledUnavailable, match="no locator available"):
+        hfdi.Integrator(articulated(), "hfdi", rtol=1e-6, compiled=True)
+
+
+def test_a_driver_that_cannot_be_loaded_keeps_the_compiled_attempt(monkeypatch):
+    import warnings
+
+    import hfdi.compiled as hc
+    import hfdi.compiled.driver as hd
+
+    def broken(integrator):
+        raise RuntimeError("the driver did not compile")
+
+    monkeypatch.setattr(hd, "CompiledDriver", broken)
+    monkeypatch.setattr(hc, "_SAID", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        itg = hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6, t_bound=0.01)
+    assert itg.compiled and not itg.driven
+    assert itg.advance(0.01)
+    assert any("attempts compiled" in str(w.message) for w in caught)
+
+
+def test_a_long_run_returns_to_python_between_calls(monkeypatch):
+    """Control comes back to Python every STEPS_PER_CALL steps (a Ctrl-C is seen
+    there), with the same run as in one call."""
+    import hfdi.compiled.driver as hd
+    whole, _ = _pair(dumbbell, "newmark", rtol=1e-7, t_bound=0.05)
+    whole.advance(0.05)
+    monkeypatch.setattr(hd, "STEPS_PER_CALL", 7)
+    calls = []
+    original = hd.drive
+
+    def counting(*args):
+        calls.append(1)
+        return original(*args)
+
+    monkeypatch.setattr(hd, "drive", counting)
+    chunked, _ = _pair(dumbbell, "newmark", rtol=1e-7, t_bound=0.05)
+    chunked.advance(0.05)
+    assert len(calls) >= chunked.statistics.accepted // 7
+    _assert_same_state(chunked, whole)

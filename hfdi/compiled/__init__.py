@@ -14,7 +14,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-__all__ = ["CompiledKernels", "CompiledUnavailable", "compiled_step", "driver_reason",
+__all__ = ["CompiledKernels", "CompiledUnavailable", "compiled_driver", "compiled_step",
+           "driver_reason",
            "kernels_of", "numba_available"]
 
 _log = logging.getLogger("hfdi.compiled")
@@ -106,6 +107,10 @@ def kernels_of(system):
         kernels = system.compiled_kernels()
     except CompiledUnavailable as exc:
         return None, str(exc)
+    except Exception as exc:
+        # numba failing to compile or to cache (no writable cache directory,
+        # say): the run does not depend on it, the Python path takes it
+        return None, f"{cls.__name__}.compiled_kernels() failed: {type(exc).__name__}: {exc}"
     if not isinstance(kernels, CompiledKernels):
         raise TypeError(f"{cls.__name__}.compiled_kernels() must return a "
                         f"hfdi.compiled.CompiledKernels, got {type(kernels).__name__}")
@@ -121,6 +126,21 @@ def kernels_of(system):
 
 
 _DRIVER_METHODS = ("load", "load_rate", "load_breakpoints", "potential_energy")
+
+
+def compiled_driver(integrator):
+    """The compiled driver of ``integrator`` (:class:`hfdi.compiled.driver.CompiledDriver`),
+    or ``None`` when :func:`driver_reason` gives a reason or the driver's code
+    cannot be loaded (said once; the attempts stay compiled)."""
+    if driver_reason(integrator):
+        return None
+    try:
+        from .driver import CompiledDriver
+        return CompiledDriver(integrator)
+    except Exception as exc:               # numba cannot compile or load the driver
+        say_once(f"{type(exc).__name__}: {exc}", "the compiled driver cannot be loaded "
+                 "({reason}); the steps run in the Python driver, their attempts compiled")
+        return None
 
 
 def driver_reason(integrator) -> str:
@@ -156,12 +176,14 @@ def driver_reason(integrator) -> str:
 _SAID = set()
 
 
-def say_once(reason: str) -> None:
-    """Warn once per process and reason that the Python path runs instead."""
+def say_once(reason: str, message: str = "the compiled step is not used ({reason}); "
+                                        "the Python path runs") -> None:
+    """Warn once per process and reason that the Python path runs instead
+    (``message``, with ``{reason}`` in it)."""
     if reason in _SAID:
         return
     _SAID.add(reason)
-    message = f"hfdi: the compiled step is not used ({reason}); the Python path runs"
+    message = "hfdi: " + message.format(reason=reason)
     _log.info(message)
     warnings.warn(message, RuntimeWarning, stacklevel=3)
 
@@ -201,12 +223,19 @@ def compiled_step(ev, scheme, compiled=None):
     kernels = None
     if not reason:
         kernels, reason = kernels_of(ev.system)
+    step = None
+    if not reason:
+        try:
+            from .attempt import CompiledStep
+            step = CompiledStep(ev, scheme, kernels)
+        except Exception as exc:           # numba cannot compile or load the attempt
+            reason = f"the compiled attempt cannot be loaded: {type(exc).__name__}: {exc}"
     if reason:
         if compiled:
             raise CompiledUnavailable(f"compiled=True, but the compiled step cannot run: "
                                       f"{reason}")
-        if not numba_available()[0] and reason == numba_available()[1]:
+        if (not numba_available()[0] and reason == numba_available()[1]) or \
+                "cannot be loaded" in reason or "compiled_kernels() failed" in reason:
             say_once(reason)
         return None
-    from .attempt import CompiledStep
-    return CompiledStep(ev, scheme, kernels)
+    return step

@@ -61,7 +61,7 @@ FIXED, ITERATION, ERROR, COMBINED = range(4)
  SHRINK, ENERGY_LIMIT, T_STOP) = range(11)
 # -- entries of ``switches`` (int64, read only) ----------------------------------------
 (CONTROLLER, IT_MAX_REJECTIONS, ER_MAX_REJECTIONS, ORDER, MAX_STEPS, SAVE_ROWS,
- EXACT_LOAD_RATE) = range(7)
+ CALL_STEPS) = range(7)
 # -- entries of ``scalars`` (float64, read and written) --------------------------------
 (T_CURRENT, T_PREV, PROPOSED, POTENTIAL, INITIAL_POTENTIAL, WORK, ENERGY_ERROR,
  ENERGY_SCALE, LAST_STEP, LAST_ENERGY_INCREMENT, GRID_ORIGIN) = range(11)
@@ -330,8 +330,8 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
         The controllers' sizes and factors, the energy limit (``inf``: none) and ``t_stop``.
     switches : ndarray (7,) int64
         Controller kind, its ``max_rejections`` (iteration, error), the scheme's
-        order, ``max_steps``, whether to write rows, whether HFDI takes the exact
-        load rate (not compiled: always 0 here).
+        order, ``max_steps``, whether to write rows, and how many steps to take
+        at most in this call (at most ``R`` when writing rows).
     rtol, atol : ndarray (2N,)
         Tolerances over ``(u, v)`` (unused without error control).
     breakpoints : ndarray (B,)
@@ -342,7 +342,7 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
         ``u, v, a, f, p`` of the current and the previous state, updated in place.
     row_scalars : ndarray (R, 6), row_states : ndarray (R, 3, N)
         Written with ``t, h, iterations, ΔE, W, work`` and ``u, v, a`` of each
-        accepted step when ``switches[SAVE_ROWS]``; ``R`` bounds the steps of one call.
+        accepted step when ``switches[SAVE_ROWS]``.
 
     Returns
     -------
@@ -358,7 +358,7 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
     m_kind, c_kind = config[4], config[5]
     t_stop = settings[T_STOP]
     save = switches[SAVE_ROWS] != 0
-    capacity = row_scalars.shape[0] if save else 1 << 62
+    capacity = switches[CALL_STEPS]
     loads = np.zeros((3, n))
     history = np.empty((2, n))
     taken = 0
@@ -526,9 +526,11 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
 
 # -- the Python side -------------------------------------------------------------------
 
-#: Rows of one call of :func:`drive` when the steps are kept (integrate()):
-#: the buffer is handed over (and progress reported) every this many steps.
-ROWS_PER_CALL = 2048
+#: Accepted steps of one call of :func:`drive`: the rows kept by integrate()
+#: are handed over (and progress reported) every this many steps, and Python
+#: gets control back as often, so that a long run stays interruptible
+#: (Ctrl-C is seen between calls; compiled code does not check for it).
+STEPS_PER_CALL = 2048
 
 
 class CompiledDriver:
@@ -636,7 +638,8 @@ class CompiledDriver:
         self.settings[T_STOP] = t_stop
         self.switches[SAVE_ROWS] = save_rows
         self.switches[MAX_STEPS] = integrator.max_steps
-        size = ROWS_PER_CALL if save_rows else 0
+        self.switches[CALL_STEPS] = STEPS_PER_CALL
+        size = STEPS_PER_CALL if save_rows else 0
         row_scalars = np.empty((size, 6))
         row_states = np.empty((size, 3, n))
         step = self.step
