@@ -371,7 +371,7 @@ class Integrator:
         iteration than the Python path. Both paths take the same steps and
         Newton counts; states agree to rounding (bit for bit where the
         kernels compute ``f``, ``K`` and ``T`` as the Python model does).
-        Compiling costs about 40 s once per installation.
+        Compiling costs about 30 s once per installation.
 
     Raises
     ------
