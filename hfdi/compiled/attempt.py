@@ -576,6 +576,15 @@ class CompiledStep:
             scheme.load_rate == "exact" or (scheme.load_rate == "auto" and ev.has_load_rate))
         self._previous = np.zeros((2, n))
         self._zero = np.zeros(n)
+        # a model whose data change after the kernels were made (EnergyModel's
+        # set_parameters) hands its current params to every call
+        self._current_params = getattr(ev.system, "compiled_params", None)
+
+    def params(self):
+        """The kernels' ``params`` now (the model's current ones where it says)."""
+        if self._current_params is None:
+            return self.kernels.params
+        return self._current_params()
 
     def _loads(self, start: State, t_end: float):
         """``p`` at Bathe's mid-step, ``p(t_end)`` and HFDI's ``p'(t_end)`` (3, N),
@@ -618,7 +627,7 @@ class CompiledStep:
                                start.f if start.f is not None else self._zero, start.p])
         k = self.kernels
         status, out, info, newton_error = attempt(
-            self._force, self._stiffness, self._derivative, k.params, config, coefficients,
+            self._force, self._stiffness, self._derivative, self.params(), config, coefficients,
             self.Md, self.Mf, self.Cd, self.Cf, start_rows, history, loads)
         ev.nfev += int(info[NFEV])
         ev.njev += int(info[NJEV])

@@ -646,7 +646,7 @@ class CompiledDriver:
         kernels = step.kernels
         reason, taken = drive(
             step._force, step._stiffness, step._derivative, self._potential, self._load,
-            kernels.params, self.load_params, held, self.config, self.coefficients, step.Md, step.Mf,
+            step.params(), self.load_params, held, self.config, self.coefficients, step.Md, step.Mf,
             step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
             self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
         # the integrator's state and statistics from the arrays

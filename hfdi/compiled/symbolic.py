@@ -153,7 +153,7 @@ def energy_model_kernels(model) -> CompiledKernels:
         # printing the expressions costs tens of ms, more than a short run:
         # once per model (its expressions are fixed at construction)
         _MODULE_OF[model] = module
-    params = np.ascontiguousarray(np.array(model._param_values, dtype=float).reshape(-1))
+    params = model.compiled_params()
     kernels = CompiledKernels(module.force, module.stiffness, module.stiffness_derivative,
                               module.potential_energy, params)
     if model._load is None:

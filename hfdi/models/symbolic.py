@@ -536,10 +536,15 @@ class EnergyModel(SecondOrderSystem):
         return other
 
     # -- compiled kernels ------------------------------------------------------------
+    def compiled_params(self) -> np.ndarray:
+        """The parameter values now, as the compiled kernels read them: the
+        compiled path follows :meth:`set_parameters` as the Python path does."""
+        return np.ascontiguousarray(self._param_values, dtype=np.float64).reshape(-1)
+
     def compiled_kernels(self):
         """Compiled (numba) kernels generated from the model's expressions, for
         ``compiled=True`` or ``None`` (:mod:`hfdi.compiled.symbolic`); they read
-        the parameter values the model has now.
+        the parameter values of :meth:`compiled_params` at every call.
 
         Raises
         ------
