@@ -383,15 +383,17 @@ def articulated_kernels(model) -> CompiledKernels:
 # T_e = h_e L_eᵀ ∇³W[L_e w_e] L_e, the reduced derivatives of
 # W = ½ (EA ε² + GA γ² + EJ χ²) from ∂ε/∂α_o = γ, ∂γ/∂α_o = −(1 + ε).
 
+# L_e has two non-zero entries at most per column a: v1[a] in row r1[a], and
+# v2[a] in row 3 (χ) for the rotations; the kernels use it through these
+# tuples instead of a (4, 6) array, so that an element allocates nothing.
+_R1 = (0, 1, 2, 0, 1, 2)
+
+
 @njit(**JIT_OPTIONS)
-def _beam_map(inv_h):
-    """``L_e`` (4, 6)."""
-    L = np.zeros((4, 6))
-    L[0, 0], L[0, 3] = -inv_h, inv_h
-    L[1, 1], L[1, 4] = -inv_h, inv_h
-    L[2, 2], L[2, 5] = 0.5, 0.5
-    L[3, 2], L[3, 5] = -inv_h, inv_h
-    return L
+def _beam_columns(inv_h):
+    """``(v1, v2)``: the entries of ``L_e``'s columns in rows ``_R1`` and 3."""
+    return ((-inv_h, -inv_h, 0.5, inv_h, inv_h, 0.5),
+            (0.0, 0.0, -inv_h, 0.0, 0.0, inv_h))
 
 
 @njit(**JIT_OPTIONS)
@@ -404,36 +406,38 @@ def _beam_reduced(x, e, inv_h):
 
 @njit(**JIT_OPTIONS)
 def _beam_strains(p, q, a, alpha_hat):
-    """``ε``, their gradients ``∇ε = (cb, sb, γ)``, ``∇γ = (−sb, cb, −(1 + ε))``."""
+    """``ε``, ``γ`` and their gradients ``∇ε = (cb, sb, γ)``, ``∇γ = (−sb, cb, −(1 + ε))``
+    (tuples)."""
     beta = a + alpha_hat
     cb, sb = math.cos(beta), math.sin(beta)
     eps = math.cos(a) - 1.0 + cb * p + sb * q
     gam = -math.sin(a) - sb * p + cb * q
-    g_eps = np.array((cb, sb, gam))
-    g_gam = np.array((-sb, cb, -(1.0 + eps)))
-    return eps, gam, g_eps, g_gam
+    return eps, gam, (cb, sb, gam), (-sb, cb, -(1.0 + eps))
 
 
 @njit(**JIT_OPTIONS)
-def _beam_hessian(g_other, sign):
-    """``∇²k`` (3, 3): non-zero in the α_o row and column only, that row being
-    ``r = sign · g_other`` (``r_ε = ∇γ``, ``r_γ = −∇ε``)."""
-    H = np.zeros((3, 3))
-    for a in range(3):
-        H[a, 2] = sign * g_other[a]
-        H[2, a] = sign * g_other[a]
-    return H
+def _alpha_entry(r, i, j):
+    """Entry ``(i, j)`` of a 3 × 3 matrix non-zero in its α_o row and column
+    only, that row being ``r`` (``∇²k`` with ``r = ±∇`` of the other strain)."""
+    if j == 2:
+        return r[i]
+    if i == 2:
+        return r[j]
+    return 0.0
 
 
 @njit(**JIT_OPTIONS)
-def _beam_add(out, e, h, L, red):
+def _beam_add(out, e, h, inv_h, red):
     """``out[dofs_e, dofs_e] += h L_eᵀ red L_e`` for a reduced (4, 4) ``red``."""
-    LtR = L.T @ red
-    block = LtR @ L
+    v1, v2 = _beam_columns(inv_h)
     base = 3 * e
     for a in range(6):
+        ra = _R1[a]
         for b in range(6):
-            out[base + a, base + b] += h * block[a, b]
+            rb = _R1[b]
+            s = v1[a] * (red[ra, rb] * v1[b] + red[ra, 3] * v2[b]) \
+                + v2[a] * (red[3, rb] * v1[b] + red[3, 3] * v2[b])
+            out[base + a, base + b] += h * s
 
 
 @njit(FORCE, **JIT_OPTIONS)
@@ -446,16 +450,11 @@ def toss_rule_force(u, params):
         p, q, a, chi = _beam_reduced(u, e, inv_h)
         eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
         EA_eps, GA_gam = EA * eps, GA * gam
-        grad = np.empty(4)
-        for k in range(3):
-            grad[k] = EA_eps * g_eps[k] + GA_gam * g_gam[k]
-        grad[3] = EJ * chi
-        L = _beam_map(inv_h)
+        grad = (EA_eps * g_eps[0] + GA_gam * g_gam[0], EA_eps * g_eps[1] + GA_gam * g_gam[1],
+                EA_eps * g_eps[2] + GA_gam * g_gam[2])
+        v1, v2 = _beam_columns(inv_h)
         for k in range(6):
-            s = 0.0
-            for r in range(4):
-                s += L[r, k] * grad[r]
-            f[3 * e + k] += h * s
+            f[3 * e + k] += h * (v1[k] * grad[_R1[k]] + v2[k] * (EJ * chi))
     return f
 
 
@@ -465,19 +464,19 @@ def toss_rule_stiffness(u, params):
     EA, GA, EJ = params[1], params[2], params[3]
     n = 3 * (n_el + 1)
     K = np.zeros((n, n))
+    red = np.zeros((4, 4))
+    red[3, 3] = EJ
     for e in range(n_el):
         h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
         p, q, a, chi = _beam_reduced(u, e, inv_h)
         eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
-        H_eps = _beam_hessian(g_gam, 1.0)
-        H_gam = _beam_hessian(g_eps, -1.0)
-        red = np.zeros((4, 4))
+        # ∇²ε has the α_o row ∇γ, ∇²γ the row −∇ε
+        m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
         for i in range(3):
             for j in range(3):
-                red[i, j] = (EA * (g_eps[i] * g_eps[j] + eps * H_eps[i, j])
-                             + GA * (g_gam[i] * g_gam[j] + gam * H_gam[i, j]))
-        red[3, 3] = EJ
-        _beam_add(K, e, h, _beam_map(inv_h), red)
+                red[i, j] = (EA * (g_eps[i] * g_eps[j] + eps * _alpha_entry(g_gam, i, j))
+                             + GA * (g_gam[i] * g_gam[j] + gam * _alpha_entry(m_eps, i, j)))
+        _beam_add(K, e, h, inv_h, red)
     return K
 
 
@@ -487,27 +486,34 @@ def toss_rule_stiffness_derivative(u, w, params):
     EA, GA = params[1], params[2]
     n = 3 * (n_el + 1)
     T = np.zeros((n, n))
+    red = np.zeros((4, 4))
     for e in range(n_el):
         h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
         p, q, a, _ = _beam_reduced(u, e, inv_h)
         zp, zq, za, _ = _beam_reduced(w, e, inv_h)
-        z = np.array((zp, zq, za))
+        z = (zp, zq, za)
         eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
-        red = np.zeros((4, 4))
-        for R, k, g, H, t in ((EA, eps, g_eps, _beam_hessian(g_gam, 1.0), -g_eps),
-                              (GA, gam, g_gam, _beam_hessian(g_eps, -1.0), -g_gam)):
-            Hz = H @ z
+        m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
+        m_gam = (-g_gam[0], -g_gam[1], -g_gam[2])
+        for i in range(3):
+            for j in range(3):
+                red[i, j] = 0.0
+        # per strain k (rigidity R): R (∇²k z ∇kᵀ + ∇k (∇²k z)ᵀ + (∇k·z) ∇²k + k ∇³k[z]),
+        # with ∇²k's α_o row r (∇γ for ε, −∇ε for γ) and ∇³k's t = −∇k
+        for which in range(2):
+            if which == 0:
+                R, k, g, r, t = EA, eps, g_eps, g_gam, m_eps
+            else:
+                R, k, g, r, t = GA, gam, g_gam, m_eps, m_gam
+            Hz = (r[0] * za, r[1] * za, r[0] * zp + r[1] * zq + r[2] * za)
             gz = g[0] * z[0] + g[1] * z[1] + g[2] * z[2]
             # ∇³k[z]: α_o row and column (t_p z_α, t_q z_α, t·z)
-            third = np.zeros((3, 3))
-            third[0, 2] = third[2, 0] = t[0] * za
-            third[1, 2] = third[2, 1] = t[1] * za
-            third[2, 2] = t[0] * zp + t[1] * zq + t[2] * za
+            third = (t[0] * za, t[1] * za, t[0] * zp + t[1] * zq + t[2] * za)
             for i in range(3):
                 for j in range(3):
-                    red[i, j] += R * (Hz[i] * g[j] + g[i] * Hz[j] + gz * H[i, j]
-                                      + k * third[i, j])
-        _beam_add(T, e, h, _beam_map(inv_h), red)
+                    red[i, j] += R * (Hz[i] * g[j] + g[i] * Hz[j] + gz * _alpha_entry(r, i, j)
+                                      + k * _alpha_entry(third, i, j))
+        _beam_add(T, e, h, inv_h, red)
     return T
 
 
