@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import checks, serial
-from .compiled import compiled_driver, compiled_step
+from .compiled import InitialValues, compiled_driver, compiled_step
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import local_error, predict, solve_step
@@ -443,8 +443,11 @@ class Integrator:
         first_step = _optional_positive("first_step", first_step)
 
         start = time.process_time()
+        self._T0 = None
         current, K0, potential = self._initial_state(u0, v0)
-        self._compiled = compiled_step(ev, self.scheme, compiled)
+        self._compiled = compiled_step(ev, self.scheme, compiled, initial=InitialValues(
+            current.t, current.u, current.v, current.f, K0, self._T0, potential))
+        del self._T0
         self._driver = None if self._compiled is None else compiled_driver(self)
         if self.fixed:
             proposed = c.step
@@ -737,7 +740,7 @@ class Integrator:
         if self.check_stiffness:
             self._check_stiffness(u0, f, K, call, name)
         if isinstance(self.scheme, HFDI):
-            call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
+            self._T0 = call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
             if self.scheme.load_rate == "exact" or (self.scheme.load_rate == "auto"
                                                      and ev.has_load_rate):
                 call("load_rate", ev.load_rate, t0)

@@ -368,3 +368,37 @@ def test_a_long_run_returns_to_python_between_calls(monkeypatch):
     chunked.advance(0.05)
     assert len(calls) >= chunked.statistics.accepted // 7
     _assert_same_state(chunked, whole)
+
+
+class _WrongLoad(DrivenChain):
+    """Its compiled load has another frequency than its Python load."""
+
+    def compiled_kernels(self):
+        return super().compiled_kernels()._replace(load_params=np.array([3.0, 21.0]))
+
+
+class _WrongStiffness(DrivenChain):
+    """Its compiled kernels read other spring constants than its Python methods."""
+
+    def compiled_kernels(self):
+        kernels = super().compiled_kernels()
+        return kernels._replace(params=2.0 * kernels.params)
+
+
+@pytest.mark.parametrize("model, what", [(_WrongLoad, "load at t ="), (_WrongStiffness, "force")])
+def test_kernels_that_compute_another_model_are_refused(model, what):
+    """Kernels are checked against the Python model when the integrator is built
+    (each at the initial state, the load at several times): kernels of another
+    model would give a silent wrong answer, so the Python path runs, saying
+    why once, and compiled=True names the kernel."""
+    import warnings
+
+    import hfdi.compiled as hc
+    hc._SAID.clear()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        itg = hfdi.Integrator(model(None), "newmark", rtol=1e-6)
+    assert not itg.compiled
+    assert any(what in str(w.message) and "another model" in str(w.message) for w in caught)
+    with pytest.raises(hc.CompiledUnavailable, match=f"compiled {what}"):
+        hfdi.Integrator(model(None), "newmark", rtol=1e-6, compiled=True)

@@ -9,13 +9,14 @@ and for the measured speed.
 from __future__ import annotations
 
 import logging
+import math
 import warnings
 from typing import Callable, NamedTuple
 
 import numpy as np
 
-__all__ = ["CompiledKernels", "CompiledUnavailable", "compiled_driver", "compiled_step",
-           "driver_reason",
+__all__ = ["CompiledKernels", "CompiledUnavailable", "InitialValues", "KERNEL_TOLERANCE",
+           "compiled_driver", "compiled_step", "driver_reason", "kernel_mismatch",
            "kernels_of", "numba_available"]
 
 _log = logging.getLogger("hfdi.compiled")
@@ -53,6 +54,80 @@ class CompiledKernels(NamedTuple):
     load_params: np.ndarray | None = None
 
 
+class InitialValues(NamedTuple):
+    """The Python model's values at the initial state, which the kernels must
+    reproduce (see :func:`kernel_mismatch`): ``t0``, ``u0``, ``v0``, ``f(u0)``,
+    ``K(u0)``, ``T(u0)[v0]`` (``None`` unless HFDI) and ``V(u0)``."""
+
+    t0: float
+    u0: np.ndarray
+    v0: np.ndarray
+    f: np.ndarray
+    K: object
+    T: object
+    V: float
+
+
+#: Largest relative difference allowed between a kernel and the Python method it
+#: restates (they differ by rounding: sums in another order).
+KERNEL_TOLERANCE = 1e-8
+
+
+def _difference(kernel_value, python_value):
+    """``max |a − b| / max |b|`` (dense), inf for another shape or a non-finite ``a``."""
+    b = python_value.toarray() if hasattr(python_value, "toarray") else np.asarray(
+        python_value, dtype=float)
+    a = np.asarray(kernel_value, dtype=float)
+    if a.shape != b.shape or not np.all(np.isfinite(a)):
+        return math.inf
+    scale = float(np.abs(b).max()) if b.size else 0.0
+    return float(np.abs(a - b).max()) / scale if scale > 0 else float(np.abs(a).max())
+
+
+def kernel_mismatch(system, kernels, initial: InitialValues) -> str:
+    """Why ``kernels`` do not compute ``system`` (``""`` when they do): each
+    kernel at the initial state, and the load at a few times, against the
+    Python model's values (relative difference above :data:`KERNEL_TOLERANCE`,
+    another shape, or a value that is not finite). One call of each kernel, no
+    evaluation of the model counted."""
+    name = type(system).__name__
+    u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
+    v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
+    p = kernels.params
+    checks = [("force", lambda: kernels.force(u0, p), initial.f),
+              ("stiffness", lambda: kernels.stiffness(u0, p), initial.K)]
+    if initial.T is not None:
+        checks.append(("stiffness_derivative",
+                       lambda: kernels.stiffness_derivative(u0, v0, p), initial.T))
+    if math.isfinite(initial.V):
+        checks.append(("potential_energy", lambda: kernels.potential_energy(u0, p),
+                       initial.V))
+    if kernels.load is not None:
+        # a pulse is often zero at t0: the load also at later times, and just
+        # after each breakpoint
+        times = [initial.t0 + dt for dt in (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0)]
+        breakpoints = system.load_breakpoints() if hasattr(system, "load_breakpoints") else ()
+        times += [float(b) * (1.0 + 1e-3) + 1e-9 for b in list(breakpoints)[:8]]
+        for t in times:
+            try:
+                python = np.asarray(system.load(t), dtype=float)
+            except Exception:        # the Python load is not defined there: not compared
+                continue
+            checks.append((f"load at t = {t:g}", lambda t=t: kernels.load(t, kernels.load_params),
+                           python))
+    for what, kernel, python in checks:
+        try:
+            difference = _difference(kernel(), python)
+        except Exception as exc:
+            return _Fault(f"model {name}: its compiled {what} raised "
+                          f"{type(exc).__name__}: {exc}")
+        if not difference <= KERNEL_TOLERANCE:
+            return _Fault(f"model {name}: its compiled {what} does not match the Python "
+                          f"method (relative difference {difference:.3g}): the kernels "
+                          f"compute another model")
+    return ""
+
+
 class CompiledUnavailable(RuntimeError):
     """``compiled=True`` was asked for but the compiled path cannot run (the
     message says why)."""
@@ -79,6 +154,11 @@ _METHODS = ("internal_force", "stiffness", "stiffness_derivative")
 def _provider(cls):
     """The class of ``cls``'s MRO that defines ``compiled_kernels``, or ``None``."""
     return next((c for c in cls.__mro__ if "compiled_kernels" in vars(c)), None)
+
+
+class _Fault(str):
+    """A reason for the Python path that is a fault, said once in the log (not
+    merely a model without kernels)."""
 
 
 def kernels_of(system):
@@ -110,7 +190,8 @@ def kernels_of(system):
     except Exception as exc:
         # numba failing to compile or to cache (no writable cache directory,
         # say): the run does not depend on it, the Python path takes it
-        return None, f"{cls.__name__}.compiled_kernels() failed: {type(exc).__name__}: {exc}"
+        return None, _Fault(f"{cls.__name__}.compiled_kernels() failed: "
+                            f"{type(exc).__name__}: {exc}")
     if not isinstance(kernels, CompiledKernels):
         raise TypeError(f"{cls.__name__}.compiled_kernels() must return a "
                         f"hfdi.compiled.CompiledKernels, got {type(kernels).__name__}")
@@ -188,7 +269,7 @@ def say_once(reason: str, message: str = "the compiled step is not used ({reason
     warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
-def compiled_step(ev, scheme, compiled=None):
+def compiled_step(ev, scheme, compiled=None, initial: InitialValues | None = None):
     """The compiled attempt for an :class:`~hfdi.evaluation.Evaluator` and scheme,
     or ``None`` for the Python path.
 
@@ -223,19 +304,22 @@ def compiled_step(ev, scheme, compiled=None):
     kernels = None
     if not reason:
         kernels, reason = kernels_of(ev.system)
+    if not reason and initial is not None:
+        reason = kernel_mismatch(ev.system, kernels, initial)
     step = None
     if not reason:
         try:
             from .attempt import CompiledStep
             step = CompiledStep(ev, scheme, kernels)
         except Exception as exc:           # numba cannot compile or load the attempt
-            reason = f"the compiled attempt cannot be loaded: {type(exc).__name__}: {exc}"
+            reason = _Fault(f"the compiled attempt cannot be loaded: "
+                            f"{type(exc).__name__}: {exc}")
     if reason:
         if compiled:
             raise CompiledUnavailable(f"compiled=True, but the compiled step cannot run: "
                                       f"{reason}")
-        if (not numba_available()[0] and reason == numba_available()[1]) or \
-                "cannot be loaded" in reason or "compiled_kernels() failed" in reason:
+        if isinstance(reason, _Fault) or (not numba_available()[0]
+                                          and reason == numba_available()[1]):
             say_once(reason)
         return None
     return step
