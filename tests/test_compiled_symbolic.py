@@ -151,3 +151,80 @@ def test_a_parameter_changed_mid_run_is_followed_by_the_compiled_path(scheme):
     unchanged = hfdi.Integrator(spring_chain(4), scheme, rtol=1e-6)
     unchanged.advance(2.0)
     assert np.abs(unchanged.state.u - compiled.state.u).max() > 1e-3
+
+
+def _loaded_chain():
+    x = sympy.symbols("x0:3")
+    k, A, w, t = sympy.symbols("k A w t")
+    energy = sum(k * (x[i] - (x[i - 1] if i else 0)) ** 2 / 2
+                 + 40.0 * (x[i] - (x[i - 1] if i else 0)) ** 4 for i in range(3))
+    load = [0, A * sympy.sin(w * t), A * sympy.exp(-t) * sympy.cos(2 * w * t)]
+    return EnergyModel(x, energy, [1.0, 2.0, 1.5], parameters={k: 50.0, A: 3.0, w: 7.0},
+                       time=t, load=load, initial_displacement=[0.1, 0.0, -0.1])
+
+
+def test_a_load_of_expressions_has_its_exact_rate_and_compiled_kernels():
+    model = _loaded_chain()
+    times = np.linspace(0.0, 2.0, 9)
+    for t in times:
+        p = model.load(t)
+        expected = [0.0, 3.0 * np.sin(7.0 * t), 3.0 * np.exp(-t) * np.cos(14.0 * t)]
+        np.testing.assert_allclose(p, expected, rtol=1e-14, atol=1e-14)
+        step = 1e-6
+        difference = (model.load(t + step) - model.load(t - step)) / (2 * step)
+        np.testing.assert_allclose(model.load_rate(t), difference, rtol=1e-7, atol=1e-7)
+    kernels, why = kernels_of(model)
+    assert kernels is not None, why
+    for t in times:
+        np.testing.assert_allclose(kernels.load(t, kernels.load_params), model.load(t),
+                                   rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(kernels.load_rate(t, kernels.load_params),
+                                   model.load_rate(t), rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_a_model_with_a_load_of_expressions_runs_whole_in_the_driver(scheme):
+    """HFDI takes the exact (derived) rate on both paths; the same run, the
+    same error against a tight reference of the Python path."""
+    itg = hfdi.Integrator(_loaded_chain(), scheme, rtol=1e-6)
+    assert itg.driven
+    fixed = [hfdi.integrate(_loaded_chain(), scheme, 1.0, step=0.01, compiled=c)
+             for c in (False, True)]
+    assert fixed[0].stats.newton_iterations == fixed[1].stats.newton_iterations
+    assert _relative(fixed[1].u, fixed[0].u) < 1e-12
+    runs = [hfdi.integrate(_loaded_chain(), scheme, 1.0, rtol=1e-6, compiled=c)
+            for c in (False, True)]
+    reference = hfdi.integrate(_loaded_chain(), "hfdi", 1.0, rtol=1e-10, compiled=False)
+    assert reference.success
+    errors = [_relative(r.u[-1], reference.u[-1]) for r in runs]
+    assert runs[0].stats.steps == pytest.approx(runs[1].stats.steps, rel=0.01)
+    assert errors[1] < 1e-3 and errors[1] == pytest.approx(errors[0], rel=0.05)
+
+
+def test_a_load_of_expressions_follows_the_parameters_on_both_paths():
+    ends = []
+    for compiled in (False, True):
+        model = _loaded_chain()
+        itg = hfdi.Integrator(model, "hfdi", step=0.01, compiled=compiled)
+        itg.advance(0.5)
+        model.set_parameters(A=-9.0)
+        itg.advance(1.0)
+        ends.append(itg.state.u)
+    assert _relative(ends[1], ends[0]) < 1e-12
+    model = _loaded_chain()
+    itg = hfdi.Integrator(model, "hfdi", step=0.01)
+    itg.advance(1.0)
+    assert np.abs(itg.state.u - ends[1]).max() > 1e-3
+
+
+def test_a_load_of_expressions_is_checked():
+    x, t, z = sympy.symbols("x t z")
+    with pytest.raises(ValueError, match="1 sympy expressions"):
+        EnergyModel([x], x ** 2 / 2, [1.0], time=t, load=[sympy.sin(t), t])
+    with pytest.raises(ValueError, match="unknown symbols z"):
+        EnergyModel([x], x ** 2 / 2, [1.0], time=t, load=[z * t])
+    with pytest.raises(ValueError, match="derived"):
+        EnergyModel([x], x ** 2 / 2, [1.0], time=t, load=[sympy.sin(t)],
+                    load_rate=lambda s: np.array([np.cos(s)]))
+    with pytest.raises(ValueError, match="load"):
+        EnergyModel([x], x ** 2 / 2, [1.0], time=t, load="sin(t)")

@@ -319,8 +319,10 @@ def test_bad_input_is_rejected_with_clear_errors():
         build(damping=np.ones((3, 3)))
     with pytest.raises(ValueError, match="initial_displacement"):
         build(initial_displacement=[1.0])
-    with pytest.raises(ValueError, match="load must be a callable"):
-        build(load=[0.0, 1.0])
+    with pytest.raises(ValueError, match=r"load must be a callable t -> \(N,\) or 2 sympy"):
+        build(load=[0.0, 1.0, 2.0])
+    with pytest.raises(ValueError, match="load must be a sympy expression, not a string"):
+        build(load=["0", "1"])
     with pytest.raises(ValueError, match="one symbol per degree of freedom"):
         build(velocities=[z])
     with pytest.raises(ValueError, match="quantity 'q' depends on unknown symbols z"):

@@ -38,7 +38,10 @@ class CompiledKernels(NamedTuple):
         (:mod:`hfdi.compiled.driver`), without it only each attempt.
         :func:`hfdi.compiled.loads.hat_load` is the zero load and sums of hat pulses.
     load_params : ndarray (Q,), float64, C-contiguous, optional
-        The load's data.
+        The load's data (``params`` itself, the same array, when the load
+        reads the model's data).
+    load_rate : numba function ``(t, load_params) -> p' (N,)``, optional
+        The exact load rate, for a model whose ``load_rate`` HFDI takes.
 
     Each function is compiled with the signature of
     :mod:`hfdi.compiled.signatures` (``FORCE``, ``STIFFNESS``,
@@ -52,6 +55,7 @@ class CompiledKernels(NamedTuple):
     params: np.ndarray
     load: Callable | None = None
     load_params: np.ndarray | None = None
+    load_rate: Callable | None = None
 
 
 class InitialValues(NamedTuple):
@@ -108,13 +112,18 @@ def kernel_mismatch(system, kernels, initial: InitialValues) -> str:
         times = [initial.t0 + dt for dt in (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0)]
         breakpoints = system.load_breakpoints() if hasattr(system, "load_breakpoints") else ()
         times += [float(b) * (1.0 + 1e-3) + 1e-9 for b in list(breakpoints)[:8]]
+        rate = kernels.load_rate if getattr(system, "load_rate", None) is not None else None
         for t in times:
             try:
                 python = np.asarray(system.load(t), dtype=float)
+                python_rate = None if rate is None else np.asarray(system.load_rate(t), float)
             except Exception:        # the Python load is not defined there: not compared
                 continue
             checks.append((f"load at t = {t:g}", lambda t=t: kernels.load(t, kernels.load_params),
                            python))
+            if rate is not None:
+                checks.append((f"load_rate at t = {t:g}",
+                               lambda t=t: rate(t, kernels.load_params), python_rate))
     for what, kernel, python in checks:
         try:
             difference = _difference(kernel(), python)
@@ -242,7 +251,7 @@ def driver_reason(integrator) -> str:
     extra = integrator.ev.extra_load
     if extra is not None and not isinstance(extra, HeldLoad):
         return "an extra_load is given that is not a hfdi.HeldLoad"
-    if step.exact_rate:
+    if step.exact_rate and step.kernels.load_rate is None:
         return "HFDI takes the model's exact load rate, which has no compiled form"
     c = integrator.controller
     parts = (c.iteration, c.error) if type(c) is Combined else (c,)

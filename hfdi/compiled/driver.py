@@ -61,7 +61,7 @@ FIXED, ITERATION, ERROR, COMBINED = range(4)
  SHRINK, ENERGY_LIMIT, T_STOP) = range(11)
 # -- entries of ``switches`` (int64, read only) ----------------------------------------
 (CONTROLLER, IT_MAX_REJECTIONS, ER_MAX_REJECTIONS, ORDER, MAX_STEPS, SAVE_ROWS,
- CALL_STEPS) = range(7)
+ CALL_STEPS, EXACT_RATE) = range(8)
 # -- entries of ``scalars`` (float64, read and written) --------------------------------
 (T_CURRENT, T_PREV, PROPOSED, POTENTIAL, INITIAL_POTENTIAL, WORK, ENERGY_ERROR,
  ENERGY_SCALE, LAST_STEP, LAST_ENERGY_INCREMENT, GRID_ORIGIN) = range(11)
@@ -302,6 +302,7 @@ def _is_breakpoint(breakpoints, t):
 
 _SIGNATURE = types.Tuple((types.int64, types.int64))(
     FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE, LOAD_TYPE,
+    LOAD_TYPE,                                        # the load and its rate
     VECTOR, VECTOR, VECTOR,                           # params, load_params, held load
     INDEX_VECTOR, VECTOR,                             # the attempt's config and coefficients
     VECTOR, MATRIX, VECTOR, MATRIX,                   # M, C
@@ -312,14 +313,15 @@ _SIGNATURE = types.Tuple((types.int64, types.int64))(
 
 
 @njit(_SIGNATURE, **JIT_OPTIONS)
-def drive(force, stiffness, derivative, potential_energy, load, params, load_params, held,
-          config, coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints, scalars,
+def drive(force, stiffness, derivative, potential_energy, load, load_rate, params, load_params,
+          held, config, coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints, scalars,
           counters, current, previous, row_scalars, row_states):
     """Take ordinary steps towards ``settings[T_STOP]``; see the module's docstring.
 
     Parameters
     ----------
-    force, stiffness, derivative, potential_energy, load : compiled kernels
+    force, stiffness, derivative, potential_energy, load, load_rate : compiled kernels
+        (``load_rate`` called only with ``switches[EXACT_RATE]``)
     params, load_params : ndarray (P,), (Q,)
     held : ndarray (N,) or (0,)
         A :class:`~hfdi.HeldLoad`'s value, added to the load (none: empty).
@@ -328,10 +330,11 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
     Md, Mf, Cd, Cf : ``M`` and ``C`` (see :func:`~hfdi.compiled.attempt.attempt`)
     settings : ndarray (11,)
         The controllers' sizes and factors, the energy limit (``inf``: none) and ``t_stop``.
-    switches : ndarray (7,) int64
+    switches : ndarray (8,) int64
         Controller kind, its ``max_rejections`` (iteration, error), the scheme's
-        order, ``max_steps``, whether to write rows, and how many steps to take
-        at most in this call (at most ``R`` when writing rows).
+        order, ``max_steps``, whether to write rows, how many steps to take
+        at most in this call (at most ``R`` when writing rows), and whether
+        HFDI takes the exact load rate.
     rtol, atol : ndarray (2N,)
         Tolerances over ``(u, v)`` (unused without error control).
     breakpoints : ndarray (B,)
@@ -401,7 +404,10 @@ def drive(force, stiffness, derivative, potential_energy, load, params, load_par
         if held.shape[0]:
             loads[1] = loads[1] + held
         if scheme == HFDI_SCHEME:
-            loads[2] = (loads[1] - current[P]) / h
+            if switches[EXACT_RATE]:
+                loads[2] = load_rate(t_end, load_params)
+            else:
+                loads[2] = (loads[1] - current[P]) / h
         has_previous = counters[HAS_PREV] != 0
         config[A_HAS_PREVIOUS] = 1 if has_previous else 0
         config[A_HAS_START_FORCE] = counters[CURRENT_HAS_F]
@@ -550,11 +556,16 @@ class CompiledDriver:
         self.step = step
         self._potential = _resolved(kernels.potential_energy, "POTENTIAL_ENERGY")
         self._load = _resolved(kernels.load, "LOAD")
+        # without an exact rate the load stands in for it (never called)
+        self._load_rate = _resolved(kernels.load_rate if step.exact_rate else kernels.load,
+                                    "LOAD")
+        # load data that are the model's data follow them (EnergyModel.set_parameters)
+        self._load_reads_params = kernels.load_params is kernels.params
         self.load_params = np.ascontiguousarray(kernels.load_params, dtype=np.float64)
         n = integrator.ev.n
         c = integrator.controller
         settings = np.zeros(11)
-        switches = np.zeros(7, np.int64)
+        switches = np.zeros(8, np.int64)
         iteration = c.iteration if isinstance(c, Combined) else c
         error = c.error if isinstance(c, Combined) else c
         self.rtol = np.zeros(2 * n)
@@ -583,6 +594,7 @@ class CompiledDriver:
         settings[ENERGY_LIMIT] = math.inf if integrator.energy_limit is None else \
             integrator.energy_limit
         switches[MAX_STEPS] = integrator.max_steps
+        switches[EXACT_RATE] = step.exact_rate
         self.settings, self.switches = settings, switches
         self.breakpoints = np.ascontiguousarray(integrator.breakpoints, dtype=np.float64)
         self.config = step.config.copy()
@@ -644,9 +656,11 @@ class CompiledDriver:
         row_states = np.empty((size, 3, n))
         step = self.step
         kernels = step.kernels
+        params = step.params()
         reason, taken = drive(
             step._force, step._stiffness, step._derivative, self._potential, self._load,
-            step.params(), self.load_params, held, self.config, self.coefficients, step.Md, step.Mf,
+            self._load_rate, params, params if self._load_reads_params else self.load_params,
+            held, self.config, self.coefficients, step.Md, step.Mf,
             step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
             self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
         # the integrator's state and statistics from the arrays

@@ -188,10 +188,14 @@ class EnergyModel(SecondOrderSystem):
         Values of the parameter symbols in ``energy`` and ``quantities``. They
         remain symbols in the compiled functions and are substituted at every
         evaluation: :meth:`set_parameters` changes them without re-deriving.
-    load : callable ``p(t) -> (N,)``, optional
-        External load; zero when omitted.
+    load : callable ``p(t) -> (N,)``, or sequence of N sympy expressions, optional
+        External load; zero when omitted. Given as expressions of ``time`` and
+        the parameters, its exact rate is derived (HFDI uses it) and both run
+        compiled with the rest of the model (docs/compiled.md), so that whole
+        runs are compiled; a Python callable keeps each attempt compiled only.
     load_rate : callable ``p'(t) -> (N,)``, optional
-        Exact load rate for HFDI (otherwise HFDI takes a difference quotient).
+        Exact load rate for HFDI (otherwise HFDI takes a difference quotient);
+        not with a load given as expressions, whose rate is derived.
     damping : array_like (N,) or (N, N) or scipy sparse (N, N), optional
     quantities : dict of str to expression or sequence of expressions, optional
         Quantities of interest in the ``dofs``, the ``velocities``, ``time``
@@ -309,8 +313,12 @@ class EnergyModel(SecondOrderSystem):
             raise ValueError(f"energy depends on unknown symbols {names}: "
                              "declare them as dofs or give their values in parameters")
 
-        if not callable(load) and load is not None:
-            raise ValueError(f"load must be a callable t -> (N,), got {load!r}")
+        load_exprs = None
+        if load is not None and not callable(load):
+            load_exprs = self._parse_load(load, n, set(param_symbols) | set(time_symbols))
+            if load_rate is not None:
+                raise ValueError("load_rate must not be given with a load of sympy "
+                                 "expressions: its exact rate is derived from them")
         if not callable(load_rate) and load_rate is not None:
             raise ValueError(f"load_rate must be a callable t -> (N,), got {load_rate!r}")
 
@@ -330,8 +338,8 @@ class EnergyModel(SecondOrderSystem):
             raise ValueError(f"name must be a string, got {name!r}")
         self.name = name
         self.sparse = bool(sparse)
-        self._load = load
-        self.load_rate = load_rate
+        self._load = None if load_exprs is not None else load
+        self._load_rate = load_rate
 
         self.dofs = dofs
         self.energy = energy
@@ -364,10 +372,35 @@ class EnergyModel(SecondOrderSystem):
             "K": [e.xreplace(rename) for e in k_exprs],
             "T": [e.xreplace(w_rename) for e in t_exprs],
             "q": [e.xreplace(rename) for e in quantity_exprs],
+            "p": [] if load_exprs is None else [e.xreplace(rename) for e in load_exprs],
+            "dp": [] if load_exprs is None else [
+                (e.diff(time) if time is not None else sympy.Integer(0)).xreplace(rename)
+                for e in load_exprs],
         }
+        self.load_expressions = load_exprs
         self._build_functions()
 
     # -- construction helpers ------------------------------------------------
+    @staticmethod
+    def _parse_load(load, n, allowed):
+        """A load given as N sympy expressions of time and the parameters."""
+        if isinstance(load, sympy.MatrixBase):
+            items = list(load)
+        elif isinstance(load, (list, tuple, np.ndarray)):
+            items = list(np.ravel(np.asarray(load, dtype=object)))
+        else:
+            items = [load]
+        if len(items) != n:
+            raise ValueError(f"load must be a callable t -> (N,) or {n} sympy expressions "
+                             f"(one per degree of freedom), got {len(items)} item(s)")
+        items = [_expression(e, "load") for e in items]
+        unknown = set().union(*(e.free_symbols for e in items)) - allowed
+        if unknown:
+            names_ = ", ".join(sorted(map(str, unknown)))
+            raise ValueError(f"load depends on unknown symbols {names_}: a load of sympy "
+                             f"expressions may use time (give it as time=) and the parameters")
+        return tuple(items)
+
     @staticmethod
     def _parse_quantities(quantities, allowed):
         names, sizes, exprs = [], [], []
@@ -464,6 +497,8 @@ class EnergyModel(SecondOrderSystem):
         self._fun_k = _compile([u, p], ex["K"])
         self._fun_t = _compile([u, w, p], ex["T"])
         self._fun_q = _compile([t, u, v, p], ex["q"]) if ex["q"] else None
+        self._fun_p = _compile([t, p], ex["p"]) if ex.get("p") else None
+        self._fun_dp = _compile([t, p], ex["dp"]) if ex.get("p") else None
 
     # Generated functions do not pickle; the expressions do, so a copy in
     # another process recompiles them (no new derivation).
@@ -479,7 +514,7 @@ class EnergyModel(SecondOrderSystem):
 
     # Copies in the same process share the compiled functions (they hold no
     # state), instead of recompiling through __getstate__/__setstate__.
-    _FUNCTIONS = ("_fun_v", "_fun_f", "_fun_k", "_fun_t", "_fun_q")
+    _FUNCTIONS = ("_fun_v", "_fun_f", "_fun_k", "_fun_t", "_fun_q", "_fun_p", "_fun_dp")
 
     def __copy__(self):
         other = object.__new__(type(self))
@@ -592,7 +627,24 @@ class EnergyModel(SecondOrderSystem):
 
     def load(self, t):
         """External load ``p(t)``, shape (N,)."""
+        if self._fun_p is not None:
+            return self._vector_at(self._fun_p, t)
         return np.zeros(self.n_dof) if self._load is None else np.asarray(self._load(t), float)
+
+    @property
+    def load_rate(self):
+        """The exact load rate ``t -> p'(t)``: derived from a load of sympy
+        expressions, or the callable given, or ``None``."""
+        return self._derived_load_rate if self._fun_dp is not None else self._load_rate
+
+    def _derived_load_rate(self, t):
+        """``p'(t)``, derived from a load of sympy expressions."""
+        return self._vector_at(self._fun_dp, t)
+
+    def _vector_at(self, fun, t):
+        # constant entries come back as scalars: each entry as a float
+        values = fun(float(t), self._param_values)
+        return np.array([float(x) for x in values], dtype=float)
 
     def quantities(self, t, u, v=None):
         """Quantities of interest at many times in one vectorised call.
