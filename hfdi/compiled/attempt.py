@@ -1,13 +1,14 @@
 """One attempt of a step, compiled: predictor, every stage of the scheme and the
 Newton corrector of :func:`hfdi.corrector.solve_step`, for dense systems.
 
-The Python driver (:class:`hfdi.Integrator`: controllers, landing, statistics,
-energy balance) stays the only driver; for a model with compiled kernels it
-calls :meth:`CompiledStep.solve_step` where it would call
+Two drivers call it: the compiled driver (:mod:`hfdi.compiled.driver`), for
+whole runs of ordinary steps, and the Python driver (:class:`hfdi.Integrator`),
+which calls :meth:`CompiledStep.solve_step` where it would call
 :func:`hfdi.corrector.solve_step`, with the same arguments and the same
-:class:`~hfdi.corrector.StepOutcome` back. Loads stay in Python: the load at
-the stage times (and HFDI's load rate) are evaluated before the attempt and
-handed in, so breakpoints and one-sided limits work as on the Python path.
+:class:`~hfdi.corrector.StepOutcome` back. Loads are not evaluated here: the
+load at the stage times (and HFDI's load rate) are evaluated before the
+attempt and handed in, from Python (so that breakpoints and one-sided limits
+work as on the Python path) or from the compiled load.
 
 The compiled function restates, operation for operation, the Python code it
 replaces: :func:`hfdi.corrector.predict` and :func:`hfdi.corrector.newton`,

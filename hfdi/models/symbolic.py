@@ -67,6 +67,15 @@ def _symbols(value, what, length=None):
     return items
 
 
+def _items(value) -> list:
+    """The entries of a sympy Matrix or a sequence (flattened), or ``[value]``."""
+    if isinstance(value, sympy.MatrixBase):
+        return list(value)
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return list(np.ravel(np.asarray(value, dtype=object)))
+    return [value]
+
+
 def _expression(value, what):
     """``value`` as a scalar sympy expression (numbers allowed, strings not)."""
     if isinstance(value, (str, bytes)):
@@ -384,12 +393,7 @@ class EnergyModel(SecondOrderSystem):
     @staticmethod
     def _parse_load(load, n, allowed):
         """A load given as N sympy expressions of time and the parameters."""
-        if isinstance(load, sympy.MatrixBase):
-            items = list(load)
-        elif isinstance(load, (list, tuple, np.ndarray)):
-            items = list(np.ravel(np.asarray(load, dtype=object)))
-        else:
-            items = [load]
+        items = _items(load)
         if len(items) != n:
             raise ValueError(f"load must be a callable t -> (N,) or {n} sympy expressions "
                              f"(one per degree of freedom), got {len(items)} item(s)")
@@ -412,12 +416,7 @@ class EnergyModel(SecondOrderSystem):
         for qname, value in quantities.items():
             if not isinstance(qname, str) or not qname:
                 raise ValueError(f"quantity names must be non-empty strings, got {qname!r}")
-            if isinstance(value, sympy.MatrixBase):
-                items = list(value)
-            elif isinstance(value, (list, tuple, np.ndarray)):
-                items = list(np.ravel(np.asarray(value, dtype=object)))
-            else:
-                items = [value]
+            items = _items(value)
             if not items:
                 raise ValueError(f"quantity {qname!r} has no expressions")
             items = [_expression(e, f"quantity {qname!r}") for e in items]
