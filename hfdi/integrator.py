@@ -862,12 +862,14 @@ class Integrator:
             attempt.y_start = np.concatenate([current.u, current.v])
             attempt.y_end = np.concatenate([new.u, new.v])
             attempt.error = local_error(current, previous, new, h, self.scheme.order)
-            # every scheme forms v from Δu/h with a factor of at most 3: the
-            # corrector's remaining error in u, and rounding, make v uncertain
-            # by about 3·(error + ε‖u‖)/h, below which its error can be neither
-            # told nor controlled
-            attempt.velocity_noise = 3.0 * (outcome.newton_error + _EPS * float(
-                np.abs(new.u).max())) / h
+            # every scheme forms v from the step's u's divided by h, with
+            # coefficients summing to scheme.velocity_gain (3 for HFDI, 4 for
+            # the trapezoidal rule, 8 for Bathe's γ = 1/2): the corrector's
+            # remaining error in u, and rounding, make v uncertain by about
+            # velocity_gain·(error + ε‖u‖)/h, below which its error can be
+            # neither told nor controlled
+            attempt.velocity_noise = self.scheme.velocity_gain * (
+                outcome.newton_error + _EPS * float(np.abs(new.u).max())) / h
         return attempt
 
     def _accept(self, attempt) -> bool:

@@ -46,6 +46,11 @@ class Scheme:
     name = "scheme"
     order = 0
     stage_fractions: tuple = (1.0,)
+    #: ``h`` times the sum of the magnitudes of the coefficients with which the
+    #: step's displacements enter its end velocity: an error ``δ`` in the
+    #: ``u``'s (the corrector's, rounding's) reaches ``v`` as at most
+    #: ``velocity_gain · δ / h`` (see :meth:`Integrator` error control).
+    velocity_gain = 3.0
 
     @property
     def n_stages(self) -> int:
@@ -167,6 +172,8 @@ class Newmark(Scheme):
         beta = checks.real("Newmark beta", beta, low=0.0, high=0.5, high_closed=True)
         self.gamma, self.beta = gamma, beta
         self.order = 2 if gamma == 0.5 else 1
+        # v = γ/(βh) (u − u_n) + …
+        self.velocity_gain = 2.0 * gamma / beta
 
     def stage(self, ev, start, t_end, index, done):
         return _newmark_stage(ev, start, t_end, t_end - start.t, self.gamma, self.beta)
@@ -194,6 +201,9 @@ class Bathe(Scheme):
         gamma = checks.real("Bathe gamma", gamma, low=0.0, high=1.0)
         self.gamma = gamma
         self.stage_fractions = (gamma, 1.0)
+        # Eq. 8: v = c1 u_n + c2 û + c3 u, |c1| + |c2| + |c3| (times h)
+        self.velocity_gain = ((1.0 - gamma) / gamma + 1.0 / ((1.0 - gamma) * gamma)
+                              + (2.0 - gamma) / (1.0 - gamma))
 
     def stage(self, ev, start, t_end, index, done):
         h = t_end - start.t
@@ -429,6 +439,8 @@ class HFDI(Scheme):
 
     name = "hfdi"
     order = 3
+    #: Eq. 19: v_D = B⁻¹(M u + q0 + …) with B ≈ 2h/3 M and q0 = −M(u_n + h/3 v_n)
+    velocity_gain = 3.0
 
     def __init__(self, load_rate: str = "auto"):
         if load_rate not in ("auto", "exact", "difference"):

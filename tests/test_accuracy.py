@@ -418,3 +418,45 @@ def test_a_controller_without_its_rules_is_refused_by_name():
     model, _ = exact_problems.duffing()
     with pytest.raises(TypeError, match="controller Incomplete must define init"):
         hfdi.Integrator(model, "hfdi", controller=Incomplete())
+
+
+def _chain_at_rest():
+    """Three masses on hardening springs, started at rest with one at zero
+    displacement, under a sine load: a velocity near zero where the weights
+    of v are no more than atol."""
+    def force(u):
+        s = np.diff(np.concatenate([[0.0], u]))
+        t = 50.0 * s + 160.0 * s ** 3
+        return t - np.concatenate([t[1:], [0.0]])
+
+    def stiffness(u):
+        s = np.diff(np.concatenate([[0.0], u]))
+        e = 50.0 + 480.0 * s ** 2
+        K = np.diag(e + np.concatenate([e[1:], [0.0]]))
+        K -= np.diag(e[1:], 1) + np.diag(e[1:], -1)
+        return K
+
+    def derivative(u, w):
+        s = np.diff(np.concatenate([[0.0], u]))
+        z = np.diff(np.concatenate([[0.0], w]))
+        e = 960.0 * s * z
+        T = np.diag(e + np.concatenate([e[1:], [0.0]]))
+        T -= np.diag(e[1:], 1) + np.diag(e[1:], -1)
+        return T
+
+    return hfdi.System(mass=[1.0, 2.0, 1.5], internal_force=force, stiffness=stiffness,
+                       stiffness_derivative=derivative,
+                       load=lambda t: np.array([0.0, 3.0 * np.sin(7.0 * t), 0.0]),
+                       initial_displacement=[0.1, 0.0, -0.1])
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_tight_tolerances_do_not_stall_on_the_velocitys_rounding(scheme):
+    """At rtol 1e-10 the velocity's rounding, scheme.velocity_gain·ε‖u‖/h, must
+    stay inside v's weights: with one gain of 3 for every scheme Bathe's (8)
+    exceeded it and its steps shrank to min_step near t = 2e-4."""
+    tight = hfdi.integrate(_chain_at_rest(), scheme, 0.3, rtol=1e-10)
+    reference = hfdi.integrate(_chain_at_rest(), "hfdi", 0.3, rtol=1e-12)
+    assert tight.success, tight.message
+    assert reference.success
+    assert np.abs(tight.u[-1] - reference.u[-1]).max() < 1e-7 * np.abs(reference.u).max()

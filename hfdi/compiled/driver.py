@@ -58,7 +58,7 @@ FIXED, ITERATION, ERROR, COMBINED = range(4)
 
 # -- entries of ``settings`` (float64, read only) --------------------------------------
 (FIXED_STEP, IT_TARGET, IT_MIN_STEP, IT_MAX_STEP, ER_MIN_STEP, ER_MAX_STEP, SAFETY, GROW,
- SHRINK, ENERGY_LIMIT, T_STOP) = range(11)
+ SHRINK, ENERGY_LIMIT, T_STOP, VELOCITY_GAIN) = range(12)
 # -- entries of ``switches`` (int64, read only) ----------------------------------------
 (CONTROLLER, IT_MAX_REJECTIONS, ER_MAX_REJECTIONS, ORDER, MAX_STEPS, SAVE_ROWS,
  CALL_STEPS, EXACT_RATE) = range(8)
@@ -328,8 +328,9 @@ def drive(force, stiffness, derivative, potential_energy, load, load_rate, param
     config, coefficients : the attempt's (see :func:`hfdi.compiled.attempt.attempt`),
         scheme, ``N_max``, kinds of ``M`` and ``C``, ``γ``, ``β``, ``η`` and floor set
     Md, Mf, Cd, Cf : ``M`` and ``C`` (see :func:`~hfdi.compiled.attempt.attempt`)
-    settings : ndarray (11,)
-        The controllers' sizes and factors, the energy limit (``inf``: none) and ``t_stop``.
+    settings : ndarray (12,)
+        The controllers' sizes and factors, the energy limit (``inf``: none),
+        ``t_stop`` and the scheme's ``velocity_gain``.
     switches : ndarray (8,) int64
         Controller kind, its ``max_rejections`` (iteration, error), the scheme's
         order, ``max_steps``, whether to write rows, how many steps to take
@@ -431,7 +432,7 @@ def drive(force, stiffness, derivative, potential_energy, load, load_rate, param
             largest = 0.0
             for i in range(n):
                 largest = max(largest, abs(out[END_U, i]))
-            noise = 3.0 * (newton_error + _EPS * largest) / h
+            noise = settings[VELOCITY_GAIN] * (newton_error + _EPS * largest) / h
             err = _error_norm(error, current, out, rtol, atol, noise)
         if kind == FIXED:
             accept, h_next, stops = converged, settings[FIXED_STEP], not converged
@@ -564,8 +565,9 @@ class CompiledDriver:
         self.load_params = np.ascontiguousarray(kernels.load_params, dtype=np.float64)
         n = integrator.ev.n
         c = integrator.controller
-        settings = np.zeros(11)
+        settings = np.zeros(12)
         switches = np.zeros(8, np.int64)
+        settings[VELOCITY_GAIN] = step.scheme.velocity_gain
         iteration = c.iteration if isinstance(c, Combined) else c
         error = c.error if isinstance(c, Combined) else c
         self.rtol = np.zeros(2 * n)
