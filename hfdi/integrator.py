@@ -443,11 +443,9 @@ class Integrator:
         first_step = _optional_positive("first_step", first_step)
 
         start = time.process_time()
-        self._T0 = None
-        current, K0, potential = self._initial_state(u0, v0)
+        current, K0, T0, potential = self._initial_state(u0, v0)
         self._compiled = compiled_step(ev, self.scheme, compiled, initial=InitialValues(
-            current.t, current.u, current.v, current.f, K0, self._T0, potential))
-        del self._T0
+            current.t, current.u, current.v, current.f, K0, T0, potential))
         self._driver = None if self._compiled is None else compiled_driver(self)
         if self.fixed:
             proposed = c.step
@@ -556,7 +554,8 @@ class Integrator:
     def driven(self) -> bool:
         """Whether :meth:`advance` runs its ordinary steps in the compiled
         driver (:mod:`hfdi.compiled.driver`): compiled attempts, a model with
-        a compiled load, no ``extra_load`` and a built-in controller."""
+        a compiled load, no ``extra_load`` other than a :class:`~hfdi.HeldLoad`
+        and a built-in controller (:func:`hfdi.compiled.driver_reason`)."""
         return self._driver is not None
 
     @property
@@ -706,8 +705,8 @@ class Integrator:
 
     # -- stepping ------------------------------------------------------------
     def _initial_state(self, u0, v0):
-        """The initial :class:`State`, ``K(u0)`` and ``V(u0)``, every model function
-        checked once.
+        """The initial :class:`State`, ``K(u0)``, ``T(u0)[v0]`` (HFDI only, else
+        ``None``) and ``V(u0)``, every model function checked once.
 
         A model is often wrong at first. Evaluating each function the run will
         use at the initial state turns a wrong shape, a NaN or an exception
@@ -737,10 +736,11 @@ class Integrator:
         f = call("internal_force", ev.force, u0)
         p = call("load", ev.load, t0)
         K = call("stiffness", ev.stiffness, u0)
+        T = None
         if self.check_stiffness:
             self._check_stiffness(u0, f, K, call, name)
         if isinstance(self.scheme, HFDI):
-            self._T0 = call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
+            T = call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
             if self.scheme.load_rate == "exact" or (self.scheme.load_rate == "auto"
                                                      and ev.has_load_rate):
                 call("load_rate", ev.load_rate, t0)
@@ -749,7 +749,7 @@ class Integrator:
         if not np.all(np.isfinite(a)):
             raise ModelError(f"model {name!r}: the initial acceleration "
                              f"M⁻¹(p − f − C v0) is not finite ({brief(a)}) {where}")
-        return State(t0, u0.copy(), v0.copy(), a, f, p), K, potential
+        return State(t0, u0.copy(), v0.copy(), a, f, p), K, T, potential
 
     def _check_stiffness(self, u0, f, K, call, name):
         """``K(u0)`` against a forward difference of ``f`` along one direction.
@@ -1354,19 +1354,29 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         pending = [int(np.count_nonzero(at_start))]   # index of the next t_eval point
     clock = [time.monotonic()]
 
+    def outputs(t, u, v, a):
+        """The t_eval points up to ``t[-1]``, from the steps that start at the
+        last one recorded and end at ``t`` (K,), with ``u, v, a`` (K, N) there."""
+        if t_eval is not None and pending[0] < t_eval.size:
+            stop = int(np.searchsorted(t_eval, t[-1], side="right"))
+            if stop > pending[0]:
+                old = last[0]          # where the first of these steps started
+                ue, ve, _ = hermite_quintic(np.concatenate([[old.t], t]),
+                                            np.vstack([old.u[None], u]),
+                                            np.vstack([old.v[None], v]),
+                                            np.vstack([old.a[None], a]), t_eval[pending[0]:stop])
+                u_eval[pending[0]:stop], v_eval[pending[0]:stop] = ue, ve
+                pending[0] = stop
+
+    def report(t):
+        if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
+            clock[0] = time.monotonic()
+            progress(t, integrator.statistics)
+
     def record(itg: Integrator):
         new = itg._arrival                      # the state the step reached
         restart = itg.state                     # the next one's start: differs after a jump
-        if t_eval is not None and pending[0] < t_eval.size:
-            stop = int(np.searchsorted(t_eval, new.t, side="right"))
-            if stop > pending[0]:
-                old = last[0]          # where this step started
-                nodes = np.array([old.t, new.t])
-                u, v, _ = hermite_quintic(nodes, np.stack([old.u, new.u]),
-                                          np.stack([old.v, new.v]), np.stack([old.a, new.a]),
-                                          t_eval[pending[0]:stop])
-                u_eval[pending[0]:stop], v_eval[pending[0]:stop] = u, v
-                pending[0] = stop
+        outputs(np.array([new.t]), new.u[None], new.v[None], new.a[None])
         entry = (new, itg.last_step, itg.last_iterations, itg.last_energy_increment,
                  itg.total_energy, itg.external_work)
         if save_steps:
@@ -1376,33 +1386,19 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
             if save_steps:
                 rows.append(*entry)
         last[:] = entry
-        if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
-            clock[0] = time.monotonic()
-            progress(new.t, itg.statistics)
+        report(new.t)
 
     def record_rows(arrays: dict):
         """:func:`record` for the steps of the compiled driver, in bulk."""
         t = arrays["t"]
-        if t_eval is not None and pending[0] < t_eval.size:
-            stop = int(np.searchsorted(t_eval, t[-1], side="right"))
-            if stop > pending[0]:
-                old = last[0]
-                nodes = np.concatenate([[old.t], t])
-                u, v, _ = hermite_quintic(nodes, np.vstack([old.u[None], arrays["u"]]),
-                                          np.vstack([old.v[None], arrays["v"]]),
-                                          np.vstack([old.a[None], arrays["a"]]),
-                                          t_eval[pending[0]:stop])
-                u_eval[pending[0]:stop], v_eval[pending[0]:stop] = u, v
-                pending[0] = stop
+        outputs(t, arrays["u"], arrays["v"], arrays["a"])
         if save_steps:
             rows.extend(arrays)
         last[:] = [State(float(t[-1]), arrays["u"][-1], arrays["v"][-1], arrays["a"][-1], None,
                          None), float(arrays["step_size"][-1]), int(arrays["iterations"][-1]),
                    float(arrays["energy_increment"][-1]), float(arrays["total_energy"][-1]),
                    float(arrays["external_work"][-1])]
-        if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
-            clock[0] = time.monotonic()
-            progress(float(t[-1]), integrator.statistics)
+        report(float(t[-1]))
 
     if integrator.driven:
         ok = integrator._drive(t_end, rows=record_rows, callback=record)
