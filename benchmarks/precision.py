@@ -94,8 +94,8 @@ from validation.reference import cached_reference, default_atol, ida_solve
 from validation.runs import integrate
 
 __all__ = ["bench_problem", "bench_task", "pareto_front", "interpolate_wall", "speedups",
-           "goal", "format_problem", "plot_problem", "machine_info", "add_bench_parser",
-           "run_bench_command", "SCHEMES", "COMPETITORS", "DEFAULT_TARGETS", "DEFAULT_RTOLS"]
+           "goal", "format_problem", "plot_problem", "machine_info", "write_outputs",
+           "add_parser", "run_command", "SCHEMES", "COMPETITORS", "DEFAULT_TARGETS", "DEFAULT_RTOLS"]
 
 SCHEMES = SCHEME_ORDER
 #: Our schemes under error control (``hfdi.integrate(..., rtol=...)``), one run per rtol.

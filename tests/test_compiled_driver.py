@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hfdi
-from hfdi.compiled import CompiledKernels, driver_reason
+from hfdi.compiled import driver_reason
 from hfdi.controller import Combined, ErrorControl, IterationCount
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
 

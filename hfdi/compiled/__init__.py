@@ -238,8 +238,8 @@ def driver_reason(integrator) -> str:
     (:mod:`hfdi.compiled.driver`), or ``""`` when they can.
 
     The driver needs the compiled attempt, a compiled load (``CompiledKernels.load``),
-    no ``extra_load`` but a :class:`~hfdi.HeldLoad`, no exact load rate for HFDI (the paper's models have
-    none) and one of the built-in controllers.
+    no ``extra_load`` other than a :class:`~hfdi.HeldLoad`, a compiled load rate where
+    HFDI takes the model's exact one, and one of the built-in controllers.
     """
     from ..controller import Combined, ErrorControl, FixedStep, IterationCount
     step = integrator._compiled

@@ -626,7 +626,6 @@ class CompiledStep:
             history[0], history[1] = previous.u, previous.v
         start_rows = np.stack([start.u, start.v, start.a,
                                start.f if start.f is not None else self._zero, start.p])
-        k = self.kernels
         status, out, info, newton_error = attempt(
             self._force, self._stiffness, self._derivative, self.params(), config, coefficients,
             self.Md, self.Mf, self.Cd, self.Cf, start_rows, history, loads)

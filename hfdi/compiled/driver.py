@@ -38,7 +38,9 @@ from .attempt import HAS_PREVIOUS as A_HAS_PREVIOUS
 from .attempt import HAS_START_FORCE as A_HAS_START_FORCE
 from .attempt import FLOOR as A_FLOOR
 from .attempt import GAMMA as A_GAMMA
+from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
+from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
 from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, LOAD_TYPE, MATRIX,
                          POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
@@ -221,12 +223,9 @@ def _clamp(h, low, high):
 
 @njit(**JIT_OPTIONS)
 def _retry(rejections, max_rejections, h_next, min_step):
-    """:meth:`Controller._retry`: ``(accept=False, h_next, stops)``."""
-    if rejections + 1 > max_rejections:
-        return False, h_next, True
-    if h_next < min_step:
-        return False, h_next, True
-    return False, h_next, False
+    """:meth:`Controller._retry`: ``(accept=False, h_next, stops)``; it stops after
+    ``max_rejections`` rejections or below ``min_step``."""
+    return False, h_next, rejections + 1 > max_rejections or h_next < min_step
 
 
 @njit(**JIT_OPTIONS)
@@ -314,8 +313,8 @@ _SIGNATURE = types.Tuple((types.int64, types.int64))(
 
 @njit(_SIGNATURE, **JIT_OPTIONS)
 def drive(force, stiffness, derivative, potential_energy, load, load_rate, params, load_params,
-          held, config, coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints, scalars,
-          counters, current, previous, row_scalars, row_states):
+          held, config, coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints,
+          scalars, counters, current, previous, row_scalars, row_states):
     """Take ordinary steps towards ``settings[T_STOP]``; see the module's docstring.
 
     Parameters
@@ -357,9 +356,9 @@ def drive(force, stiffness, derivative, potential_energy, load, load_rate, param
     """
     n = current.shape[1]
     kind = switches[CONTROLLER]
-    scheme = config[0]
+    scheme = config[A_SCHEME]
     uses_error = kind == ERROR or kind == COMBINED
-    m_kind, c_kind = config[4], config[5]
+    m_kind = config[A_MASS_KIND]
     t_stop = settings[T_STOP]
     save = switches[SAVE_ROWS] != 0
     capacity = switches[CALL_STEPS]
@@ -657,7 +656,6 @@ class CompiledDriver:
         row_scalars = np.empty((size, 6))
         row_states = np.empty((size, 3, n))
         step = self.step
-        kernels = step.kernels
         params = step.params()
         reason, taken = drive(
             step._force, step._stiffness, step._derivative, self._potential, self._load,

@@ -24,8 +24,6 @@ import importlib.util
 import sys
 import weakref
 
-import numpy as np
-
 from . import CompiledKernels
 from ..files import cache_dir, write_atomic
 
