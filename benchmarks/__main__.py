@@ -1,7 +1,7 @@
 """``python -m benchmarks COMMAND [...]``: see :mod:`benchmarks`."""
 import sys
 
-from validation.options import UsageError
+from validation.options import UsageError, caused_by_interrupt
 
 COMMANDS = ("precision", "scale", "profile", "cosim")
 USAGE = f"usage: python -m benchmarks {{{','.join(COMMANDS)}}} [-h] [...]"
@@ -30,15 +30,21 @@ def main(argv=None) -> int:
             return run_command(parser.parse_args(argv))
         module = __import__(f"benchmarks.{command}", fromlist=["main"])
         return module.main(rest)
-    except UsageError as exc:
+    except (UsageError, OSError, ValueError) as exc:
+        if caused_by_interrupt(exc):
+            return _interrupted(command)
         print(f"python -m benchmarks {command}: error: {exc}", file=sys.stderr)
-        return 2
-    except (OSError, ValueError) as exc:
-        print(f"python -m benchmarks {command}: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"python -m benchmarks {command}: interrupted", file=sys.stderr)
-        return 130
+        return 2 if isinstance(exc, UsageError) else 1
+    except BaseException as exc:
+        # Ctrl-C, also when it arrived inside an import and came out as an ImportError
+        if not caused_by_interrupt(exc):
+            raise
+        return _interrupted(command)
+
+
+def _interrupted(command) -> int:
+    print(f"python -m benchmarks {command}: interrupted", file=sys.stderr)
+    return 130
 
 
 if __name__ == "__main__":

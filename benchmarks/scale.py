@@ -49,7 +49,7 @@ import numpy as np
 from hfdi.files import write_atomic
 from validation.errors import relative_error
 from validation.experiments import experiment
-from validation.options import Parser
+from validation.options import Parser, caused_by_interrupt
 
 __all__ = ["DEFAULT_SIZES", "ASYMPTOTIC_MIN", "measure_size", "fit_exponent", "run_scale",
            "full_run_comparison", "machine_info", "plot_scale", "main"]
@@ -756,12 +756,15 @@ def main(argv=None):
             everything["full_run"] = full
         if args.json:
             _write_json(Path(args.json).expanduser(), everything)
-    except (OSError, ValueError, ScaleError) as exc:
+    except BaseException as exc:
+        # Ctrl-C, also when it arrived inside an import and came out as an ImportError
+        if caused_by_interrupt(exc):
+            print("benchmarks scale: interrupted", file=sys.stderr)
+            return 130
+        if not isinstance(exc, (OSError, ValueError, ScaleError)):
+            raise
         print(f"benchmarks scale: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("benchmarks scale: interrupted", file=sys.stderr)
-        return 130
     return 0
 
 

@@ -535,3 +535,54 @@ if __name__ == "__main__":
         print(write_doc_table('cli', generated))
     else:
         print(generated)
+
+
+def _interrupt_inside_an_import(*args, **kwargs):
+    """What Ctrl-C during a C extension's initialisation raises (matplotlib's Agg)."""
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as interrupt:
+        raise ImportError("initialization failed") from interrupt
+
+
+def _refused(*args, **kwargs):
+    raise ValueError("t_end must be > 0")
+
+
+@pytest.mark.parametrize("fault, status, line", [
+    (_interrupt_inside_an_import, 130, "interrupted"),
+    (_refused, 1, "error: t_end must be > 0"),
+])
+def test_an_interrupt_inside_an_import_is_an_interrupt(monkeypatch, capsys, tmp_path,
+                                                       fault, status, line):
+    """Ctrl-C that arrives while a C extension initialises comes out as an
+    ImportError chained to it: each command line exits 130 and says it was
+    interrupted, as for a plain KeyboardInterrupt; real errors keep their status."""
+    import benchmarks.__main__ as bench_main
+    import benchmarks.profile
+    import benchmarks.scale
+    import validation.cli
+
+    monkeypatch.setattr(validation.cli, "_models", fault)
+    monkeypatch.setattr(benchmarks.profile, "main", fault)
+    monkeypatch.setattr(benchmarks.scale, "run_scale", fault)
+    runs = {"hfdi-validate": lambda: validation.cli.main(["models"]),
+            "python -m benchmarks profile": lambda: bench_main.main(["profile"]),
+            "benchmarks scale": lambda: benchmarks.scale.main(
+                ["--out", str(tmp_path), "--sizes", "6"])}
+    for prog, run in runs.items():
+        assert run() == status, prog
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith(prog) and line in err[-1], (prog, err)
+        assert "Traceback" not in "\n".join(err)
+
+
+def test_other_exceptions_still_propagate(monkeypatch):
+    import validation.cli
+
+    def broken(args):
+        raise RuntimeError("a bug, not an interrupt")
+
+    monkeypatch.setattr(validation.cli, "_models", broken)
+    with pytest.raises(RuntimeError, match="a bug"):
+        validation.cli.main(["models"])

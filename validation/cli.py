@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import sys
 from pathlib import Path
@@ -218,6 +217,17 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        return _run(args)
+    except BaseException as exc:
+        if not opt.caused_by_interrupt(exc):
+            raise
+        print("hfdi-validate: interrupted; outputs written so far are kept (a rerun of "
+              "'all' resumes)", file=sys.stderr)
+        return 130
+
+
+def _run(args) -> int:
+    try:
         if args.command == "table":
             _table(args)
         elif args.command == "models":
@@ -228,19 +238,17 @@ def main(argv=None):
             _stability(args)
         elif args.command == "all":
             _all(args)
-    except UsageError as exc:
-        print(f"hfdi-validate: error: {exc}", file=sys.stderr)
-        return 2
-    except IDAError as exc:
-        print(f"hfdi-validate: error: reference solution failed: {exc}", file=sys.stderr)
-        return 1
-    except (OSError, ValueError) as exc:
+    except (UsageError, IDAError, OSError, ValueError) as exc:
+        if opt.caused_by_interrupt(exc):
+            raise
+        if isinstance(exc, UsageError):
+            print(f"hfdi-validate: error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, IDAError):
+            print(f"hfdi-validate: error: reference solution failed: {exc}", file=sys.stderr)
+            return 1
         # A file that cannot be written, or arguments the library refuses
         # (say --t-end below its smallest step): one line, no traceback.
         print(f"hfdi-validate: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("hfdi-validate: interrupted; outputs written so far are kept (a rerun of "
-              "'all' resumes)", file=sys.stderr)
-        return 130
     return 0

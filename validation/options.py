@@ -18,11 +18,28 @@ from .experiments import SCHEME_ORDER, experiment, names
 __all__ = ["Parser", "UsageError", "schemes", "targets", "rtols", "positive", "ratios",
            "problems", "positive_integer", "numbers", "output_file", "out_dir",
            "check_problem", "check_runs", "add_parallel_options", "runner_from_args",
-           "LONGEST_RUN"]
+           "LONGEST_RUN", "caused_by_interrupt"]
 
 
 class UsageError(Exception):
     """Settings refused after parsing; the command line prints it in one line (exit 2)."""
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether Ctrl-C is behind ``exc``, itself or anywhere in its chain.
+
+    A ``KeyboardInterrupt`` that arrives while a C extension initialises (the
+    first figure importing matplotlib's Agg backend, say) comes out as an
+    ``ImportError`` whose cause is the interrupt; the command lines treat it
+    as the interrupt it is (exit status 130), not as a failure.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 class Parser(argparse.ArgumentParser):
