@@ -86,17 +86,23 @@ def _peak_rss():
     return int(peak) * (1 if sys.platform == "darwin" else 1024)
 
 
-def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5):
+def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5, compiled="auto"):
     """The measurement of :func:`measure_size`, in the current process."""
     import hfdi                                          # import before the baseline
     import scipy.sparse                                  # noqa: F401  (part of the baseline)
+    if compiled != "off":
+        # numba and the compiled code (about 120 MB, the same at every size)
+        # are loaded before the baseline too: the peak is the model's and
+        # the run's memory
+        import hfdi.compiled.attempt, hfdi.compiled.driver, hfdi.compiled.models  # noqa: F401
     baseline = _current_rss()
     t0 = time.perf_counter()
     model = hfdi.models.toss_rule(int(n_elements))
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
     t_o = experiment("toss_rule").observation_time
-    integrator = hfdi.Integrator(model, scheme, target_iterations=float(target), t_bound=t_o)
+    integrator = hfdi.Integrator(model, scheme, target_iterations=float(target), t_bound=t_o,
+                                 compiled=_COMPILED[compiled])
     setup = time.perf_counter() - t0
     st = integrator.statistics
     t0 = time.perf_counter()
@@ -133,7 +139,14 @@ def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5):
         "peak_memory_MB": max(peak - baseline, 0) / 2 ** 20,
         "status": integrator.status.name, "ok": bool(ok),
         "threads": {v: os.environ.get(v) for v in _THREAD_VARS},
+        "compiled": str(compiled), "compiled_attempt": bool(integrator.compiled),
+        "compiled_model": bool(integrator.compiled or integrator.ev.kernels is not None),
     }
+
+
+#: ``--compiled``: the ``compiled`` argument of the integrator (auto: compiled
+#: where it can be; off: the Python path with the Python model).
+_COMPILED = {"auto": None, "off": False}
 
 
 def _child_env(threads):
@@ -150,7 +163,8 @@ def _child_env(threads):
     return env
 
 
-def measure_size(n_elements, scheme="hfdi", target=3.0, steps=5, threads=1, timeout=3600.0):
+def measure_size(n_elements, scheme="hfdi", target=3.0, steps=5, threads=1, timeout=3600.0,
+                 compiled="auto"):
     """Time per Newton iteration and peak memory of the toss rule at one size.
 
     Runs in a fresh Python process (``sys.executable``), so that the peak
@@ -171,6 +185,10 @@ def measure_size(n_elements, scheme="hfdi", target=3.0, steps=5, threads=1, time
         ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``); ``"default"`` unsets them.
     timeout : float
         Seconds before the measuring process is killed.
+    compiled : {"auto", "off"}
+        ``auto``: the integrator's default, compiled where it can be (the
+        dense compiled driver below ``DENSE_BELOW`` DOFs, the compiled sparse
+        model above); ``off``: the Python path and the Python model.
 
     Returns
     -------
@@ -188,9 +206,11 @@ def measure_size(n_elements, scheme="hfdi", target=3.0, steps=5, threads=1, time
     n_elements = int(n_elements)
     if n_elements < 1 or int(steps) < 1:
         raise ValueError(f"n_elements and steps must be >= 1, got {n_elements} and {steps}")
+    if compiled not in _COMPILED:
+        raise ValueError(f"compiled must be one of {', '.join(_COMPILED)}, got {compiled!r}")
     code = ("import json, sys; from benchmarks.scale import _measure_here; "
             "print(json.dumps(_measure_here(*json.loads(sys.argv[1]))))")
-    args = json.dumps([n_elements, str(scheme), float(target), int(steps)])
+    args = json.dumps([n_elements, str(scheme), float(target), int(steps), compiled])
     try:
         proc = subprocess.run([sys.executable, "-c", code, args], capture_output=True, text=True,
                               env=_child_env(threads), timeout=timeout)
@@ -325,7 +345,8 @@ def _write_json(path, data):
 
 
 def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, threads=1,
-              default_threads=False, timeout=3600.0, progress=None):
+              default_threads=False, timeout=3600.0, progress=None, compiled="auto",
+              python_path=False):
     """Measure every size (one fresh process each), fit, write ``scale.json`` and ``scale.png``.
 
     Parameters
@@ -338,6 +359,12 @@ def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, thre
     default_threads : bool
         Also time each size with the default BLAS threads (reported as
         ``time_per_iteration_default_threads_s``).
+    compiled : {"auto", "off"}
+        As :func:`measure_size`.
+    python_path : bool
+        With ``compiled="auto"``, also time each size on the Python path, in
+        its own process right after (``time_per_iteration_python_s``,
+        ``peak_memory_python_MB``, ``steps_python``, ``newton_iterations_python``).
     progress : callable ``progress(str)``, optional
 
     Returns
@@ -355,7 +382,7 @@ def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, thre
         say(f"measuring {n} elements ({3 * (n + 1)} DOF) ...")
         t0 = time.perf_counter()
         try:
-            rec = measure_size(n, scheme, target, steps, threads, timeout)
+            rec = measure_size(n, scheme, target, steps, threads, timeout, compiled)
         except ScaleError as exc:
             rec = {"n_elements": int(n), "n_dof": 3 * (int(n) + 1), "error": str(exc)}
         if default_threads and "error" not in rec:
@@ -364,11 +391,21 @@ def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, thre
                 rec["time_per_iteration_default_threads_s"] = other["time_per_iteration_s"]
             except ScaleError as exc:
                 rec["default_threads_error"] = str(exc)
+        if python_path and compiled != "off" and "error" not in rec:
+            try:
+                other = measure_size(n, scheme, target, steps, threads, timeout, "off")
+                rec.update(time_per_iteration_python_s=other["time_per_iteration_s"],
+                           peak_memory_python_MB=other["peak_memory_MB"],
+                           newton_iterations_python=other["newton_iterations_timed"],
+                           steps_python=other["steps_timed"])
+            except ScaleError as exc:
+                rec["python_path_error"] = str(exc)
         rec["process_wall_s"] = time.perf_counter() - t0
         records.append(rec)
         say(f"  {_row(rec)}")
     fits = _fits(records)
     result = {"model": "toss_rule", "scheme": scheme, "target_iterations": float(target),
+              "compiled": str(compiled),
               "steps_timed": int(steps), "sizes": [int(n) for n in sizes],
               "asymptotic_min": ASYMPTOTIC_MIN, "target_exponent": TARGET_EXPONENT,
               "records": records, "fits": fits, "machine": machine_info(threads),
@@ -594,23 +631,30 @@ def _threads_here():
 
 # -- command line ----------------------------------------------------------------
 
-def _row(rec):
+def _row(rec, paths=False):
     if "error" in rec:
         return f"{rec['n_elements']:>8d} {rec['n_dof']:>8d}  failed: {rec['error']}"
-    return (f"{rec['n_elements']:>8d} {rec['n_dof']:>8d} "
-            f"{1e3 * rec['time_per_iteration_s']:>12.3f} "
-            f"{1e3 * rec.get('cpu_time_per_iteration_s', math.nan):>11.3f} "
-            f"{rec['peak_memory_MB']:>10.1f} "
-            f"{rec['newton_iterations_timed']:>6d} {rec['model_build_s']:>9.3f} "
-            f"{rec['first_step_s']:>9.2f}")
+    row = (f"{rec['n_elements']:>8d} {rec['n_dof']:>8d} "
+           f"{1e3 * rec['time_per_iteration_s']:>12.3f} "
+           f"{1e3 * rec.get('cpu_time_per_iteration_s', math.nan):>11.3f} "
+           f"{rec['peak_memory_MB']:>10.1f} "
+           f"{rec['newton_iterations_timed']:>6d} {rec['model_build_s']:>9.3f} "
+           f"{rec['first_step_s']:>9.2f}")
+    if paths:
+        python = rec.get("time_per_iteration_python_s", math.nan)
+        row += (f" {1e3 * python:>12.3f} {python / rec['time_per_iteration_s']:>8.2f}"
+                f" {rec.get('peak_memory_python_MB', math.nan):>10.1f}")
+    return row
 
 
 def format_table(result):
     """The measurements and fits as text."""
+    paths = any("time_per_iteration_python_s" in r for r in result["records"])
     lines = [f"{'N_el':>8s} {'DOF':>8s} {'ms/iteration':>12s} {'CPU ms/it':>11s} "
              f"{'peak MB':>10s} "
-             f"{'iters':>6s} {'build s':>9s} {'first s':>9s}"]
-    lines += [_row(r) for r in result["records"]]
+             f"{'iters':>6s} {'build s':>9s} {'first s':>9s}"
+             + (f" {'Python ms/it':>12s} {'speed-up':>8s} {'Python MB':>10s}" if paths else "")]
+    lines += [_row(r, paths) for r in result["records"]]
     lines.append("")
     for key, name in (("time_per_iteration_s", "time per iteration (wall)"),
                       ("cpu_time_per_iteration_s", "time per iteration (CPU)"),
@@ -697,6 +741,10 @@ def build_parser():
     p.add_argument("--target", type=float, default=3.0, help="target iterations N̄ (3)")
     p.add_argument("--default-threads", action="store_true",
                    help="also time with the default BLAS threads")
+    p.add_argument("--compiled", default="auto", choices=tuple(_COMPILED),
+                   help="auto: compiled where it can be (default); off: the Python path")
+    p.add_argument("--paths", action="store_true",
+                   help="with --compiled auto, also time each size on the Python path")
     p.add_argument("--timeout", type=float, default=3600.0, help="seconds per size (3600)")
     p.add_argument("--full-run", action=argparse.BooleanOptionalAction, default=True,
                    help="the full T_o run against IDA (default on)")
@@ -730,7 +778,7 @@ def main(argv=None):
         if args.sizes:
             result = run_scale(out, args.sizes, args.scheme, args.target, args.steps,
                                default_threads=args.default_threads, timeout=args.timeout,
-                               progress=say)
+                               progress=say, compiled=args.compiled, python_path=args.paths)
             print(format_table(result))
             for key in ("json", "png"):
                 if key in result:

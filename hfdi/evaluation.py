@@ -157,6 +157,16 @@ class Evaluator:
         #: A load breakpoint that the step being attempted ends on: the load
         #: and its rate there are the limits from the left (see load()).
         self.left_limit_at = None
+        #: Compiled f, K and T called instead of the model's methods
+        #: (:class:`hfdi.compiled.SparseKernels`, see :meth:`use_kernels`).
+        self.kernels = None
+
+    def use_kernels(self, kernels) -> None:
+        """Call ``kernels.force``, ``.stiffness`` and ``.stiffness_derivative``
+        (:class:`hfdi.compiled.SparseKernels`, checked against the model by
+        the caller) instead of the model's methods; ``None`` goes back to them.
+        Their values pass the same checks and counters."""
+        self.kernels = kernels
 
     # -- counted model calls --------------------------------------------------
     # Every value is checked for its shape (a wrong one is a mistake in the
@@ -211,16 +221,22 @@ class Evaluator:
 
     def force(self, u):
         self.nfev += 1
-        return self._vector(self.system.internal_force(u), "internal_force", _at_u, u)
+        k = self.kernels
+        f = self.system.internal_force(u) if k is None else k.force(u)
+        return self._vector(f, "internal_force", _at_u, u)
 
     def stiffness(self, u):
         self.njev += 1
-        return self._matrix(self.system.stiffness(u), "stiffness", _at_u, u)
+        k = self.kernels
+        K = self.system.stiffness(u) if k is None else k.stiffness(u)
+        return self._matrix(K, "stiffness", _at_u, u)
 
     def stiffness_derivative(self, u, w):
         self.ntev += 1
-        return self._matrix(self.system.stiffness_derivative(u, w), "stiffness_derivative",
-                            _at_u_w, u, w)
+        k = self.kernels
+        T = self.system.stiffness_derivative(u, w) if k is None else \
+            k.stiffness_derivative(u, w)
+        return self._matrix(T, "stiffness_derivative", _at_u_w, u, w)
 
     def _one_sided(self, t):
         # At a breakpoint where p or p' jumps, the step that ends there needs

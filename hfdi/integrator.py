@@ -551,6 +551,13 @@ class Integrator:
         return self._compiled is not None
 
     @property
+    def compiled_model(self) -> bool:
+        """Whether the model's f, K and T run compiled: inside the compiled
+        attempts (dense systems), or called by the Python steps of a sparse
+        system whose model has :class:`hfdi.compiled.SparseKernels`."""
+        return self._compiled is not None or self.ev.kernels is not None
+
+    @property
     def driven(self) -> bool:
         """Whether :meth:`advance` runs its ordinary steps in the compiled
         driver (:mod:`hfdi.compiled.driver`): compiled attempts, a model with

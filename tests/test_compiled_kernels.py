@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import hfdi
-from hfdi.compiled import CompiledKernels, kernels_of
+from hfdi.compiled import CompiledKernels, SparseKernels, kernels_of, sparse_kernels_of
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
 from hfdi.models.dumbbell import Dumbbell
 
@@ -116,3 +116,61 @@ def test_importing_hfdi_does_not_import_numba():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == "False"
+
+
+# -- large sparse beams: compiled f, K and T in the model's CSR pattern ----------------
+
+@pytest.mark.parametrize("n_elements", [1, 7, 60])
+def test_sparse_kernels_reproduce_the_python_model(n_elements):
+    """The toss rule's SparseKernels against its Python methods: the same CSR
+    pattern (indices and indptr) and values equal to rounding."""
+    model = toss_rule(n_elements)
+    kernels, why = sparse_kernels_of(model)
+    assert isinstance(kernels, SparseKernels), why
+    for u, w in _states(model, np.random.default_rng(11), n=4):
+        assert _relative(kernels.force(u), model.internal_force(u)) < 1e-13
+        for mine, python in ((kernels.stiffness(u), model.stiffness(u)),
+                             (kernels.stiffness_derivative(u, w),
+                              model.stiffness_derivative(u, w))):
+            assert mine.format == "csr" and mine.has_canonical_format
+            assert np.array_equal(mine.indptr, python.indptr)
+            assert np.array_equal(mine.indices, python.indices)
+            assert _relative(mine.data, python.data) < 1e-13
+
+
+class _SparseKernelModel(_KernelModel):
+    def __init__(self, model, kernels):
+        super().__init__(model, kernels)
+        self.python = model
+
+    def internal_force(self, u):
+        return self.k.force(u)
+
+    def stiffness(self, u):
+        return self.k.stiffness(u)
+
+    def stiffness_derivative(self, u, w):
+        return self.k.stiffness_derivative(u, w)
+
+    def potential_energy(self, u):
+        return self.python.potential_energy(u)
+
+
+def test_sparse_kernels_are_exact_derivatives():
+    model = toss_rule(9)
+    kernels, _ = sparse_kernels_of(model)
+    check = hfdi.check_derivatives(_SparseKernelModel(model, kernels), samples=6, spread=0.1)
+    assert check.ok(1e-7), check
+
+
+def test_sparse_kernels_follow_the_rules_of_the_dense_ones():
+    from hfdi.models.toss_rule import TossRule
+
+    class Stiffer(TossRule):
+        def stiffness(self, u):
+            return 2.0 * super().stiffness(u)
+
+    kernels, why = sparse_kernels_of(Stiffer(60))
+    assert kernels is None and "stiffness" in why
+    linear = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]])
+    assert "no compiled sparse kernels" in sparse_kernels_of(linear)[1]

@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import hfdi
 from hfdi.compiled import CompiledKernels, CompiledUnavailable
@@ -105,10 +106,18 @@ def test_compiled_true_without_kernels_is_refused_with_the_reason():
     assert not hfdi.Integrator(linear, "hfdi", step=0.1, compiled=None).compiled
     with pytest.raises(CompiledUnavailable, match="no compiled kernels"):
         hfdi.Integrator(linear, "hfdi", step=0.1, compiled=True)
+    # a sparse system: the steps in Python, the model compiled if it can be
     beam = toss_rule(n_elements=50)                                     # 153 DOFs: sparse
-    assert not hfdi.Integrator(beam, "hfdi", step=1e-4, compiled=None).compiled
-    with pytest.raises(CompiledUnavailable, match="dense systems"):
-        hfdi.Integrator(beam, "hfdi", step=1e-4, compiled=True)
+    for compiled in (None, True):
+        itg = hfdi.Integrator(beam, "hfdi", step=1e-4, compiled=compiled)
+        assert not itg.compiled and itg.compiled_model
+    itg = hfdi.Integrator(beam, "hfdi", step=1e-4, compiled=False)
+    assert not itg.compiled and not itg.compiled_model
+    chain = hfdi.LinearSystem(mass=np.ones(200), stiffness=sp.diags(
+        [-np.ones(199), 2.0 * np.ones(200), -np.ones(199)], [-1, 0, 1], format="csr"))
+    assert not hfdi.Integrator(chain, "hfdi", step=0.1, compiled=None).compiled_model
+    with pytest.raises(CompiledUnavailable, match="200 degrees of freedom.*no compiled sparse"):
+        hfdi.Integrator(chain, "hfdi", step=0.1, compiled=True)
 
 
 def test_without_numba_the_python_path_runs_and_says_so_once(monkeypatch):
@@ -272,3 +281,57 @@ def test_kernels_passed_as_plain_dispatchers_give_the_same_run(monkeypatch):
     plain = hfdi.integrate(articulated(), "hfdi", 0.03, rtol=1e-6, compiled=True)
     _assert_same_counts(resolved, plain)
     np.testing.assert_array_equal(plain.u, resolved.u)
+
+
+# -- sparse systems: Python steps, compiled model -------------------------------------
+
+def _beam_run(model, scheme, compiled, t_end, u0=None):
+    itg = hfdi.Integrator(model, scheme, target_iterations=3.0, compiled=compiled, u0=u0)
+    itg.advance(t_end)
+    return itg
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("n_elements", [200, 1500])
+def test_a_sparse_beam_with_compiled_kernels_takes_the_python_paths_steps(scheme, n_elements):
+    """Above DENSE_BELOW the steps stay in Python and the model runs compiled:
+    the same steps, Newton iterations and evaluations as the Python model,
+    end states equal to rounding. 1500 elements put HFDI's masses beyond
+    BLOCK_SPREAD (the interleaved block tangent), 200 below it.
+
+    "Rounding" is measured: the Python path's own change when u0 moves by
+    1e-16 (with 1500 elements the rotations' tiny inertia carries such a
+    change into the velocities at 5e-8)."""
+    model = toss_rule(n_elements)
+    t_end = 1e-3
+    python = _beam_run(model, scheme, False, t_end)
+    compiled = _beam_run(model, scheme, None, t_end)
+    nudged = _beam_run(model, scheme, False, t_end, model.initial_displacement + 1e-16)
+    assert compiled.compiled_model and not python.compiled_model
+    a, b = python.statistics, compiled.statistics
+    assert python.status == hfdi.Status.RUNNING == compiled.status and a.accepted > 3
+    for name in ("steps", "accepted", "rejected", "newton_iterations"):
+        assert getattr(a, name) == getattr(b, name), name
+    assert (python.ev.nfev, python.ev.njev, python.ev.ntev, python.ev.nlu) == \
+        (compiled.ev.nfev, compiled.ev.njev, compiled.ev.ntev, compiled.ev.nlu)
+    assert python.t == compiled.t
+    for x in ("u", "v"):
+        rounding = _relative_error(getattr(nudged.state, x), getattr(python.state, x))
+        assert _relative_error(getattr(compiled.state, x), getattr(python.state, x)) \
+            <= max(10.0 * rounding, 1e-12), x
+
+
+def test_sparse_kernels_of_another_model_are_refused(monkeypatch):
+    import hfdi.compiled as hc
+    from hfdi.models.toss_rule import TossRule
+    monkeypatch.setattr(hc, "_SAID", set())
+    other = toss_rule(60, E=2.0e11)
+    monkeypatch.setattr(TossRule, "compiled_sparse_kernels",
+                        lambda self: hc.models.toss_rule_sparse_kernels(other))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        itg = hfdi.Integrator(toss_rule(60), "newmark", step=1e-5)
+    assert not itg.compiled_model
+    assert any("does not match" in str(w.message) for w in caught)
+    with pytest.raises(CompiledUnavailable, match="stiffness|force"):
+        hfdi.Integrator(toss_rule(60), "newmark", step=1e-5, compiled=True)

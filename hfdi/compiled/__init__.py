@@ -16,8 +16,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 __all__ = ["CompiledKernels", "CompiledUnavailable", "InitialValues", "KERNEL_TOLERANCE",
-           "compiled_driver", "compiled_step", "driver_reason", "kernel_mismatch",
-           "kernels_of", "numba_available"]
+           "SparseKernels", "compiled_driver", "compiled_step", "driver_reason",
+           "kernel_mismatch", "kernels_of", "numba_available", "sparse_kernels_of"]
 
 _log = logging.getLogger("hfdi.compiled")
 
@@ -58,6 +58,29 @@ class CompiledKernels(NamedTuple):
     load_rate: Callable | None = None
 
 
+class SparseKernels(NamedTuple):
+    """Compiled ``f``, ``K`` and ``T`` of a large sparse model, called as the model's own methods.
+
+    For systems of ``N ≥ DENSE_BELOW`` unknowns the steps run in the Python
+    driver with its sparse and banded linear algebra; what is compiled there
+    is the model: the evaluator calls these instead of the model's methods.
+    A model offers them through a ``compiled_sparse_kernels()`` method (the
+    toss rule's are :func:`hfdi.compiled.models.toss_rule_sparse_kernels`:
+    element loops that add each element's 6 × 6 block straight into the data
+    array of the model's fixed CSR pattern).
+
+    Attributes
+    ----------
+    force : callable ``u -> f``, (N,) float64
+    stiffness : callable ``u -> K``, scipy CSR (N, N)
+    stiffness_derivative : callable ``(u, w) -> T(u)[w]``, scipy CSR (N, N)
+    """
+
+    force: Callable
+    stiffness: Callable
+    stiffness_derivative: Callable
+
+
 class InitialValues(NamedTuple):
     """The Python model's values at the initial state, which the kernels must
     reproduce (see :func:`kernel_mismatch`): ``t0``, ``u0``, ``v0``, ``f(u0)``,
@@ -78,7 +101,17 @@ KERNEL_TOLERANCE = 1e-8
 
 
 def _difference(kernel_value, python_value):
-    """``max |a − b| / max |b|`` (dense), inf for another shape or a non-finite ``a``."""
+    """``max |a − b| / max |b|``, inf for another shape or a non-finite ``a``;
+    sparse against sparse without forming either densely."""
+    import scipy.sparse as sp
+    if sp.issparse(kernel_value) and sp.issparse(python_value):
+        if kernel_value.shape != python_value.shape \
+                or not np.all(np.isfinite(kernel_value.data)):
+            return math.inf
+        scale = float(abs(python_value).max()) if python_value.nnz else 0.0
+        gap = abs(kernel_value - python_value)
+        gap = float(gap.max()) if gap.nnz else 0.0
+        return gap / scale if scale > 0 else float(abs(kernel_value).max())
     b = python_value.toarray() if hasattr(python_value, "toarray") else np.asarray(
         python_value, dtype=float)
     a = np.asarray(kernel_value, dtype=float)
@@ -124,6 +157,11 @@ def kernel_mismatch(system, kernels, initial: InitialValues) -> str:
             if rate is not None:
                 checks.append((f"load_rate at t = {t:g}",
                                lambda t=t: rate(t, kernels.load_params), python_rate))
+    return _first_mismatch(name, checks)
+
+
+def _first_mismatch(name, checks) -> str:
+    """The first ``(what, kernel call, Python value)`` of ``checks`` whose values differ."""
     for what, kernel, python in checks:
         try:
             difference = _difference(kernel(), python)
@@ -218,6 +256,47 @@ def kernels_of(system):
 _DRIVER_METHODS = ("load", "load_rate", "load_breakpoints", "potential_energy")
 
 
+def sparse_kernels_of(system):
+    """``(kernels, "")`` for a model whose :class:`SparseKernels` describe its
+    Python methods, else ``(None, why)``; as :func:`kernels_of`, with
+    ``compiled_sparse_kernels()``."""
+    cls = type(system)
+    owner = next((c for c in cls.__mro__ if "compiled_sparse_kernels" in vars(c)), None)
+    if owner is None:
+        return None, f"model {cls.__name__} has no compiled sparse kernels"
+    for name in _METHODS:
+        method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
+        if not issubclass(owner, method_owner):
+            return None, (f"{cls.__name__}.{name} overrides the method of {owner.__name__}, "
+                          f"whose compiled kernels compute another model")
+    ok, why = numba_available()
+    if not ok:
+        return None, why
+    try:
+        kernels = system.compiled_sparse_kernels()
+    except CompiledUnavailable as exc:
+        return None, str(exc)
+    except Exception as exc:           # numba failing to compile or to cache
+        return None, _Fault(f"{cls.__name__}.compiled_sparse_kernels() failed: "
+                            f"{type(exc).__name__}: {exc}")
+    if not isinstance(kernels, SparseKernels):
+        raise TypeError(f"{cls.__name__}.compiled_sparse_kernels() must return a "
+                        f"hfdi.compiled.SparseKernels, got {type(kernels).__name__}")
+    return kernels, ""
+
+
+def sparse_kernel_mismatch(system, kernels: SparseKernels, initial: InitialValues) -> str:
+    """:func:`kernel_mismatch` for :class:`SparseKernels` (f, K and T[v0] at u0)."""
+    u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
+    v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
+    checks = [("force", lambda: kernels.force(u0), initial.f),
+              ("stiffness", lambda: kernels.stiffness(u0), initial.K)]
+    if initial.T is not None:
+        checks.append(("stiffness_derivative",
+                       lambda: kernels.stiffness_derivative(u0, v0), initial.T))
+    return _first_mismatch(type(system).__name__, checks)
+
+
 def compiled_driver(integrator):
     """The compiled driver of ``integrator`` (:class:`hfdi.compiled.driver.CompiledDriver`),
     or ``None`` when :func:`driver_reason` gives a reason or the driver's code
@@ -291,8 +370,11 @@ def compiled_step(ev, scheme, compiled=None, initial: InitialValues | None = Non
         the system is dense (``N < DENSE_BELOW``) and the scheme is
         :class:`~hfdi.Newmark`, :class:`~hfdi.Bathe` or :class:`~hfdi.HFDI`;
         the Python path otherwise, with a warning (once) when only numba is
-        missing. ``True``: compiled or :class:`CompiledUnavailable`.
-        ``False``: the Python path.
+        missing. For a sparse system (``N ≥ DENSE_BELOW``) the steps run in
+        Python and the model's f, K and T compiled when it has
+        :class:`SparseKernels` (installed in ``ev``; ``None`` is returned).
+        ``True``: compiled (for a sparse system, its model) or
+        :class:`CompiledUnavailable`. ``False``: the Python path.
 
     Returns
     -------
@@ -305,11 +387,10 @@ def compiled_step(ev, scheme, compiled=None, initial: InitialValues | None = Non
     from ..evaluation import DENSE_BELOW
     from ..schemes import HFDI, Bathe, Newmark
     reason = ""
+    if ev.n >= DENSE_BELOW:
+        return _sparse_model(ev, compiled, initial)
     if type(scheme) not in (Newmark, Bathe, HFDI):
         reason = f"scheme {scheme!r} is not one of Newmark, Bathe and HFDI"
-    elif ev.n >= DENSE_BELOW:
-        reason = (f"the system has {ev.n} degrees of freedom; the compiled step is for dense "
-                  f"systems, N < {DENSE_BELOW}")
     kernels = None
     if not reason:
         kernels, reason = kernels_of(ev.system)
@@ -324,11 +405,31 @@ def compiled_step(ev, scheme, compiled=None, initial: InitialValues | None = Non
             reason = _Fault(f"the compiled attempt cannot be loaded: "
                             f"{type(exc).__name__}: {exc}")
     if reason:
-        if compiled:
-            raise CompiledUnavailable(f"compiled=True, but the compiled step cannot run: "
-                                      f"{reason}")
-        if isinstance(reason, _Fault) or (not numba_available()[0]
-                                          and reason == numba_available()[1]):
-            say_once(reason)
+        _refused(compiled, reason, "the compiled step cannot run")
         return None
     return step
+
+
+def _refused(compiled, reason, what):
+    """Raise for ``compiled=True``; else say a fault (or a missing numba) once."""
+    if compiled:
+        raise CompiledUnavailable(f"compiled=True, but {what}: {reason}")
+    if isinstance(reason, _Fault) or (not numba_available()[0]
+                                      and reason == numba_available()[1]):
+        say_once(reason)
+
+
+def _sparse_model(ev, compiled, initial):
+    """A sparse system (``N ≥ DENSE_BELOW``): the steps stay in Python, its
+    model's f, K and T run compiled (:class:`SparseKernels`) when it has them
+    and they match it at the initial state; returns ``None``."""
+    kernels, reason = sparse_kernels_of(ev.system)
+    if not reason and initial is not None:
+        reason = sparse_kernel_mismatch(ev.system, kernels, initial)
+    if reason:
+        from ..evaluation import DENSE_BELOW
+        _refused(compiled, reason, f"the system has {ev.n} degrees of freedom (N ≥ "
+                 f"{DENSE_BELOW}, the steps run in Python) and its model cannot run compiled")
+        return None
+    ev.use_kernels(kernels)
+    return None

@@ -18,12 +18,13 @@ import math
 import numpy as np
 from numba import njit
 
-from . import CompiledKernels
+from . import CompiledKernels, SparseKernels
 from .loads import hat_load, hat_load_params
-from .signatures import FORCE, JIT_OPTIONS, POTENTIAL_ENERGY, STIFFNESS, STIFFNESS_DERIVATIVE
+from .signatures import (FORCE, JIT_OPTIONS, POTENTIAL_ENERGY, SPARSE_STIFFNESS,
+                         SPARSE_STIFFNESS_DERIVATIVE, STIFFNESS, STIFFNESS_DERIVATIVE)
 
 __all__ = ["dumbbell_kernels", "tetrahedra_kernels", "articulated_kernels",
-           "toss_rule_kernels"]
+           "toss_rule_kernels", "toss_rule_sparse_kernels"]
 
 
 # -- pair potentials -----------------------------------------------------------
@@ -458,24 +459,81 @@ def toss_rule_force(u, params):
     return f
 
 
+@njit(**JIT_OPTIONS)
+def _beam_add_data(data, slots, e, h, inv_h, red):
+    """``data[slots[e, 6a + b]] += h (L_eᵀ red L_e)[a, b]``: :func:`_beam_add` into the
+    data array of a CSR matrix whose pattern holds every element coupling."""
+    v1, v2 = _beam_columns(inv_h)
+    for a in range(6):
+        ra = _R1[a]
+        for b in range(6):
+            rb = _R1[b]
+            s = v1[a] * (red[ra, rb] * v1[b] + red[ra, 3] * v2[b]) \
+                + v2[a] * (red[3, rb] * v1[b] + red[3, 3] * v2[b])
+            data[slots[e, 6 * a + b]] += h * s
+
+
+@njit(**JIT_OPTIONS)
+def _toss_stiffness_reduced(u, e, params, red):
+    """``red[:3, :3] = ∇²W`` of element ``e`` in ``(u_ξ, v_ξ, α_o)`` (``red[3, 3]`` is EJ);
+    returns ``(h_e, 1/h_e)``."""
+    n_el = int(params[0])
+    EA, GA = params[1], params[2]
+    h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+    p, q, a, chi = _beam_reduced(u, e, inv_h)
+    eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+    # ∇²ε has the α_o row ∇γ, ∇²γ the row −∇ε
+    m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
+    for i in range(3):
+        for j in range(3):
+            red[i, j] = (EA * (g_eps[i] * g_eps[j] + eps * _alpha_entry(g_gam, i, j))
+                         + GA * (g_gam[i] * g_gam[j] + gam * _alpha_entry(m_eps, i, j)))
+    return h, inv_h
+
+
+@njit(**JIT_OPTIONS)
+def _toss_derivative_reduced(u, w, e, params, red):
+    """``red[:3, :3] = ∇³W[z]`` of element ``e``, ``z`` the reduced image of ``w``
+    (the curvature term is quadratic: no third derivative); returns ``(h_e, 1/h_e)``."""
+    n_el = int(params[0])
+    EA, GA = params[1], params[2]
+    h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+    p, q, a, _ = _beam_reduced(u, e, inv_h)
+    zp, zq, za, _ = _beam_reduced(w, e, inv_h)
+    z = (zp, zq, za)
+    eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+    m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
+    m_gam = (-g_gam[0], -g_gam[1], -g_gam[2])
+    for i in range(3):
+        for j in range(3):
+            red[i, j] = 0.0
+    # per strain k (rigidity R): R (∇²k z ∇kᵀ + ∇k (∇²k z)ᵀ + (∇k·z) ∇²k + k ∇³k[z]),
+    # with ∇²k's α_o row r (∇γ for ε, −∇ε for γ) and ∇³k's t = −∇k
+    for which in range(2):
+        if which == 0:
+            R, k, g, r, t = EA, eps, g_eps, g_gam, m_eps
+        else:
+            R, k, g, r, t = GA, gam, g_gam, m_eps, m_gam
+        Hz = (r[0] * za, r[1] * za, r[0] * zp + r[1] * zq + r[2] * za)
+        gz = g[0] * z[0] + g[1] * z[1] + g[2] * z[2]
+        # ∇³k[z]: α_o row and column (t_p z_α, t_q z_α, t·z)
+        third = (t[0] * za, t[1] * za, t[0] * zp + t[1] * zq + t[2] * za)
+        for i in range(3):
+            for j in range(3):
+                red[i, j] += R * (Hz[i] * g[j] + g[i] * Hz[j] + gz * _alpha_entry(r, i, j)
+                                  + k * _alpha_entry(third, i, j))
+    return h, inv_h
+
+
 @njit(STIFFNESS, **JIT_OPTIONS)
 def toss_rule_stiffness(u, params):
     n_el = int(params[0])
-    EA, GA, EJ = params[1], params[2], params[3]
     n = 3 * (n_el + 1)
     K = np.zeros((n, n))
     red = np.zeros((4, 4))
-    red[3, 3] = EJ
+    red[3, 3] = params[3]
     for e in range(n_el):
-        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
-        p, q, a, chi = _beam_reduced(u, e, inv_h)
-        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
-        # ∇²ε has the α_o row ∇γ, ∇²γ the row −∇ε
-        m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
-        for i in range(3):
-            for j in range(3):
-                red[i, j] = (EA * (g_eps[i] * g_eps[j] + eps * _alpha_entry(g_gam, i, j))
-                             + GA * (g_gam[i] * g_gam[j] + gam * _alpha_entry(m_eps, i, j)))
+        h, inv_h = _toss_stiffness_reduced(u, e, params, red)
         _beam_add(K, e, h, inv_h, red)
     return K
 
@@ -483,38 +541,37 @@ def toss_rule_stiffness(u, params):
 @njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
 def toss_rule_stiffness_derivative(u, w, params):
     n_el = int(params[0])
-    EA, GA = params[1], params[2]
     n = 3 * (n_el + 1)
     T = np.zeros((n, n))
     red = np.zeros((4, 4))
     for e in range(n_el):
-        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
-        p, q, a, _ = _beam_reduced(u, e, inv_h)
-        zp, zq, za, _ = _beam_reduced(w, e, inv_h)
-        z = (zp, zq, za)
-        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
-        m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
-        m_gam = (-g_gam[0], -g_gam[1], -g_gam[2])
-        for i in range(3):
-            for j in range(3):
-                red[i, j] = 0.0
-        # per strain k (rigidity R): R (∇²k z ∇kᵀ + ∇k (∇²k z)ᵀ + (∇k·z) ∇²k + k ∇³k[z]),
-        # with ∇²k's α_o row r (∇γ for ε, −∇ε for γ) and ∇³k's t = −∇k
-        for which in range(2):
-            if which == 0:
-                R, k, g, r, t = EA, eps, g_eps, g_gam, m_eps
-            else:
-                R, k, g, r, t = GA, gam, g_gam, m_eps, m_gam
-            Hz = (r[0] * za, r[1] * za, r[0] * zp + r[1] * zq + r[2] * za)
-            gz = g[0] * z[0] + g[1] * z[1] + g[2] * z[2]
-            # ∇³k[z]: α_o row and column (t_p z_α, t_q z_α, t·z)
-            third = (t[0] * za, t[1] * za, t[0] * zp + t[1] * zq + t[2] * za)
-            for i in range(3):
-                for j in range(3):
-                    red[i, j] += R * (Hz[i] * g[j] + g[i] * Hz[j] + gz * _alpha_entry(r, i, j)
-                                      + k * _alpha_entry(third, i, j))
+        h, inv_h = _toss_derivative_reduced(u, w, e, params, red)
         _beam_add(T, e, h, inv_h, red)
     return T
+
+
+@njit(SPARSE_STIFFNESS, **JIT_OPTIONS)
+def toss_rule_stiffness_data(u, params, slots, nnz):
+    """The data array (nnz,) of ``K`` in the CSR pattern whose positions ``slots`` (N_el, 36)
+    gives for each element's 6 × 6 couplings."""
+    data = np.zeros(nnz)
+    red = np.zeros((4, 4))
+    red[3, 3] = params[3]
+    for e in range(int(params[0])):
+        h, inv_h = _toss_stiffness_reduced(u, e, params, red)
+        _beam_add_data(data, slots, e, h, inv_h, red)
+    return data
+
+
+@njit(SPARSE_STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+def toss_rule_stiffness_derivative_data(u, w, params, slots, nnz):
+    """The data array (nnz,) of ``T(u)[w]`` in the pattern of :func:`toss_rule_stiffness_data`."""
+    data = np.zeros(nnz)
+    red = np.zeros((4, 4))
+    for e in range(int(params[0])):
+        h, inv_h = _toss_derivative_reduced(u, w, e, params, red)
+        _beam_add_data(data, slots, e, h, inv_h, red)
+    return data
 
 
 @njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
@@ -530,14 +587,43 @@ def toss_rule_potential_energy(u, params):
     return 0.5 * V
 
 
+def _toss_rule_params(model):
+    """``(N_el, EA, GA, EJ, h_e …, 1/h_e …, α̂_e …)`` (4 + 3 N_el entries)."""
+    params = np.concatenate([[model.n_elements, model.EA, model.GA, model.EJ],
+                             model._h, model._inv_h, model._alpha_hat])
+    return np.ascontiguousarray(params, dtype=np.float64)
+
+
 def toss_rule_kernels(model) -> CompiledKernels:
     """Kernels of a :class:`~hfdi.models.toss_rule.TossRule` (dense ``K`` and ``T``);
     ``params = (N_el, EA, GA, EJ, h_e …, 1/h_e …, α̂_e …)`` (4 + 3 N_el entries)."""
-    params = np.concatenate([[model.n_elements, model.EA, model.GA, model.EJ],
-                             model._h, model._inv_h, model._alpha_hat])
     return CompiledKernels(toss_rule_force, toss_rule_stiffness,
                            toss_rule_stiffness_derivative, toss_rule_potential_energy,
-                           np.ascontiguousarray(params, dtype=np.float64), hat_load,
+                           _toss_rule_params(model), hat_load,
                            hat_load_params(model.n_dof,
                                            [(1, model.force_amplitude, model.load_time),
                                             (2, model.moment_amplitude, model.load_time)]))
+
+
+def toss_rule_sparse_kernels(model) -> SparseKernels:
+    """Compiled f, K and T of a large :class:`~hfdi.models.toss_rule.TossRule`:
+    element loops, each element's 6 × 6 block added straight into the data
+    array of the model's CSR pattern (``model.csr_from_data``). O(N_el) time,
+    no temporary per element."""
+    params = _toss_rule_params(model)
+    slots = np.ascontiguousarray(model._slots, dtype=np.int64)
+    nnz = int(model._nnz)
+    as_vector = np.ascontiguousarray
+
+    def force(u):
+        return toss_rule_force(as_vector(u, dtype=np.float64), params)
+
+    def stiffness(u):
+        return model.csr_from_data(
+            toss_rule_stiffness_data(as_vector(u, dtype=np.float64), params, slots, nnz))
+
+    def stiffness_derivative(u, w):
+        return model.csr_from_data(toss_rule_stiffness_derivative_data(
+            as_vector(u, dtype=np.float64), as_vector(w, dtype=np.float64), params, slots, nnz))
+
+    return SparseKernels(force, stiffness, stiffness_derivative)

@@ -16,13 +16,22 @@ and, for the compiled driver (:mod:`hfdi.compiled.driver`), a fifth:
 
 ``u``, ``w`` and ``params`` are C-contiguous float64 vectors, ``f`` a new
 C-contiguous (N,) vector, ``K`` and ``T`` new C-contiguous (N, N) arrays.
+
+A large sparse model (:class:`hfdi.compiled.SparseKernels`) may fill the data
+array of its fixed CSR pattern instead, from the element positions ``slots``
+(an int64 array) and the number of stored entries ``nnz``:
+
+- ``stiffness_data(u, params, slots, nnz) -> data``           :data:`SPARSE_STIFFNESS`
+- ``stiffness_derivative_data(u, w, params, slots, nnz) -> data``
+  :data:`SPARSE_STIFFNESS_DERIVATIVE`
 """
 from __future__ import annotations
 
 from numba import types
 
 __all__ = ["VECTOR", "MATRIX", "INDEX_VECTOR", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
-           "POTENTIAL_ENERGY", "LOAD", "FORCE_TYPE", "STIFFNESS_TYPE",
+           "POTENTIAL_ENERGY", "LOAD", "SPARSE_STIFFNESS", "SPARSE_STIFFNESS_DERIVATIVE",
+           "FORCE_TYPE", "STIFFNESS_TYPE",
            "STIFFNESS_DERIVATIVE_TYPE", "POTENTIAL_ENERGY_TYPE", "LOAD_TYPE", "JIT_OPTIONS"]
 
 VECTOR = types.float64[::1]
@@ -39,6 +48,10 @@ STIFFNESS_DERIVATIVE = MATRIX(VECTOR, VECTOR, VECTOR)
 POTENTIAL_ENERGY = types.float64(VECTOR, VECTOR)
 #: ``p(t, load_params)``
 LOAD = VECTOR(types.float64, VECTOR)
+#: ``data of K(u)`` in a fixed CSR pattern: ``stiffness_data(u, params, slots, nnz)``
+SPARSE_STIFFNESS = VECTOR(VECTOR, VECTOR, types.int64[:, ::1], types.int64)
+#: ``data of T(u)[w]``: ``stiffness_derivative_data(u, w, params, slots, nnz)``
+SPARSE_STIFFNESS_DERIVATIVE = VECTOR(VECTOR, VECTOR, VECTOR, types.int64[:, ::1], types.int64)
 
 FORCE_TYPE = types.FunctionType(FORCE)
 STIFFNESS_TYPE = types.FunctionType(STIFFNESS)

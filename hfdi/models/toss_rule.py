@@ -244,7 +244,8 @@ class TossRule(SecondOrderSystem):
         rows = np.repeat(dofs, 6, axis=1).ravel().astype(np.int64)
         cols = np.tile(dofs, (1, 6)).ravel().astype(np.int64)
         keys, slot = np.unique(rows * n + cols, return_inverse=True)
-        slot = slot.reshape(n_el, 36)
+        # position in the CSR data of coupling (a, b) of element e: slot[e, 6a + b]
+        self._slots = slot = slot.reshape(n_el, 36).astype(np.int64, copy=False)
         idx_dtype = np.int32 if max(n, keys.size) < 2 ** 31 - 1 else np.int64
         self._csr_indices = (keys % n).astype(idx_dtype)
         self._csr_indptr = np.concatenate(
@@ -331,7 +332,10 @@ class TossRule(SecondOrderSystem):
         ``sym`` (7, N_el) holds the entries of the reduced symmetric element
         matrices ``∂²W/∂y²`` in the order of ``_KERNEL_PAIRS``.
         """
-        data = self._tangent_map @ sym.ravel()
+        return self.csr_from_data(self._tangent_map @ sym.ravel())
+
+    def csr_from_data(self, data):
+        """The (N, N) CSR matrix with the tangent's fixed pattern and ``data`` (nnz,)."""
         # A shallow copy of the validated template (same shape, pattern and
         # format flags) instead of the checking constructor; fresh data and
         # index arrays, since a caller may sort, prune or scale it in place.
@@ -362,6 +366,12 @@ class TossRule(SecondOrderSystem):
         imports numba)."""
         from ..compiled.models import toss_rule_kernels
         return toss_rule_kernels(self)
+
+    def compiled_sparse_kernels(self):
+        """Compiled f and CSR K, T for large beams
+        (:func:`hfdi.compiled.models.toss_rule_sparse_kernels`; imports numba)."""
+        from ..compiled.models import toss_rule_sparse_kernels
+        return toss_rule_sparse_kernels(self)
 
     def potential_energy(self, u):
         """Strain energy ``V = Σ_e ½ h_e (EA ε² + GA γ² + EJ χ²)`` (Eq. 50, one-point rule)."""
