@@ -160,13 +160,23 @@ class Evaluator:
         #: Compiled f, K and T called instead of the model's methods
         #: (:class:`hfdi.compiled.SparseKernels`, see :meth:`use_kernels`).
         self.kernels = None
+        #: :mod:`hfdi.compiled.band` with them: the schemes' sparse tangents
+        #: go into band storage in compiled code.
+        self.bands = None
 
     def use_kernels(self, kernels) -> None:
         """Call ``kernels.force``, ``.stiffness`` and ``.stiffness_derivative``
         (:class:`hfdi.compiled.SparseKernels`, checked against the model by
-        the caller) instead of the model's methods; ``None`` goes back to them.
-        Their values pass the same checks and counters."""
+        the caller) instead of the model's methods, and build the sparse
+        tangents' bands compiled (:mod:`hfdi.compiled.band`); ``None`` goes
+        back to the Python model and builders. The values pass the same
+        checks and counters; the bands are the Python builders' bit for bit."""
         self.kernels = kernels
+        if kernels is None:
+            self.bands = None
+        else:
+            from .compiled import band
+            self.bands = band
 
     # -- counted model calls --------------------------------------------------
     # Every value is checked for its shape (a wrong one is a mistake in the

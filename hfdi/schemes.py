@@ -107,7 +107,7 @@ class _InertiaStage:
         elif isinstance(K, np.ndarray):
             tangent = add_diagonal(K * 1.0, shift)       # a new array: K may be the model's
         else:
-            tangent = _ShiftedTangent(K, shift)
+            tangent = _ShiftedTangent(K, shift, ev.bands)
         return residual, tangent
 
     def finish(self, u):
@@ -121,12 +121,14 @@ class _ShiftedTangent:
     :func:`~hfdi.linalg.banded_from_sparse`) and ``d`` onto its main diagonal:
     one banded LU per solve, linear in the size. A band wider than
     :data:`~hfdi.linalg.BANDED_MAX_WIDTH` falls back to SuperLU on the CSR sum.
+    ``bands`` (:mod:`hfdi.compiled.band`, with a compiled sparse model) builds
+    the same band in one compiled pass.
     """
 
-    __slots__ = ("K", "d")
+    __slots__ = ("K", "d", "bands")
 
-    def __init__(self, K, d):
-        self.K, self.d = K, d
+    def __init__(self, K, d, bands=None):
+        self.K, self.d, self.bands = K, d, bands
 
     @property
     def shape(self):
@@ -136,14 +138,27 @@ class _ShiftedTangent:
         return combine((1.0, self.K), (1.0, self.d))
 
     def solve(self, b):
-        band = banded_from_sparse(self.K, extra_lower=True)
-        if band is None:
-            return Factorization(self.tocsr()).solve(b)
-        ab, lower, upper = band
-        ab[lower + upper] += self.d
+        if self.bands is not None and _compiled_csr(self.K):
+            _, lower, upper = banded_from_sparse(self.K, bandwidths_only=True)
+            if lower + upper > BANDED_MAX_WIDTH:
+                return Factorization(self.tocsr()).solve(b)
+            ab = self.bands.shifted_band(self.K, self.d, lower, upper)
+        else:
+            band = banded_from_sparse(self.K, extra_lower=True)
+            if band is None:
+                return Factorization(self.tocsr()).solve(b)
+            ab, lower, upper = band
+            ab[lower + upper] += self.d
         if not all_finite(ab):
             raise SingularMatrixError("matrix has non-finite entries")
         return solve_band(ab, lower, upper, b)
+
+
+def _compiled_csr(a) -> bool:
+    """Whether ``a`` is a canonical float64 CSR matrix with int32 indices, the
+    arrays :mod:`hfdi.compiled.band` takes."""
+    return (a.format == "csr" and a.has_canonical_format and a.data.dtype == np.float64
+            and a.indices.dtype == np.int32 and a.indptr.dtype == np.int32)
 
 
 def _newmark_stage(ev, start: State, t, h, gamma, beta):
@@ -274,11 +289,12 @@ class _InterleavedBlockTangent:
     :class:`_BlockTangent`.
     """
 
-    __slots__ = ("n", "b", "M", "C", "K", "T", "c", "c2")
+    __slots__ = ("n", "b", "M", "C", "K", "T", "c", "c2", "bands")
 
-    def __init__(self, b, M, C, K, T, c, c2):
+    def __init__(self, b, M, C, K, T, c, c2, bands=None):
         self.n = b.shape[0]
         self.b, self.M, self.C, self.K, self.T, self.c, self.c2 = b, M, C, K, T, c, c2
+        self.bands = bands          # hfdi.compiled.band, with a compiled sparse model
 
     @property
     def shape(self):
@@ -325,7 +341,14 @@ class _InterleavedBlockTangent:
             S = combine((1.0, self.M), (-self.c, self.K))
             R = combine((1.0, self.C), (self.c2, self.K), (-self.c, self.T))
             return _BlockTangent(sp.diags(self.b, format="csr"), S, R).solve(rhs)
-        ab, kl, ku = self.band()
+        if self.bands is not None and _compiled_csr(self.K) and _compiled_csr(self.T):
+            # the same band in one compiled pass over the CSR entries
+            lower = max(lo for lo, _ in widths)
+            upper = max(up for _, up in widths)
+            ab, kl, ku = self.bands.interleaved_block_band(
+                self.K, self.T, self.M, self.C, self.b, self.c, self.c2, lower, upper)
+        else:
+            ab, kl, ku = self.band()
         if not all_finite(ab):
             raise SingularMatrixError("matrix has non-finite entries")
         z = np.zeros(2 * self.n)
@@ -394,7 +417,8 @@ class _HFDIStage:
             residual += ev.damping_times(u)
         if self.block_band and sp.issparse(K):
             tangent = _InterleavedBlockTangent(self.b_diag, ev.mass, ev.damping, K,
-                                               ev.stiffness_derivative(u, vD), c, self.c2)
+                                               ev.stiffness_derivative(u, vD), c, self.c2,
+                                               ev.bands)
             return residual, tangent
         S = combine((1.0, ev.mass), (-c, K))
         R = combine((1.0, ev.damping), (self.c2, K), (-c, ev.stiffness_derivative(u, vD)))

@@ -9,6 +9,7 @@ import pytest
 import scipy.sparse as sp
 
 import hfdi
+from hfdi import linalg
 from hfdi.compiled import CompiledKernels, CompiledUnavailable
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
 
@@ -335,3 +336,34 @@ def test_sparse_kernels_of_another_model_are_refused(monkeypatch):
     assert any("does not match" in str(w.message) for w in caught)
     with pytest.raises(CompiledUnavailable, match="stiffness|force"):
         hfdi.Integrator(toss_rule(60), "newmark", step=1e-5, compiled=True)
+
+
+@pytest.mark.parametrize("damped", [False, True])
+@pytest.mark.parametrize("n_elements", [45, 1500])
+def test_compiled_bands_are_the_python_bands_bit_for_bit(n_elements, damped):
+    """hfdi.compiled.band builds HFDI's interleaved block band and the shifted
+    band of Newmark and Bathe with the Python builders' operations in their
+    order: the same arrays, bit for bit, for K and T of different patterns too."""
+    from hfdi import schemes
+    from hfdi.compiled import band
+    model = toss_rule(n_elements)
+    rng = np.random.default_rng(n_elements)
+    u = 0.01 * rng.standard_normal(model.n_dof)
+    K = model.stiffness(u)
+    T = model.stiffness_derivative(u, rng.standard_normal(model.n_dof))
+    T = sp.csr_matrix(T.multiply(rng.random(T.shape) > 0.3))     # fewer entries than K
+    T.sort_indices()
+    T.indices, T.indptr = T.indices.astype(np.int32), T.indptr.astype(np.int32)
+    b = 0.5 * model.mass + 0.01
+    C = 3.0 * np.abs(rng.standard_normal(model.n_dof)) if damped else None
+    python = schemes._InterleavedBlockTangent(b, model.mass, C, K, T, 2e-9, 4e-5)
+    compiled = schemes._InterleavedBlockTangent(b, model.mass, C, K, T, 2e-9, 4e-5, band)
+    lower = max(linalg.banded_from_sparse(a, bandwidths_only=True)[1] for a in (K, T))
+    upper = max(linalg.banded_from_sparse(a, bandwidths_only=True)[2] for a in (K, T))
+    mine = band.interleaved_block_band(K, T, model.mass, C, b, 2e-9, 4e-5, lower, upper)
+    assert np.array_equal(mine[0], python.band()[0]) and mine[1:] == python.band()[1:]
+    rhs = rng.standard_normal(model.n_dof)
+    assert np.array_equal(compiled.solve(rhs), python.solve(rhs))
+    shift = 1e3 * model.mass
+    assert np.array_equal(schemes._ShiftedTangent(K, shift, band).solve(rhs),
+                          schemes._ShiftedTangent(K, shift).solve(rhs))
