@@ -27,7 +27,8 @@ test: $(STAMP)
 # benchmarks/ is not installed: run from the repository's root
 bench: $(STAMP)
 	$(PY) -m benchmarks precision --out docs/performance-data
-	$(PY) -m benchmarks scale --out docs/performance-data --no-full-run
+	$(PY) -m benchmarks scale --out docs/performance-data --no-full-run --compiled off
+	$(PY) -m benchmarks scale --out docs/performance-data/compiled --no-full-run --paths
 
 fmu: $(STAMP)
 	$(PY) -m fmu build all --out out/fmu

@@ -94,7 +94,8 @@ def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5, compiled="auto
         # numba and the compiled code (about 120 MB, the same at every size)
         # are loaded before the baseline too: the peak is the model's and
         # the run's memory
-        import hfdi.compiled.attempt, hfdi.compiled.driver, hfdi.compiled.models  # noqa: F401
+        import hfdi.compiled.attempt, hfdi.compiled.band, hfdi.compiled.driver  # noqa: F401
+        import hfdi.compiled.models  # noqa: F401
     baseline = _current_rss()
     t0 = time.perf_counter()
     model = hfdi.models.toss_rule(int(n_elements))

@@ -54,6 +54,23 @@ def test_scale_json_and_png(tiny_scale):
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_scale_measures_both_paths(tmp_path):
+    """--paths: each size on the default path (45 elements, 138 DOFs: the
+    compiled sparse model) and then on the Python path, the same run."""
+    pytest.importorskip("numba")
+    result = scale.run_scale(tmp_path, sizes=(45,), steps=2, timeout=300, python_path=True)
+    rec = result["records"][0]
+    assert "error" not in rec and "python_path_error" not in rec
+    assert rec["compiled_model"] and not rec["compiled_attempt"]
+    assert math.isfinite(rec["time_per_iteration_python_s"]) and rec["peak_memory_python_MB"] >= 0
+    assert rec["steps_python"] == rec["steps_timed"]
+    assert "Python ms/it" in scale.format_table(result)
+    off = scale.measure_size(45, steps=1, timeout=300, compiled="off")
+    assert not off["compiled_model"] and off["compiled"] == "off"
+    with pytest.raises(ValueError, match="compiled must be one of auto, off"):
+        scale.measure_size(45, compiled="yes")
+
+
 def test_fit_exponent_recovers_a_power_law():
     n = np.array([10, 100, 1000, 10000])
     fit = scale.fit_exponent(n, 3e-4 * n ** 1.05)
