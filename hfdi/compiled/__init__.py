@@ -218,30 +218,10 @@ def kernels_of(system):
     ``stiffness`` or ``stiffness_derivative`` but not ``compiled_kernels``
     would have kernels that compute another model: it runs on the Python path.
     """
-    cls = type(system)
-    owner = _provider(cls)
-    if owner is None:
-        return None, f"model {cls.__name__} has no compiled kernels"
-    for name in _METHODS:
-        method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
-        if not issubclass(owner, method_owner):
-            return None, (f"{cls.__name__}.{name} overrides the method of {owner.__name__}, "
-                          f"whose compiled kernels compute another model")
-    ok, why = numba_available()
-    if not ok:
+    kernels, why = _offered(system, "compiled_kernels", CompiledKernels, "compiled kernels")
+    if kernels is None:
         return None, why
-    try:
-        kernels = system.compiled_kernels()
-    except CompiledUnavailable as exc:
-        return None, str(exc)
-    except Exception as exc:
-        # numba failing to compile or to cache (no writable cache directory,
-        # say): the run does not depend on it, the Python path takes it
-        return None, _Fault(f"{cls.__name__}.compiled_kernels() failed: "
-                            f"{type(exc).__name__}: {exc}")
-    if not isinstance(kernels, CompiledKernels):
-        raise TypeError(f"{cls.__name__}.compiled_kernels() must return a "
-                        f"hfdi.compiled.CompiledKernels, got {type(kernels).__name__}")
+    cls, owner = type(system), _provider(type(system))
     if kernels.load is not None:
         # the driver also runs the load and V: a subclass that redefines them
         # keeps the compiled attempt, not the compiled driver
@@ -260,10 +240,19 @@ def sparse_kernels_of(system):
     """``(kernels, "")`` for a model whose :class:`SparseKernels` describe its
     Python methods, else ``(None, why)``; as :func:`kernels_of`, with
     ``compiled_sparse_kernels()``."""
+    return _offered(system, "compiled_sparse_kernels", SparseKernels,
+                    "compiled sparse kernels")
+
+
+def _offered(system, method, kind, what):
+    """``(system.method(), "")`` when the model offers kernels of type ``kind``
+    through ``method`` that describe its Python methods, else ``(None, why)``:
+    no such method, a subclass overriding a method the kernels restate,
+    numba missing, or the method failing (a :class:`_Fault`)."""
     cls = type(system)
-    owner = next((c for c in cls.__mro__ if "compiled_sparse_kernels" in vars(c)), None)
+    owner = next((c for c in cls.__mro__ if method in vars(c)), None)
     if owner is None:
-        return None, f"model {cls.__name__} has no compiled sparse kernels"
+        return None, f"model {cls.__name__} has no {what}"
     for name in _METHODS:
         method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
         if not issubclass(owner, method_owner):
@@ -273,15 +262,16 @@ def sparse_kernels_of(system):
     if not ok:
         return None, why
     try:
-        kernels = system.compiled_sparse_kernels()
+        kernels = getattr(system, method)()
     except CompiledUnavailable as exc:
         return None, str(exc)
-    except Exception as exc:           # numba failing to compile or to cache
-        return None, _Fault(f"{cls.__name__}.compiled_sparse_kernels() failed: "
-                            f"{type(exc).__name__}: {exc}")
-    if not isinstance(kernels, SparseKernels):
-        raise TypeError(f"{cls.__name__}.compiled_sparse_kernels() must return a "
-                        f"hfdi.compiled.SparseKernels, got {type(kernels).__name__}")
+    except Exception as exc:
+        # numba failing to compile or to cache (no writable cache directory,
+        # say): the run does not depend on it, the Python path takes it
+        return None, _Fault(f"{cls.__name__}.{method}() failed: {type(exc).__name__}: {exc}")
+    if not isinstance(kernels, kind):
+        raise TypeError(f"{cls.__name__}.{method}() must return a hfdi.compiled.{kind.__name__}, "
+                        f"got {type(kernels).__name__}")
     return kernels, ""
 
 

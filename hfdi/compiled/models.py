@@ -428,17 +428,21 @@ def _alpha_entry(r, i, j):
 
 
 @njit(**JIT_OPTIONS)
+def _beam_entry(v1, v2, red, a, b):
+    """Entry ``(a, b)`` of ``L_eᵀ red L_e`` (columns of ``L_e`` as in :func:`_beam_columns`)."""
+    ra, rb = _R1[a], _R1[b]
+    return v1[a] * (red[ra, rb] * v1[b] + red[ra, 3] * v2[b]) \
+        + v2[a] * (red[3, rb] * v1[b] + red[3, 3] * v2[b])
+
+
+@njit(**JIT_OPTIONS)
 def _beam_add(out, e, h, inv_h, red):
     """``out[dofs_e, dofs_e] += h L_eᵀ red L_e`` for a reduced (4, 4) ``red``."""
     v1, v2 = _beam_columns(inv_h)
     base = 3 * e
     for a in range(6):
-        ra = _R1[a]
         for b in range(6):
-            rb = _R1[b]
-            s = v1[a] * (red[ra, rb] * v1[b] + red[ra, 3] * v2[b]) \
-                + v2[a] * (red[3, rb] * v1[b] + red[3, 3] * v2[b])
-            out[base + a, base + b] += h * s
+            out[base + a, base + b] += h * _beam_entry(v1, v2, red, a, b)
 
 
 @njit(FORCE, **JIT_OPTIONS)
@@ -465,12 +469,8 @@ def _beam_add_data(data, slots, e, h, inv_h, red):
     data array of a CSR matrix whose pattern holds every element coupling."""
     v1, v2 = _beam_columns(inv_h)
     for a in range(6):
-        ra = _R1[a]
         for b in range(6):
-            rb = _R1[b]
-            s = v1[a] * (red[ra, rb] * v1[b] + red[ra, 3] * v2[b]) \
-                + v2[a] * (red[3, rb] * v1[b] + red[3, 3] * v2[b])
-            data[slots[e, 6 * a + b]] += h * s
+            data[slots[e, 6 * a + b]] += h * _beam_entry(v1, v2, red, a, b)
 
 
 @njit(**JIT_OPTIONS)
