@@ -1,10 +1,12 @@
-"""Compiled (numba) model kernels and a compiled step attempt for dense systems.
+"""Compiled (numba) model kernels, a compiled step attempt and driver for dense
+systems, and compiled models and band assembly for sparse ones.
 
 Nothing here imports numba until it is used: ``import hfdi`` stays light, and
 a model without compiled kernels, or a Python without numba, runs on the
 Python path. See docs/compiled.md for the protocol a model follows to provide
-compiled kernels (:meth:`compiled_kernels` returning :class:`CompiledKernels`)
-and for the measured speed.
+compiled kernels (:meth:`compiled_kernels` returning :class:`CompiledKernels`;
+for large sparse systems :meth:`compiled_sparse_kernels` returning
+:class:`SparseKernels`) and for the measured speed.
 """
 from __future__ import annotations
 
