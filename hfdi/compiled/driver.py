@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 from numba import njit, types
+from numba.experimental import structref
 
 from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
                       NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt)
@@ -42,7 +43,7 @@ from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
-from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, LOAD_TYPE, MATRIX,
+from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE, MATRIX,
                          POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
 
 __all__ = ["drive"]
@@ -299,9 +300,22 @@ def _is_breakpoint(breakpoints, t):
     return i < breakpoints.shape[0] and breakpoints[i] == t
 
 
+@njit(KERNEL_SET(FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE,
+                 LOAD_TYPE, LOAD_TYPE), **JIT_OPTIONS)
+def kernel_set(force, stiffness, stiffness_derivative, potential_energy, load, load_rate):
+    """The six kernels as one :class:`~hfdi.compiled.signatures.KernelSet` for :func:`drive`."""
+    kernels = structref.new(KERNEL_SET)
+    kernels.force = force
+    kernels.stiffness = stiffness
+    kernels.stiffness_derivative = stiffness_derivative
+    kernels.potential_energy = potential_energy
+    kernels.load = load
+    kernels.load_rate = load_rate
+    return kernels
+
+
 _SIGNATURE = types.Tuple((types.int64, types.int64))(
-    FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE, LOAD_TYPE,
-    LOAD_TYPE,                                        # the load and its rate
+    KERNEL_SET,                                       # f, K, T, V, the load and its rate
     VECTOR, VECTOR, VECTOR,                           # params, load_params, held load
     INDEX_VECTOR, VECTOR,                             # the attempt's config and coefficients
     VECTOR, MATRIX, VECTOR, MATRIX,                   # M, C
@@ -312,15 +326,17 @@ _SIGNATURE = types.Tuple((types.int64, types.int64))(
 
 
 @njit(_SIGNATURE, **JIT_OPTIONS)
-def drive(force, stiffness, derivative, potential_energy, load, load_rate, params, load_params,
-          held, config, coefficients, Md, Mf, Cd, Cf, settings, switches, rtol, atol, breakpoints,
-          scalars, counters, current, previous, row_scalars, row_states):
+def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, Cf, settings,
+          switches, rtol, atol, breakpoints, scalars, counters, current, previous, row_scalars,
+          row_states):
     """Take ordinary steps towards ``settings[T_STOP]``; see the module's docstring.
 
     Parameters
     ----------
-    force, stiffness, derivative, potential_energy, load, load_rate : compiled kernels
-        (``load_rate`` called only with ``switches[EXACT_RATE]``)
+    kernels : KernelSet (:func:`kernel_set`)
+        The compiled ``force``, ``stiffness``, ``stiffness_derivative``,
+        ``potential_energy``, ``load`` and ``load_rate`` (the last called only
+        with ``switches[EXACT_RATE]``).
     params, load_params : ndarray (P,), (Q,)
     held : ndarray (N,) or (0,)
         A :class:`~hfdi.HeldLoad`'s value, added to the load (none: empty).
@@ -354,6 +370,9 @@ def drive(force, stiffness, derivative, potential_energy, load, load_rate, param
     rows : int
         Accepted steps taken (and rows written).
     """
+    force, stiffness, derivative = (kernels.force, kernels.stiffness,
+                                    kernels.stiffness_derivative)
+    potential_energy, load, load_rate = kernels.potential_energy, kernels.load, kernels.load_rate
     n = current.shape[1]
     kind = switches[CONTROLLER]
     scheme = config[A_SCHEME]
@@ -559,6 +578,10 @@ class CompiledDriver:
         # without an exact rate the load stands in for it (never called)
         self._load_rate = _resolved(kernels.load_rate if step.exact_rate else kernels.load,
                                     "LOAD")
+        # one object for drive(); the Python objects behind its addresses are
+        # kept alive by self and self.step
+        self._kernels = kernel_set(step._force, step._stiffness, step._derivative,
+                                   self._potential, self._load, self._load_rate)
         # load data that are the model's data follow them (EnergyModel.set_parameters)
         self._load_reads_params = kernels.load_params is kernels.params
         self.load_params = np.ascontiguousarray(kernels.load_params, dtype=np.float64)
@@ -658,8 +681,7 @@ class CompiledDriver:
         step = self.step
         params = step.params()
         reason, taken = drive(
-            step._force, step._stiffness, step._derivative, self._potential, self._load,
-            self._load_rate, params, params if self._load_reads_params else self.load_params,
+            self._kernels, params, params if self._load_reads_params else self.load_params,
             held, self.config, self.coefficients, step.Md, step.Mf,
             step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
             self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)

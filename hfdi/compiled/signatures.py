@@ -28,11 +28,13 @@ array of its fixed CSR pattern instead, from the element positions ``slots``
 from __future__ import annotations
 
 from numba import types
+from numba.experimental import structref
 
 __all__ = ["VECTOR", "MATRIX", "INDEX_VECTOR", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
            "POTENTIAL_ENERGY", "LOAD", "SPARSE_STIFFNESS", "SPARSE_STIFFNESS_DERIVATIVE",
            "FORCE_TYPE", "STIFFNESS_TYPE",
-           "STIFFNESS_DERIVATIVE_TYPE", "POTENTIAL_ENERGY_TYPE", "LOAD_TYPE", "JIT_OPTIONS"]
+           "STIFFNESS_DERIVATIVE_TYPE", "POTENTIAL_ENERGY_TYPE", "LOAD_TYPE", "JIT_OPTIONS",
+           "KernelSet", "KERNEL_SET"]
 
 VECTOR = types.float64[::1]
 MATRIX = types.float64[:, ::1]
@@ -58,6 +60,35 @@ STIFFNESS_TYPE = types.FunctionType(STIFFNESS)
 STIFFNESS_DERIVATIVE_TYPE = types.FunctionType(STIFFNESS_DERIVATIVE)
 POTENTIAL_ENERGY_TYPE = types.FunctionType(POTENTIAL_ENERGY)
 LOAD_TYPE = types.FunctionType(LOAD)
+
+
+@structref.register
+class KernelSetType(types.StructRef):
+    """The numba type of a :class:`KernelSet`."""
+
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class KernelSet(structref.StructRefProxy):
+    """A model's six kernels (f, K, T, V, p, p') in one object for the compiled
+    driver, made once per driver (:func:`hfdi.compiled.driver.kernel_set`).
+
+    Why: numba unboxes each first-class function argument at every call
+    (about 2 µs each, 12 µs for six: a third of a one-step ``advance`` on the
+    dumbbell); this object unboxes as one pointer. It holds the kernels'
+    addresses, not the Python objects: whoever makes it keeps those alive.
+    """
+
+
+structref.define_boxing(KernelSetType, KernelSet)
+
+#: The type of a :class:`KernelSet`: fields ``force``, ``stiffness``,
+#: ``stiffness_derivative``, ``potential_energy``, ``load``, ``load_rate``.
+KERNEL_SET = KernelSetType([("force", FORCE_TYPE), ("stiffness", STIFFNESS_TYPE),
+                            ("stiffness_derivative", STIFFNESS_DERIVATIVE_TYPE),
+                            ("potential_energy", POTENTIAL_ENERGY_TYPE), ("load", LOAD_TYPE),
+                            ("load_rate", LOAD_TYPE)])
 
 #: Options of every compiled function here: cached on disk; division by zero
 #: gives inf/NaN as in numpy (a non-finite value fails the attempt, as a
