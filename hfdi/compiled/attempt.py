@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 from numba import njit, types
+from numba.experimental import structref
 try:   # numba's own lookup of a first-class function's address (not public API)
     from numba.experimental.function_type import _get_wrapper_address
 except ImportError:                               # pragma: no cover - another numba
@@ -34,10 +35,12 @@ except ImportError:                               # pragma: no cover - another n
 from ..corrector import StepOutcome
 from ..evaluation import ModelError, NonFiniteError, State
 from ..schemes import HFDI, Bathe, Newmark
-from .signatures import (FORCE, FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, MATRIX, STIFFNESS,
-                         STIFFNESS_DERIVATIVE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
+from .loads import hat_load
+from .signatures import (FORCE, FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE,
+                         MATRIX, POTENTIAL_ENERGY_TYPE, STIFFNESS, STIFFNESS_DERIVATIVE,
+                         STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
 
-__all__ = ["CompiledStep", "attempt"]
+__all__ = ["CompiledStep", "attempt", "attempt_with", "kernel_set"]
 
 # -- codes shared with the Python side -------------------------------------------
 # status of an attempt
@@ -509,6 +512,32 @@ def _kind_and_arrays(matrix, n):
     return DENSE, empty_vector, np.ascontiguousarray(matrix, dtype=np.float64)
 
 
+@njit(KERNEL_SET(FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE,
+                 LOAD_TYPE, LOAD_TYPE), **JIT_OPTIONS)
+def kernel_set(force, stiffness, stiffness_derivative, potential_energy, load, load_rate):
+    """The six kernels as one :class:`~hfdi.compiled.signatures.KernelSet`
+    (for :func:`attempt_with` and :func:`hfdi.compiled.driver.drive`)."""
+    kernels = structref.new(KERNEL_SET)
+    kernels.force = force
+    kernels.stiffness = stiffness
+    kernels.stiffness_derivative = stiffness_derivative
+    kernels.potential_energy = potential_energy
+    kernels.load = load
+    kernels.load_rate = load_rate
+    return kernels
+
+
+@njit(types.Tuple((types.int64, MATRIX, INDEX_VECTOR, types.float64))(
+    KERNEL_SET, VECTOR, INDEX_VECTOR, VECTOR, VECTOR, MATRIX, VECTOR, MATRIX, MATRIX, MATRIX,
+    MATRIX), **JIT_OPTIONS)
+def attempt_with(kernels, params, config, coefficients, Md, Mf, Cd, Cf, start, previous, loads):
+    """:func:`attempt` with the model's kernels in one
+    :class:`~hfdi.compiled.signatures.KernelSet`: one argument for numba to
+    unbox at a call from Python instead of three first-class functions."""
+    return attempt(kernels.force, kernels.stiffness, kernels.stiffness_derivative, params,
+                   config, coefficients, Md, Mf, Cd, Cf, start, previous, loads)
+
+
 class _ResolvedKernel:
     """A compiled kernel whose machine address and numba type are found once.
 
@@ -557,6 +586,10 @@ class CompiledStep:
             self._stiffness = _ResolvedKernel(kernels.stiffness, STIFFNESS)
             self._derivative = _ResolvedKernel(kernels.stiffness_derivative,
                                                STIFFNESS_DERIVATIVE)
+        # the attempt reads f, K and T; the load fields are never called here
+        load = kernels.load if kernels.load is not None else hat_load
+        self._kernels = kernel_set(self._force, self._stiffness, self._derivative,
+                                   kernels.potential_energy, load, load)
         n = ev.n
         m_kind, self.Md, self.Mf = _kind_and_arrays(ev.mass, n)
         c_kind, self.Cd, self.Cf = _kind_and_arrays(ev.damping, n)
@@ -626,9 +659,9 @@ class CompiledStep:
             history[0], history[1] = previous.u, previous.v
         start_rows = np.stack([start.u, start.v, start.a,
                                start.f if start.f is not None else self._zero, start.p])
-        status, out, info, newton_error = attempt(
-            self._force, self._stiffness, self._derivative, self.params(), config, coefficients,
-            self.Md, self.Mf, self.Cd, self.Cf, start_rows, history, loads)
+        status, out, info, newton_error = attempt_with(
+            self._kernels, self.params(), config, coefficients, self.Md, self.Mf, self.Cd,
+            self.Cf, start_rows, history, loads)
         ev.nfev += int(info[NFEV])
         ev.njev += int(info[NJEV])
         ev.ntev += int(info[NTEV])

@@ -31,7 +31,6 @@ import math
 
 import numpy as np
 from numba import njit, types
-from numba.experimental import structref
 
 from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
                       NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt)
@@ -43,8 +42,8 @@ from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
-from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE, MATRIX,
-                         POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
+from .attempt import kernel_set
+from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 
 __all__ = ["drive"]
 
@@ -298,20 +297,6 @@ def _is_breakpoint(breakpoints, t):
         return False
     i = np.searchsorted(breakpoints, t)
     return i < breakpoints.shape[0] and breakpoints[i] == t
-
-
-@njit(KERNEL_SET(FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, POTENTIAL_ENERGY_TYPE,
-                 LOAD_TYPE, LOAD_TYPE), **JIT_OPTIONS)
-def kernel_set(force, stiffness, stiffness_derivative, potential_energy, load, load_rate):
-    """The six kernels as one :class:`~hfdi.compiled.signatures.KernelSet` for :func:`drive`."""
-    kernels = structref.new(KERNEL_SET)
-    kernels.force = force
-    kernels.stiffness = stiffness
-    kernels.stiffness_derivative = stiffness_derivative
-    kernels.potential_energy = potential_energy
-    kernels.load = load
-    kernels.load_rate = load_rate
-    return kernels
 
 
 _SIGNATURE = types.Tuple((types.int64, types.int64))(
