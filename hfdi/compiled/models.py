@@ -611,7 +611,7 @@ def toss_rule_sparse_kernels(model) -> SparseKernels:
     array of the model's CSR pattern (``model.csr_from_data``). O(N_el) time,
     no temporary per element."""
     params = _toss_rule_params(model)
-    slots = np.ascontiguousarray(model._slots, dtype=np.int64)
+    slots = np.ascontiguousarray(model.element_positions(), dtype=np.int64)
     nnz = int(model._nnz)
     as_vector = np.ascontiguousarray
 

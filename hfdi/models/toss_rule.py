@@ -244,8 +244,7 @@ class TossRule(SecondOrderSystem):
         rows = np.repeat(dofs, 6, axis=1).ravel().astype(np.int64)
         cols = np.tile(dofs, (1, 6)).ravel().astype(np.int64)
         keys, slot = np.unique(rows * n + cols, return_inverse=True)
-        # position in the CSR data of coupling (a, b) of element e: slot[e, 6a + b]
-        self._slots = slot = slot.reshape(n_el, 36).astype(np.int64, copy=False)
+        slot = slot.reshape(n_el, 36)
         idx_dtype = np.int32 if max(n, keys.size) < 2 ** 31 - 1 else np.int64
         self._csr_indices = (keys % n).astype(idx_dtype)
         self._csr_indptr = np.concatenate(
@@ -333,6 +332,21 @@ class TossRule(SecondOrderSystem):
         matrices ``∂²W/∂y²`` in the order of ``_KERNEL_PAIRS``.
         """
         return self.csr_from_data(self._tangent_map @ sym.ravel())
+
+    def element_positions(self):
+        """Where each element's couplings lie in the data of the tangent's CSR
+        pattern: ``positions[e, 6 a + b]`` for the coupling of its DOFs ``a``
+        and ``b`` (int64, (N_el, 36); made on demand, for compiled kernels)."""
+        dofs = self._dofs
+        rows = np.repeat(dofs, 6, axis=1)
+        cols = np.tile(dofs, (1, 6))
+        indptr, indices = self._csr_indptr, self._csr_indices
+        # each row's columns are one contiguous run (a chain of nodes): the
+        # column's offset from the row's first column is its position in the row
+        positions = indptr[rows].astype(np.int64) + cols - indices[indptr[rows]]
+        if not np.array_equal(indices[positions], cols):
+            raise AssertionError("toss rule: the tangent's rows are not contiguous")
+        return positions
 
     def csr_from_data(self, data):
         """The (N, N) CSR matrix with the tangent's fixed pattern and ``data`` (nnz,)."""
