@@ -367,3 +367,144 @@ def test_compiled_bands_are_the_python_bands_bit_for_bit(n_elements, damped):
     shift = 1e3 * model.mass
     assert np.array_equal(schemes._ShiftedTangent(K, shift, band).solve(rhs),
                           schemes._ShiftedTangent(K, shift).solve(rhs))
+
+
+# -- a user's sparse model with compiled kernels ---------------------------------------
+# A chain of n masses on cubic springs (spring i joins masses i - 1 and i, mass -1 the
+# ground): spring force s(d) = k d + c d³. K is tridiagonal; its CSR pattern is fixed
+# (row i: columns i - 1, i, i + 1 within range), so the kernels fill its data array.
+
+@numba.njit(cache=False)
+def _long_chain_force(u, k, c):
+    n = u.shape[0]
+    f = np.zeros(n)
+    for i in range(n):
+        d = u[i] - (u[i - 1] if i > 0 else 0.0)
+        s = k * d + c * d ** 3
+        f[i] += s
+        if i > 0:
+            f[i - 1] -= s
+    return f
+
+
+@numba.njit(cache=False)
+def _long_chain_tangent(u, w, k, c, derivative, indptr, data):
+    """K(u) (``derivative`` false) or T(u)[w] into the data of the tridiagonal pattern."""
+    n = u.shape[0]
+    data[:] = 0.0
+    for i in range(n):
+        d = u[i] - (u[i - 1] if i > 0 else 0.0)
+        if derivative:
+            z = w[i] - (w[i - 1] if i > 0 else 0.0)
+            g = 6.0 * c * d * z
+        else:
+            g = k + 3.0 * c * d * d
+        # row i: (i, i - 1) first when i > 0, then (i, i); row i - 1: ..., (i - 1, i - 1), (i - 1, i)
+        diag_i = indptr[i] + (1 if i > 0 else 0)
+        data[diag_i] += g
+        if i > 0:
+            data[diag_i - 1] -= g
+            data[indptr[i - 1] + (1 if i > 1 else 0)] += g       # (i - 1, i - 1)
+            data[indptr[i - 1] + (2 if i > 1 else 1)] -= g       # (i - 1, i)
+
+
+class LongChain(hfdi.SecondOrderSystem):
+    """A user's sparse model: Python methods in numpy, compiled sparse kernels in numba."""
+
+    name = "long_chain"
+
+    def __init__(self, n=400):
+        self.n_dof = n
+        self.k, self.c = 1.0e4, 2.0e7
+        self.mass = np.full(n, 0.1)
+        self.initial_displacement = np.zeros(n)
+        self.initial_velocity = np.zeros(n)
+        self.initial_velocity[-1] = 2.0
+        self.pattern = sp.diags([np.ones(n - 1), np.ones(n), np.ones(n - 1)], [-1, 0, 1],
+                                format="csr")
+        self.pattern.indices = self.pattern.indices.astype(np.int32)
+        self.pattern.indptr = self.pattern.indptr.astype(np.int32)
+
+    def _springs(self, u):
+        return np.diff(np.concatenate([[0.0], np.asarray(u, dtype=float)]))
+
+    def internal_force(self, u):
+        s = self.k * (d := self._springs(u)) + self.c * d ** 3
+        f = s.copy()
+        f[:-1] -= s[1:]
+        return f
+
+    def _tridiagonal(self, g):
+        main = g.copy()
+        main[:-1] += g[1:]
+        return sp.diags([-g[1:], main, -g[1:]], [-1, 0, 1], format="csr")
+
+    def stiffness(self, u):
+        d = self._springs(u)
+        return self._tridiagonal(self.k + 3.0 * self.c * d * d)
+
+    def stiffness_derivative(self, u, w):
+        return self._tridiagonal(6.0 * self.c * self._springs(u) * self._springs(w))
+
+    def potential_energy(self, u):
+        d = self._springs(u)
+        return float(np.sum(0.5 * self.k * d ** 2 + 0.25 * self.c * d ** 4))
+
+    def compiled_sparse_kernels(self):
+        from hfdi.compiled import SparseKernels
+        pattern, k, c = self.pattern, self.k, self.c
+
+        def csr(data):
+            out = pattern.copy()
+            out.data = data
+            return out
+
+        def tangent(u, w, derivative):
+            data = np.empty(pattern.nnz)
+            _long_chain_tangent(np.ascontiguousarray(u, dtype=float),
+                                np.ascontiguousarray(w, dtype=float), k, c, derivative,
+                                pattern.indptr, data)
+            return csr(data)
+
+        return SparseKernels(
+            lambda u: _long_chain_force(np.ascontiguousarray(u, dtype=float), k, c),
+            lambda u: tangent(u, u, False),
+            lambda u, w: tangent(u, w, True))
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_a_users_sparse_model_runs_its_compiled_kernels(scheme):
+    """SparseKernels of a model of one's own (not the toss rule): exact
+    derivatives, taken by the default path, the same run as its Python methods."""
+    model = LongChain()
+    kernels = model.compiled_sparse_kernels()
+
+    class Kernels(LongChain):
+        def internal_force(self, u):
+            return kernels.force(u)
+
+        def stiffness(self, u):
+            return kernels.stiffness(u)
+
+        def stiffness_derivative(self, u, w):
+            return kernels.stiffness_derivative(u, w)
+
+    assert hfdi.check_derivatives(Kernels(), samples=3, spread=0.02).ok(1e-7)
+    rng = np.random.default_rng(5)
+    u, w = 0.01 * rng.standard_normal(model.n_dof), rng.standard_normal(model.n_dof)
+    assert _relative_error(kernels.force(u), model.internal_force(u)) < 1e-13
+    for mine, python in ((kernels.stiffness(u), model.stiffness(u)),
+                         (kernels.stiffness_derivative(u, w), model.stiffness_derivative(u, w))):
+        assert abs(mine - python).max() <= 1e-13 * abs(python).max()
+    runs = {}
+    for compiled in (False, None):
+        itg = hfdi.Integrator(model, scheme, rtol=1e-6, compiled=compiled)
+        itg.advance(0.02)
+        runs[compiled] = itg
+    python, default = runs[False], runs[None]
+    assert default.compiled_model and not python.compiled_model
+    assert python.status == hfdi.Status.RUNNING and python.statistics.accepted > 10
+    for name in ("steps", "accepted", "rejected", "newton_iterations"):
+        assert getattr(python.statistics, name) == getattr(default.statistics, name), name
+    assert _relative_error(default.state.u, python.state.u) < 1e-10
+    assert _relative_error(default.state.v, python.state.v) < 1e-9
