@@ -367,7 +367,7 @@ class Integrator:
         ``False``: the Python path. Compiled, each attempt (predictor,
         stages, Newton) is one compiled call; with a compiled load too (the
         paper's models), :meth:`advance` runs whole sequences of steps in
-        the compiled driver (:attr:`driven`), 18–33× faster per Newton
+        the compiled driver (:attr:`driven`), 18–35× faster per Newton
         iteration than the Python path. Both paths take the same steps and
         Newton counts; states agree to rounding (bit for bit where the
         kernels compute ``f``, ``K`` and ``T`` as the Python model does).
