@@ -273,17 +273,6 @@ def test_user_model_with_dense_mass_and_damping(scheme, damping):
     _assert_same_run(*runs)
 
 
-def test_kernels_passed_as_plain_dispatchers_give_the_same_run(monkeypatch):
-    """Without numba's address lookup (another numba version) the attempt gets
-    the dispatchers themselves: slower, the same run."""
-    from hfdi.compiled import attempt
-    resolved = hfdi.integrate(articulated(), "hfdi", 0.03, rtol=1e-6, compiled=True)
-    monkeypatch.setattr(attempt, "_get_wrapper_address", None)
-    plain = hfdi.integrate(articulated(), "hfdi", 0.03, rtol=1e-6, compiled=True)
-    _assert_same_counts(resolved, plain)
-    np.testing.assert_array_equal(plain.u, resolved.u)
-
-
 # -- sparse systems: Python steps, compiled model -------------------------------------
 
 def _beam_run(model, scheme, compiled, t_end, u0=None):

@@ -27,18 +27,14 @@ import math
 import numpy as np
 from numba import njit, types
 from numba.experimental import structref
-try:   # numba's own lookup of a first-class function's address (not public API)
-    from numba.experimental.function_type import _get_wrapper_address
-except ImportError:                               # pragma: no cover - another numba
-    _get_wrapper_address = None
 
 from ..corrector import StepOutcome
 from ..evaluation import ModelError, NonFiniteError, State
 from ..schemes import HFDI, Bathe, Newmark
 from .loads import hat_load
-from .signatures import (FORCE, FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE,
-                         MATRIX, POTENTIAL_ENERGY_TYPE, STIFFNESS, STIFFNESS_DERIVATIVE,
-                         STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE, VECTOR)
+from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE, MATRIX,
+                         POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE,
+                         VECTOR)
 
 __all__ = ["CompiledStep", "attempt", "attempt_with", "kernel_set"]
 
@@ -538,31 +534,6 @@ def attempt_with(kernels, params, config, coefficients, Md, Mf, Cd, Cf, start, p
                    config, coefficients, Md, Mf, Cd, Cf, start, previous, loads)
 
 
-class _ResolvedKernel:
-    """A compiled kernel whose machine address and numba type are found once.
-
-    Passed to :func:`attempt` as a first-class function, a numba dispatcher
-    is resolved to its address and typed at every call (~100 µs for the
-    three kernels, more than a whole attempt costs on the small models).
-    This object carries both, found once: numba reads the type from
-    ``_numba_type_`` and the address from ``__wrapper_address__`` (numba's
-    wrapper-address protocol). It keeps the dispatcher, and with it the code
-    at that address, alive.
-    """
-
-    def __init__(self, dispatcher, signature):
-        self._dispatcher = dispatcher
-        self._signature = signature
-        self._address = _get_wrapper_address(dispatcher, signature)
-        self._numba_type_ = types.FunctionType(signature)
-
-    def __wrapper_address__(self):
-        return self._address
-
-    def signature(self):
-        return self._signature
-
-
 class CompiledStep:
     """The compiled attempt of one model and scheme, called as
     :func:`hfdi.corrector.solve_step` is.
@@ -577,19 +548,17 @@ class CompiledStep:
 
     def __init__(self, ev, scheme, kernels):
         self.ev, self.scheme, self.kernels = ev, scheme, kernels
-        if _get_wrapper_address is None:
-            # the dispatchers themselves: the same results, resolved at every call
-            self._force, self._stiffness, self._derivative = (
-                kernels.force, kernels.stiffness, kernels.stiffness_derivative)
-        else:
-            self._force = _ResolvedKernel(kernels.force, FORCE)
-            self._stiffness = _ResolvedKernel(kernels.stiffness, STIFFNESS)
-            self._derivative = _ResolvedKernel(kernels.stiffness_derivative,
-                                               STIFFNESS_DERIVATIVE)
-        # the attempt reads f, K and T; the load fields are never called here
+        self.exact_rate = type(scheme) is HFDI and (
+            scheme.load_rate == "exact" or (scheme.load_rate == "auto" and ev.has_load_rate))
+        # The kernels resolved once into one object, for the attempt (f, K, T)
+        # and the compiled driver (V, p and p' too). Without a compiled load the
+        # zero load holds its place, and without an exact rate the load holds
+        # the rate's: neither is called then. self.kernels keeps the code alive.
         load = kernels.load if kernels.load is not None else hat_load
-        self._kernels = kernel_set(self._force, self._stiffness, self._derivative,
-                                   kernels.potential_energy, load, load)
+        rate = kernels.load_rate if self.exact_rate and kernels.load_rate is not None else load
+        self.kernel_set = kernel_set(kernels.force, kernels.stiffness,
+                                     kernels.stiffness_derivative, kernels.potential_energy,
+                                     load, rate)
         n = ev.n
         m_kind, self.Md, self.Mf = _kind_and_arrays(ev.mass, n)
         c_kind, self.Cd, self.Cf = _kind_and_arrays(ev.damping, n)
@@ -606,8 +575,6 @@ class CompiledStep:
             self.config[SCHEME] = HFDI_SCHEME
         else:
             raise TypeError(f"the compiled step knows Newmark, Bathe and HFDI, got {scheme!r}")
-        self.exact_rate = type(scheme) is HFDI and (
-            scheme.load_rate == "exact" or (scheme.load_rate == "auto" and ev.has_load_rate))
         self._previous = np.zeros((2, n))
         self._zero = np.zeros(n)
         # a model whose data change after the kernels were made (EnergyModel's
@@ -660,7 +627,7 @@ class CompiledStep:
         start_rows = np.stack([start.u, start.v, start.a,
                                start.f if start.f is not None else self._zero, start.p])
         status, out, info, newton_error = attempt_with(
-            self._kernels, self.params(), config, coefficients, self.Md, self.Mf, self.Cd,
+            self.kernel_set, self.params(), config, coefficients, self.Md, self.Mf, self.Cd,
             self.Cf, start_rows, history, loads)
         ev.nfev += int(info[NFEV])
         ev.njev += int(info[NJEV])

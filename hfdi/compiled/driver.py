@@ -42,7 +42,6 @@ from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
-from .attempt import kernel_set
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 
 __all__ = ["drive"]
@@ -318,7 +317,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
 
     Parameters
     ----------
-    kernels : KernelSet (:func:`kernel_set`)
+    kernels : KernelSet (:func:`hfdi.compiled.attempt.kernel_set`)
         The compiled ``force``, ``stiffness``, ``stiffness_derivative``,
         ``potential_energy``, ``load`` and ``load_rate`` (the last called only
         with ``switches[EXACT_RATE]``).
@@ -558,15 +557,6 @@ class CompiledDriver:
         step = integrator._compiled
         kernels = step.kernels
         self.step = step
-        self._potential = _resolved(kernels.potential_energy, "POTENTIAL_ENERGY")
-        self._load = _resolved(kernels.load, "LOAD")
-        # without an exact rate the load stands in for it (never called)
-        self._load_rate = _resolved(kernels.load_rate if step.exact_rate else kernels.load,
-                                    "LOAD")
-        # one object for drive(); the Python objects behind its addresses are
-        # kept alive by self and self.step
-        self._kernels = kernel_set(step._force, step._stiffness, step._derivative,
-                                   self._potential, self._load, self._load_rate)
         # load data that are the model's data follow them (EnergyModel.set_parameters)
         self._load_reads_params = kernels.load_params is kernels.params
         self.load_params = np.ascontiguousarray(kernels.load_params, dtype=np.float64)
@@ -666,7 +656,7 @@ class CompiledDriver:
         step = self.step
         params = step.params()
         reason, taken = drive(
-            self._kernels, params, params if self._load_reads_params else self.load_params,
+            step.kernel_set, params, params if self._load_reads_params else self.load_params,
             held, self.config, self.coefficients, step.Md, step.Mf,
             step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
             self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
@@ -704,12 +694,3 @@ class CompiledDriver:
                     "total_energy": row_scalars[:taken, R_ENERGY].copy(),
                     "external_work": row_scalars[:taken, R_WORK].copy()}
         return int(reason), taken, rows, int(counters[REJECTIONS])
-
-
-def _resolved(kernel, signature_name):
-    """The kernel as :func:`drive` takes it (see ``attempt._ResolvedKernel``)."""
-    from . import signatures
-    from .attempt import _ResolvedKernel, _get_wrapper_address
-    if _get_wrapper_address is None:
-        return kernel
-    return _ResolvedKernel(kernel, getattr(signatures, signature_name))

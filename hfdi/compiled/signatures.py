@@ -72,7 +72,8 @@ class KernelSetType(types.StructRef):
 
 class KernelSet(structref.StructRefProxy):
     """A model's six kernels (f, K, T, V, p, p') in one object for the compiled
-    driver, made once per driver (:func:`hfdi.compiled.driver.kernel_set`).
+    attempt and driver, made once per compiled step
+    (:func:`hfdi.compiled.attempt.kernel_set`).
 
     Why: numba unboxes each first-class function argument at every call
     (about 2 µs each, 12 µs for six: a third of a one-step ``advance`` on the
