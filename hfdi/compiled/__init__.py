@@ -200,9 +200,9 @@ def numba_available() -> tuple[bool, str]:
 _METHODS = ("internal_force", "stiffness", "stiffness_derivative")
 
 
-def _provider(cls):
-    """The class of ``cls``'s MRO that defines ``compiled_kernels``, or ``None``."""
-    return next((c for c in cls.__mro__ if "compiled_kernels" in vars(c)), None)
+def _definer(cls, name):
+    """The class of ``cls``'s MRO that defines ``name``, or ``None``."""
+    return next((c for c in cls.__mro__ if name in vars(c)), None)
 
 
 class _Fault(str):
@@ -223,13 +223,13 @@ def kernels_of(system):
     kernels, why = _offered(system, "compiled_kernels", CompiledKernels, "compiled kernels")
     if kernels is None:
         return None, why
-    cls, owner = type(system), _provider(type(system))
+    cls = type(system)
+    owner = _definer(cls, "compiled_kernels")
     if kernels.load is not None:
         # the driver also runs the load and V: a subclass that redefines them
         # keeps the compiled attempt, not the compiled driver
         for name in _DRIVER_METHODS:
-            method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
-            if not issubclass(owner, method_owner):
+            if not issubclass(owner, _definer(cls, name) or object):
                 kernels = kernels._replace(load=None, load_params=None)
                 break
     return kernels, ""
@@ -252,12 +252,11 @@ def _offered(system, method, kind, what):
     no such method, a subclass overriding a method the kernels restate,
     numba missing, or the method failing (a :class:`_Fault`)."""
     cls = type(system)
-    owner = next((c for c in cls.__mro__ if method in vars(c)), None)
+    owner = _definer(cls, method)
     if owner is None:
         return None, f"model {cls.__name__} has no {what}"
     for name in _METHODS:
-        method_owner = next((c for c in cls.__mro__ if name in vars(c)), object)
-        if not issubclass(owner, method_owner):
+        if not issubclass(owner, _definer(cls, name) or object):
             return None, (f"{cls.__name__}.{name} overrides the method of {owner.__name__}, "
                           f"whose compiled kernels compute another model")
     ok, why = numba_available()
