@@ -243,13 +243,13 @@ class TossRule(SecondOrderSystem):
         # Tangent pattern: all 6×6 couplings of each element, sorted as CSR.
         rows = np.repeat(dofs, 6, axis=1).ravel().astype(np.int64)
         cols = np.tile(dofs, (1, 6)).ravel().astype(np.int64)
-        keys, slot = np.unique(rows * n + cols, return_inverse=True)
-        slot = slot.reshape(n_el, 36)
+        keys = np.unique(rows * n + cols)
         idx_dtype = np.int32 if max(n, keys.size) < 2 ** 31 - 1 else np.int64
         self._csr_indices = (keys % n).astype(idx_dtype)
         self._csr_indptr = np.concatenate(
             [[0], np.cumsum(np.bincount(keys // n, minlength=n))]).astype(idx_dtype)
         self._nnz = keys.size
+        slot = self.element_positions()
 
         # K data: data[slot[e, m]] += h_e d_i d_j _BB[c, m] sym[c, e], (i, j) = _PAIRS[c]
         pair_scale = np.stack([h * d[:, i] * d[:, j] for i, j in _PAIRS], axis=1)
