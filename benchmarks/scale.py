@@ -141,7 +141,7 @@ def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5, compiled="auto
         "status": integrator.status.name, "ok": bool(ok),
         "threads": {v: os.environ.get(v) for v in _THREAD_VARS},
         "compiled": str(compiled), "compiled_attempt": bool(integrator.compiled),
-        "compiled_model": bool(integrator.compiled or integrator.ev.kernels is not None),
+        "compiled_model": bool(integrator.compiled_model),
     }
 
 
