@@ -16,6 +16,7 @@ import hfdi
 from hfdi.compiled import driver_reason
 from hfdi.controller import Combined, ErrorControl, IterationCount
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
+from test_compiled_step import Chain, case
 
 numba = pytest.importorskip("numba")
 
@@ -70,11 +71,7 @@ def _assert_same_state(a, b):
 @pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
 @pytest.mark.parametrize("problem", list(PROBLEMS))
 def test_the_driver_takes_the_python_drivers_steps_bit_for_bit(problem, scheme, mode):
-    make, short, long = PROBLEMS[problem]
-    t_end = long if mode == "iterations" else short
-    options = dict(MODES[mode])
-    if mode == "fixed":
-        options["step"] *= t_end
+    make, t_end, options = case(problem, mode, PROBLEMS, MODES)
     driven, python = _pair(make, scheme, t_bound=t_end, **options)
     # in two calls, the first ending between steps
     for t_stop in (0.37 * t_end, t_end):
@@ -222,7 +219,6 @@ def test_a_redefined_load_runs_on_the_python_driver_with_its_own_load():
 from numba import njit  # noqa: E402
 
 from hfdi.compiled.signatures import JIT_OPTIONS, LOAD  # noqa: E402
-from test_compiled_step import Chain  # noqa: E402
 
 
 @njit(LOAD, **JIT_OPTIONS)

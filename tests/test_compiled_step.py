@@ -32,6 +32,18 @@ COUNTERS = ("steps", "accepted", "rejected", "newton_iterations", "error_test_fa
 NOT_BITWISE = ("tetrahedra", "toss_rule")
 
 
+def case(problem, mode, problems=PROBLEMS, modes=MODES):
+    """``(make, t_end, options)`` of a run of ``problem`` in ``mode``: the long
+    horizon for the iteration-count mode, else the short one; a fixed step is
+    given as a fraction of the horizon."""
+    make, short, long = problems[problem]
+    t_end = long if mode == "iterations" else short
+    options = dict(modes[mode])
+    if mode == "fixed":
+        options["step"] *= t_end
+    return make, t_end, options
+
+
 def _assert_same_counts(python, compiled):
     for name in COUNTERS:
         assert getattr(compiled.stats, name) == getattr(python.stats, name), name
@@ -70,11 +82,7 @@ def _cases():
 
 @pytest.mark.parametrize("problem, scheme, mode", list(_cases()))
 def test_compiled_attempt_takes_the_same_steps(problem, scheme, mode):
-    make, short, long = PROBLEMS[problem]
-    t_end = long if mode == "iterations" else short
-    options = dict(MODES[mode])
-    if mode == "fixed":
-        options["step"] *= t_end
+    make, t_end, options = case(problem, mode)
     python = hfdi.integrate(make(), scheme, t_end, compiled=False, **options)
     compiled = hfdi.integrate(make(), scheme, t_end, compiled=True, **options)
     assert python.success and python.stats.steps > 5
