@@ -174,3 +174,34 @@ def test_sparse_kernels_follow_the_rules_of_the_dense_ones():
     assert kernels is None and "stiffness" in why
     linear = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]])
     assert "no compiled sparse kernels" in sparse_kernels_of(linear)[1]
+
+
+def test_the_disk_cache_follows_an_edit_of_a_called_module(tmp_path):
+    """numba keys a cached function on its own file only: after an edit of a
+    function it calls from another module, it would load the old code.
+    hfdi.compiled.cache drops the package's cache when any of its sources
+    changed; here on a package of two modules, the caller cached first."""
+    package = tmp_path / "twomodules"
+    package.mkdir()
+    (package / "__init__.py").write_text(
+        "from pathlib import Path\n"
+        "from hfdi.compiled.cache import drop_stale_cache\n"
+        "drop_stale_cache(Path(__file__).parent)\n")
+    (package / "caller.py").write_text(
+        "from numba import njit\nfrom .callee import value\n\n"
+        "@njit(cache=True)\ndef twice():\n    return 2 * value()\n")
+
+    def run(result):
+        source = f"from numba import njit\n\n@njit(cache=True)\ndef value():\n    return {result}\n"
+        callee = package / "callee.py"
+        if not callee.exists() or callee.read_text() != source:
+            callee.write_text(source)
+        out = subprocess.run([sys.executable, "-c", "from twomodules.caller import twice; "
+                              "print(twice(), twice.stats.cache_hits.total())"],
+                             cwd=tmp_path, capture_output=True, text=True, check=True)
+        return [int(x) for x in out.stdout.split()]
+
+    assert run(1) == [2, 0]
+    assert run(1) == [2, 1]             # cached
+    assert run(21) == [42, 0]           # the edit of callee.py alone is seen
+    assert any(package.glob("__pycache__/*.nbi"))

@@ -30,6 +30,12 @@ from __future__ import annotations
 from numba import types
 from numba.experimental import structref
 
+from .cache import drop_stale_cache
+
+# Every compiled module imports this one first: the cache is checked once,
+# before numba loads anything from it (see hfdi.compiled.cache).
+drop_stale_cache()
+
 __all__ = ["VECTOR", "MATRIX", "INDEX_VECTOR", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
            "POTENTIAL_ENERGY", "LOAD", "SPARSE_STIFFNESS", "SPARSE_STIFFNESS_DERIVATIVE",
            "FORCE_TYPE", "STIFFNESS_TYPE",
