@@ -175,12 +175,14 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
 def compiled_unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
     """µs per call, in compiled loops, of the model's kernels at ``u`` (``f``, ``K``,
     ``T[w]``, ``V``) and of the dense linear algebra of one Newton correction
-    (a solve with an (N, N) matrix, LAPACK's gesv as the attempt calls it, and
+    (a solve with an (N, N) matrix, LAPACK's gesv as the attempt calls it
+    (:func:`hfdi.compiled.lapack.gesv`), and
     an (N, N) product, HFDI's ``S B⁻¹ S``); best of ``repeats``."""
     import numpy as np
     from numba import njit
 
     from hfdi.compiled import kernels_of
+    from hfdi.compiled.lapack import gesv, work_arrays
 
     kernels, why = kernels_of(model)
     if kernels is None:
@@ -216,9 +218,13 @@ def compiled_unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
 
     @njit
     def solves(A, b, n):
+        lu, pivots, ints = work_arrays(A.shape[0])
+        x = np.empty_like(b)
         total = 0.0
         for _ in range(n):
-            total += np.linalg.solve(A, b)[0]
+            x[:] = b
+            gesv(A, x, lu, pivots, ints)
+            total += x[0]
         return total
 
     @njit

@@ -31,6 +31,8 @@ from numba.experimental import structref
 from ..corrector import StepOutcome
 from ..evaluation import ModelError, NonFiniteError, State
 from ..schemes import HFDI, Bathe, Newmark
+from .lapack import all_finite as _all_finite
+from .lapack import gesv, getrf, getrs, getrs_columns, work_arrays
 from .loads import hat_load
 from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE, MATRIX,
                          POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE,
@@ -67,24 +69,32 @@ NONE, DIAGONAL, DENSE = 0, 1, 2
 # -- small dense linear algebra ----------------------------------------------------
 
 @njit(**JIT_OPTIONS)
-def _all_finite(x):
-    for value in x.ravel():
-        if not math.isfinite(value):
-            return False
-    return True
+def _times(diagonal, full, kind, x):
+    """``A x`` for ``A`` of the given kind (zero for NONE), as a new vector."""
+    y = np.zeros(x.shape[0])
+    _times_into(diagonal, full, kind, x, y)
+    return y
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _times_into(diagonal, full, kind, x, out):
+    """``out = A x`` for ``A`` of the given kind (zero for NONE). Inlined (here and
+    below): a call with array arguments costs their reference counting, more
+    than a diagonal product of a small system."""
+    if kind == DIAGONAL:
+        for i in range(x.shape[0]):
+            out[i] = diagonal[i] * x[i]
+    elif kind == DENSE:
+        _dense_times_into(full, x, out)
+    else:
+        for i in range(x.shape[0]):
+            out[i] = 0.0
 
 
 @njit(**JIT_OPTIONS)
-def _times(diagonal, full, kind, x):
-    """``A x`` for ``A`` of the given kind (zero for NONE)."""
-    n = x.shape[0]
-    y = np.zeros(n)
-    if kind == DIAGONAL:
-        for i in range(n):
-            y[i] = diagonal[i] * x[i]
-    elif kind == DENSE:
-        y = np.dot(full, x)
-    return y
+def _dense_times_into(A, x, out):
+    """``out = A x`` by BLAS (as the Python path's ``A @ x``)."""
+    out[:] = np.dot(A, x)
 
 
 @njit(**JIT_OPTIONS)
@@ -103,16 +113,10 @@ def _add_diagonal(d, c, diagonal, kind):
 
 @njit(**JIT_OPTIONS)
 def _solve(A, b):
-    """``(x, ok)`` with ``A x = b`` by LAPACK's gesv (the routine of the Python
-    path, :func:`hfdi.linalg.solve`, so that the two give the same numbers);
-    ``ok`` false for a singular or non-finite ``A``."""
-    ok = True
-    x = np.empty_like(b)
-    try:
-        x = np.ascontiguousarray(np.linalg.solve(A, b))
-    except Exception:
-        ok = False
-    return x, ok
+    """``(x, ok)`` with ``A x = b`` (:func:`~hfdi.compiled.lapack.gesv`)."""
+    lu, pivots, ints = work_arrays(A.shape[0])
+    x = b.copy()
+    return x, gesv(A, x, lu, pivots, ints)
 
 
 # -- predictor and corrector --------------------------------------------------------
@@ -139,18 +143,21 @@ def _predict(u, v, a, has_previous, H, u_previous, v_previous, s):
 
 
 @njit(**JIT_OPTIONS)
-def _newton_update(u, tangent, residual, k, tol, floor, previous, counters):
-    """One correction ``Δu = −tangent⁻¹ residual`` and the test of Eq. 38, as
-    :func:`hfdi.corrector.newton`: ``(status, u, done, error, |Δu|)`` with
-    ``done`` true when converged."""
+def _newton_update(u, tangent, residual, tol, floor, previous, counters, du, lu, pivots,
+                   ints):
+    """One correction ``Δu = −tangent⁻¹ residual`` added to ``u`` in place, and
+    the test of Eq. 38, as :func:`hfdi.corrector.newton`: ``(status, done,
+    error, |Δu|)`` with ``done`` true when converged. ``du`` and LAPACK's
+    ``lu``, ``pivots`` and ``ints`` are work arrays."""
     counters[NLU] += 1
-    du, ok = _solve(tangent, -residual)
-    if not ok:
-        return TANGENT_SINGULAR, u, False, math.inf, previous
+    for i in range(du.shape[0]):
+        du[i] = -residual[i]
+    if not gesv(tangent, du, lu, pivots, ints):
+        return TANGENT_SINGULAR, False, math.inf, previous
     du2 = np.dot(du, du)
     if not math.isfinite(du2) and not _all_finite(du):
-        return CORRECTION_NOT_FINITE, u, False, math.inf, previous
-    u = u + du
+        return CORRECTION_NOT_FINITE, False, math.inf, previous
+    u += du
     size = math.sqrt(np.dot(u, u))
     step = math.sqrt(du2)
     if step <= tol * max(size, floor):
@@ -159,16 +166,17 @@ def _newton_update(u, tangent, residual, k, tol, floor, previous, counters):
             error = step * rate / (1.0 - rate) if rate < 1.0 else step
         else:
             error = du2 / max(size, floor)
-        return OK, u, True, error, step
-    return OK, u, False, math.inf, step
+        return OK, True, error, step
+    return OK, False, math.inf, step
 
 
 @njit(**JIT_OPTIONS)
 def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0,
                    p, u, tol, floor, max_iterations, counters):
-    """Newton on ``ca M u + cv C u + f(u) = p + M a0... `` (``_InertiaStage``):
-    ``(status, u, k, error)``, ``k = −1`` when a model value failed (the
-    stage's corrections are then not counted, as on the Python path)."""
+    """Newton on ``ca M u + cv C u + f(u) = p − M a0 − C v0`` (``_InertiaStage``)
+    from the guess ``u``, corrected in place: ``(status, k, error)``, ``k = −1``
+    when a model value failed (the stage's corrections are then not counted,
+    as on the Python path)."""
     n = u.shape[0]
     rhs = p - _times(Md, Mf, m_kind, a0)
     if c_kind != NONE:
@@ -176,36 +184,50 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
     shift = np.zeros(n)
     _add_diagonal(shift, ca, Md, m_kind)
     _add_diagonal(shift, cv, Cd, c_kind)
+    dense_mass = m_kind == DENSE and ca != 0.0
+    dense_damping = c_kind == DENSE and cv != 0.0
+    work, residual, du = np.empty(n), np.empty(n), np.empty(n)
+    tangent = np.empty((n, n))
+    lu, pivots, ints = work_arrays(n)
     previous = math.inf
     for k in range(1, max_iterations + 1):
         counters[NFEV] += 1
         f = force(u, params)
         if not _all_finite(f):
-            return FORCE_NOT_FINITE, u, -1, math.inf
-        residual = ca * _times(Md, Mf, m_kind, u) + f - rhs
+            return FORCE_NOT_FINITE, -1, math.inf
+        _times_into(Md, Mf, m_kind, u, work)
+        for i in range(n):
+            residual[i] = ca * work[i] + f[i] - rhs[i]
         if c_kind != NONE:
-            residual += cv * _times(Cd, Cf, c_kind, u)
+            _times_into(Cd, Cf, c_kind, u, work)
+            for i in range(n):
+                residual[i] += cv * work[i]
         counters[NJEV] += 1
         K = stiffness(u, params)
         if not _all_finite(K):
-            return STIFFNESS_NOT_FINITE, u, -1, math.inf
-        tangent = np.zeros((n, n))
-        _add_dense(tangent, ca, Mf, m_kind)
-        _add_dense(tangent, cv, Cf, c_kind)
-        tangent += K
+            return STIFFNESS_NOT_FINITE, -1, math.inf
+        # ca M + cv C + K, summed as hfdi.linalg.combine sums them
         for i in range(n):
+            for j in range(n):
+                entry = 0.0
+                if dense_mass:
+                    entry += ca * Mf[i, j]
+                if dense_damping:
+                    entry += cv * Cf[i, j]
+                tangent[i, j] = entry + K[i, j]
             tangent[i, i] += shift[i]
         if not _all_finite(residual):
-            return RESIDUAL_NOT_FINITE, u, k - 1, math.inf
-        status, u, done, error, previous = _newton_update(u, tangent, residual, k, tol, floor,
-                                                          previous, counters)
+            return RESIDUAL_NOT_FINITE, k - 1, math.inf
+        status, done, error, previous = _newton_update(u, tangent, residual, tol, floor,
+                                                       previous, counters, du, lu, pivots,
+                                                       ints)
         if status == TANGENT_SINGULAR:
-            return status, u, k - 1, math.inf
+            return status, k - 1, math.inf
         if status != OK:
-            return status, u, k, math.inf
+            return status, k, math.inf
         if done:
-            return OK, u, k, error
-    return NO_CONVERGENCE, u, max_iterations, math.inf
+            return OK, k, error
+    return NO_CONVERGENCE, max_iterations, math.inf
 
 
 @njit(**JIT_OPTIONS)
@@ -233,29 +255,34 @@ def _inertia_end(out, u, ca, cv, a0, v0):
     return OK if _end_finite(out) else END_NOT_FINITE
 
 
-@njit(**JIT_OPTIONS)
-def _hfdi_velocity(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B):
-    """``v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + c g`` (``B`` diagonal when
-    ``B`` (dense) is empty)."""
-    rhs = _times(Md, Mf, m_kind, u) + q0 + c * g
-    if B.shape[0] == 0:
-        return rhs / b_diagonal
-    return _solve(B, rhs)[0]
+@njit(inline="always", **JIT_OPTIONS)
+def _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints, out):
+    """``out = v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + c g`` (``B`` diagonal when
+    its factors ``B_lu`` are empty)."""
+    _times_into(Md, Mf, m_kind, u, out)
+    for i in range(u.shape[0]):
+        out[i] = out[i] + q0[i] + c * g[i]
+    if B_lu.shape[0] == 0:
+        for i in range(u.shape[0]):
+            out[i] /= b_diagonal[i]
+    else:
+        getrs(B_lu, b_pivots, b_ints, out)
 
 
 @njit(**JIT_OPTIONS)
 def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_kind, u_n, v_n,
                 f_n, p_n, p, pt, h, u, tol, floor, max_iterations, counters, out):
     """Newton on the HFDI residual ``F(u)`` of Eq. 21 with its exact tangent
-    ``S B⁻¹ S + C + 2h/3 K − h²/6 T(u)[v_D]`` (``_HFDIStage``), then the end
-    state into ``out``: ``(status, k, error)``."""
+    ``S B⁻¹ S + C + 2h/3 K − h²/6 T(u)[v_D]`` (``_HFDIStage``) from the guess
+    ``u``, corrected in place, then the end state into ``out``:
+    ``(status, k, error)``."""
     n = u.shape[0]
     c = h * h / 6.0
     c2 = 2.0 * h / 3.0
     g_n = p_n - f_n
-    # B = 2h/3 M + h²/6 C: diagonal, or dense and factorised
+    # B = 2h/3 M + h²/6 C: diagonal, or dense and factorised once
     b_diagonal = np.zeros(n)
-    B = np.zeros((0, 0))
+    B_lu, b_pivots, b_ints = work_arrays(0)
     if m_kind == DENSE or c_kind == DENSE:
         B = np.zeros((n, n))
         _add_dense(B, c2, Mf, m_kind)
@@ -266,7 +293,8 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         for i in range(n):
             B[i, i] += d[i]
         counters[NLU] += 1
-        if not _solve(B, np.zeros(n))[1]:
+        B_lu, b_pivots, b_ints = work_arrays(n)
+        if not getrf(B, B_lu, b_pivots, b_ints):
             return STEP_MATRIX_SINGULAR, 0, math.inf
     else:
         _add_diagonal(b_diagonal, c2, Md, m_kind)
@@ -276,6 +304,11 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
                 return STEP_MATRIX_SINGULAR, 0, math.inf
     q0 = -_times(Md, Mf, m_kind, u_n + (h / 3.0) * v_n)
     F0 = -_times(Md, Mf, m_kind, v_n) - _times(Cd, Cf, c_kind, u_n) - (h / 3.0) * g_n
+    dense_mass, dense_damping = m_kind == DENSE, c_kind == DENSE
+    g, vD, work, residual, du = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    S, SB, tangent = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    work_matrix = np.empty((n, n)) if B_lu.shape[0] else np.empty((0, 0))
+    lu, pivots, ints = work_arrays(n)
     previous = math.inf
     converged = False
     k_done = max_iterations
@@ -285,48 +318,54 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         f = force(u, params)
         if not _all_finite(f):
             return FORCE_NOT_FINITE, -1, math.inf
-        g = p - f
+        for i in range(n):
+            g[i] = p[i] - f[i]
         counters[NJEV] += 1
         K = stiffness(u, params)
         if not _all_finite(K):
             return STIFFNESS_NOT_FINITE, -1, math.inf
-        vD = _hfdi_velocity(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B)
-        gt = pt - np.dot(K, vD)
-        residual = _times(Md, Mf, m_kind, vD) - c2 * g + c * gt + F0
+        _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints,
+                            vD)
+        # residual = M v_D − c2 g + c (p' − K v_D) + F0 (+ C u)
+        Kv = np.dot(K, vD)
+        for i in range(n):
+            residual[i] = c * (pt[i] - Kv[i])
+        _times_into(Md, Mf, m_kind, vD, work)
+        for i in range(n):
+            residual[i] = work[i] - c2 * g[i] + residual[i] + F0[i]
         if c_kind != NONE:
-            residual += _times(Cd, Cf, c_kind, u)
+            _times_into(Cd, Cf, c_kind, u, work)
+            for i in range(n):
+                residual[i] += work[i]
         counters[NTEV] += 1
         T = derivative(u, vD, params)
         if not _all_finite(T):
             return DERIVATIVE_NOT_FINITE, -1, math.inf
         # S = M − c K and R = C + c2 K − c T, summed as hfdi.linalg.combine sums them
-        S = np.zeros((n, n))
-        _add_dense(S, 1.0, Mf, m_kind)
-        S += -c * K
-        d = np.zeros(n)
-        _add_diagonal(d, 1.0, Md, m_kind)
         for i in range(n):
-            S[i, i] += d[i]
-        tangent = np.zeros((n, n))
-        _add_dense(tangent, 1.0, Cf, c_kind)
-        tangent += c2 * K
-        tangent += -c * T
-        d[:] = 0.0
-        _add_diagonal(d, 1.0, Cd, c_kind)
-        for i in range(n):
-            tangent[i, i] += d[i]
+            for j in range(n):
+                entry = Mf[i, j] if dense_mass else 0.0
+                S[i, j] = entry + (-c) * K[i, j]
+                entry = Cf[i, j] if dense_damping else 0.0
+                tangent[i, j] = entry + c2 * K[i, j] + (-c) * T[i, j]
+            if m_kind == DIAGONAL:
+                S[i, i] += Md[i]
+            if c_kind == DIAGONAL:
+                tangent[i, i] += Cd[i]
         # + S B⁻¹ S
-        if B.shape[0] == 0:
-            SB = S.copy()
+        if B_lu.shape[0] == 0:
             for i in range(n):
-                SB[i, :] /= b_diagonal[i]
+                for j in range(n):
+                    SB[i, j] = S[i, j] / b_diagonal[i]
         else:
-            SB = _solve(B, S)[0]
+            SB[:, :] = S
+            getrs_columns(B_lu, b_pivots, b_ints, SB, work_matrix)
         tangent += S @ SB
         if not _all_finite(residual):
             return RESIDUAL_NOT_FINITE, k - 1, math.inf
-        status, u, done, error, previous = _newton_update(u, tangent, residual, k, tol, floor,
-                                                          previous, counters)
+        status, done, error, previous = _newton_update(u, tangent, residual, tol, floor,
+                                                       previous, counters, du, lu, pivots,
+                                                       ints)
         if status == TANGENT_SINGULAR:
             return status, k - 1, math.inf
         if status != OK:
@@ -343,7 +382,10 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
     if not _all_finite(f):
         out[END_U] = u
         return FORCE_NOT_FINITE, k_done, error
-    v = _hfdi_velocity(Md, Mf, m_kind, u, q0, c, p - f, b_diagonal, B)
+    for i in range(n):
+        g[i] = p[i] - f[i]
+    v = np.empty(n)
+    _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints, v)
     rest = p - f - _times(Cd, Cf, c_kind, v)
     if m_kind == DENSE:
         a = _solve(Mf, rest)[0]
@@ -432,10 +474,10 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     if scheme == NEWMARK:
         ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, h, coefficients[GAMMA],
                                                coefficients[BETA])
-        guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
-        status, u, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
-                                             c_kind, ca, cv, a0, v0, loads[1], guess, tol,
-                                             floor, max_iterations, info)
+        u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+        status, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
+                                          c_kind, ca, cv, a0, v0, loads[1], u, tol, floor,
+                                          max_iterations, info)
         if k >= 0:
             info[ITERATIONS_0] = k
             info[STAGES_COUNTED] = 1
@@ -446,10 +488,10 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     # Bathe: the trapezoidal rule over γ h, then the three-point backward formula
     g = coefficients[GAMMA]
     ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25)
-    guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h)
-    status, u, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
-                                         c_kind, ca, cv, a0, v0, loads[0], guess, tol, floor,
-                                         max_iterations, info)
+    u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h)
+    status, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind,
+                                      ca, cv, a0, v0, loads[0], u, tol, floor, max_iterations,
+                                      info)
     if k >= 0:
         info[ITERATIONS_0] = k
         info[STAGES_COUNTED] = 1
@@ -470,10 +512,10 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     v0 = c1 * u_n + c2 * mid_u
     a0 = c1 * v_n + c2 * mid_v + c3 * v0
     info[FAILED_STAGE] = 1
-    guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
-    status, u, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
-                                         c_kind, c3 * c3, c3, a0, v0, loads[1], guess, tol,
-                                         floor, max_iterations, info)
+    u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+    status, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind,
+                                      c3 * c3, c3, a0, v0, loads[1], u, tol, floor,
+                                      max_iterations, info)
     if k >= 0:
         info[ITERATIONS_1] = k
         info[STAGES_COUNTED] = 2

@@ -48,25 +48,34 @@ def _scatter_vector(f, i, j, dim, q):
         f[i * dim + k] -= q[k]
 
 
+@njit(inline="always", **JIT_OPTIONS)
+def _scatter_entry(K, i, j, dim, a, b, h):
+    """Entry ``(a, b)`` of a pair's block, ``h``, to +(i,i), +(j,j), −(i,j), −(j,i)."""
+    K[i * dim + a, i * dim + b] += h
+    K[j * dim + a, j * dim + b] += h
+    K[i * dim + a, j * dim + b] -= h
+    K[j * dim + a, i * dim + b] -= h
+
+
 @njit(**JIT_OPTIONS)
 def _scatter_block(K, i, j, dim, H):
     for a in range(dim):
         for b in range(dim):
-            h = H[a, b]
-            K[i * dim + a, i * dim + b] += h
-            K[j * dim + a, j * dim + b] += h
-            K[i * dim + a, j * dim + b] -= h
-            K[j * dim + a, i * dim + b] -= h
+            _scatter_entry(K, i, j, dim, a, b, H[a, b])
 
+
+# The pair terms are scattered entry by entry as they are formed: a small
+# array per pair would cost an allocation and its reference counting, more
+# than the pair's arithmetic.
 
 @njit(**JIT_OPTIONS)
 def _pair_force_add(f, i, j, dim, d, r, dphi):
     """``f += (φ'/r) d`` at j, minus at i."""
     c = dphi / r
-    q = np.empty(dim)
     for k in range(dim):
-        q[k] = c * d[k]
-    _scatter_vector(f, i, j, dim, q)
+        q = c * d[k]
+        f[j * dim + k] += q
+        f[i * dim + k] -= q
 
 
 @njit(**JIT_OPTIONS)
@@ -74,12 +83,12 @@ def _pair_stiffness_add(K, i, j, dim, d, r, dphi, ddphi):
     """``K += scatter(a I + b d dᵀ)``, ``a = φ'/r``, ``b = (φ'' − a)/r²``."""
     a = dphi / r
     b = (ddphi - a) / (r * r)
-    H = np.empty((dim, dim))
     for p in range(dim):
         for q in range(dim):
-            H[p, q] = (b * d[p]) * d[q]
-        H[p, p] += a
-    _scatter_block(K, i, j, dim, H)
+            h = (b * d[p]) * d[q]
+            if p == q:
+                h += a
+            _scatter_entry(K, i, j, dim, p, q, h)
 
 
 @njit(**JIT_OPTIONS)
@@ -93,14 +102,14 @@ def _pair_derivative_add(T, i, j, dim, d, r, wd, dphi, ddphi, dddphi):
     b = t / r2
     db = (dddphi - ddphi / r + dphi / r2) / r2 - 2.0 * t / (r2 * r)
     c = db * s / r
-    H = np.empty((dim, dim))
     for p in range(dim):
         xp = b * wd[p]
         for q in range(dim):
             yq = b * wd[q] + c * d[q]
-            H[p, q] = xp * d[q] + d[p] * yq
-        H[p, p] += b * s
-    _scatter_block(T, i, j, dim, H)
+            h = xp * d[q] + d[p] * yq
+            if p == q:
+                h += b * s
+            _scatter_entry(T, i, j, dim, p, q, h)
 
 
 # -- dumbbell: params = (A, sigma) ---------------------------------------------
