@@ -15,10 +15,12 @@ replaces: :func:`hfdi.corrector.predict` and :func:`hfdi.corrector.newton`,
 ``_InertiaStage`` (Newmark, Eqs. 3–5, and both Bathe sub-steps, Eqs. 6–10) and
 ``_HFDIStage`` (Eqs. 15–21, Table 1) of :mod:`hfdi.schemes`, with the same
 convergence test (Eq. 38), iteration counting, ``N_max``, error estimate and
-evaluation counters. Sums of products (matrix products, LU) run in another
-order than BLAS/LAPACK, so states agree to rounding, not bit for bit;
-``tests/test_compiled_step.py`` asserts equal step and Newton counts and
-states within 1e-12 on every paper model, scheme and mode.
+evaluation counters. Products with dense matrices and the solves call the
+Python path's BLAS and LAPACK routines (:mod:`hfdi.compiled.lapack`); sums
+of a few terms written out here may round differently from numpy's, so states
+agree to rounding, not always bit for bit; ``tests/test_compiled_step.py``
+asserts equal step and Newton counts and states within 1e-12 on every paper
+model, scheme and mode.
 """
 from __future__ import annotations
 
@@ -282,8 +284,11 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
     g_n = p_n - f_n
     # B = 2h/3 M + h²/6 C: diagonal, or dense and factorised once
     b_diagonal = np.zeros(n)
-    B_lu, b_pivots, b_ints = work_arrays(0)
-    if m_kind == DENSE or c_kind == DENSE:
+    dense_b = m_kind == DENSE or c_kind == DENSE
+    # assigned once: an array variable assigned in two branches costs reference
+    # counting at every pass of the loops after it
+    B_lu, b_pivots, b_ints = work_arrays(n if dense_b else 0)
+    if dense_b:
         B = np.zeros((n, n))
         _add_dense(B, c2, Mf, m_kind)
         _add_dense(B, c, Cf, c_kind)
@@ -293,7 +298,6 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         for i in range(n):
             B[i, i] += d[i]
         counters[NLU] += 1
-        B_lu, b_pivots, b_ints = work_arrays(n)
         if not getrf(B, B_lu, b_pivots, b_ints):
             return STEP_MATRIX_SINGULAR, 0, math.inf
     else:
@@ -307,7 +311,7 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
     dense_mass, dense_damping = m_kind == DENSE, c_kind == DENSE
     g, vD, work, residual, du = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     S, SB, tangent = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    work_matrix = np.empty((n, n)) if B_lu.shape[0] else np.empty((0, 0))
+    work_matrix = np.empty((n, n) if dense_b else (0, 0))
     lu, pivots, ints = work_arrays(n)
     previous = math.inf
     converged = False
