@@ -87,6 +87,8 @@ class Adapter:
     # -- log ------------------------------------------------------------------
     def take_log(self) -> list:
         """The slave's queued messages as ``(status, category, text)``, emptied."""
+        if not self._pending and not self.slave.log_queue:     # after almost every call
+            return []
         queue = self._pending + list(self.slave.log_queue)
         self._pending = []
         del self.slave.log_queue[:]

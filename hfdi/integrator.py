@@ -113,6 +113,13 @@ class Statistics:
         return (self.t_reached - self.t_start) / self.steps if self.steps else float("nan")
 
 
+def _clone(obj):
+    """``copy.copy`` of a plain dataclass instance (its fields in its ``__dict__``)."""
+    new = object.__new__(type(obj))
+    new.__dict__.update(obj.__dict__)
+    return new
+
+
 @dataclass
 class IntegratorState:
     """Everything that determines the continuation of a run (see
@@ -144,13 +151,14 @@ class IntegratorState:
     n_dof: int
 
     def copy(self) -> IntegratorState:
-        """A deep copy (``copy.deepcopy`` field by field; a co-simulation step
-        saves one before every communication step, where deepcopy's generic
-        walk cost more than the step)."""
-        new = copy.copy(self)
+        """A deep copy, field by field: a co-simulation step saves one before
+        every communication step, where ``copy.deepcopy``'s generic walk cost
+        more than the step (and ``copy.copy`` of each dataclass, 1.4 µs, as
+        much as the arrays)."""
+        new = _clone(self)
         new.current = self.current.copy()
         new.previous = None if self.previous is None else self.previous.copy()
-        new.statistics = copy.copy(self.statistics)
+        new.statistics = _clone(self.statistics)
         return new
 
     def to_bytes(self) -> bytes:
