@@ -659,7 +659,8 @@ class HfdiSlave(Fmi2Slave):
             if not math.isfinite(t_end):
                 return self._discard(f"doStep({t}, {h}): the end time overflows")
             budget = int(self._itg_key[0]["max_internal_steps"])
-            snapshot = (itg.get_state(), self._F_applied.copy())
+            # the rollback of a failed step: never leaves this object, never written
+            snapshot = (itg.get_state(copy_arrays=False), self._F_applied.copy())
             self._apply_inputs()
             # the budget of this doStep as the integrator's step limit: it holds
             # in the compiled driver as in the Python one
