@@ -645,8 +645,9 @@ class HfdiSlave(Fmi2Slave):
             if abs(t - here) > max(64.0 * math.ulp(max(abs(t), abs(here))), 1e-10 * h):
                 return self._discard(f"doStep({t}, {h}) but the FMU is at t = {here!r}; "
                                      "restore an FMU state to go back")
-            # inputs already applied were checked then
-            if self._F_input.tolist() != self._F_applied.tolist():
+            # inputs already applied were checked then (lists: np.array_equal costs 4x)
+            inputs_changed = self._F_input.tolist() != self._F_applied.tolist()
+            if inputs_changed:
                 bad = [f"F[{i + 1}] = {float(x)!r}" for i, x in enumerate(self._F_input)
                        if not math.isfinite(x)]
                 if bad:
@@ -661,7 +662,8 @@ class HfdiSlave(Fmi2Slave):
             budget = int(self._itg_key[0]["max_internal_steps"])
             # the rollback of a failed step: never leaves this object, never written
             snapshot = (itg.get_state(copy_arrays=False), self._F_applied.copy())
-            self._apply_inputs()
+            if inputs_changed:
+                self._apply_inputs()
             # the budget of this doStep as the integrator's step limit: it holds
             # in the compiled driver as in the Python one
             itg.max_steps = itg.statistics.steps + budget
@@ -693,7 +695,7 @@ class HfdiSlave(Fmi2Slave):
             return self._discard(f"doStep({current_time}, {step_size}) failed: {exc!r}")
 
     def _apply_inputs(self):
-        """Make the current state consistent with inputs that changed at this
+        """Make the current state consistent with the inputs changed at this
         communication point.
 
         The state at the start of the step keeps the load and acceleration
@@ -702,8 +704,6 @@ class HfdiSlave(Fmi2Slave):
         balance through the work). They are recomputed with the new inputs, the
         acceleration's right limit at the jump of the load.
         """
-        if self._F_input.tolist() == self._F_applied.tolist():   # np.array_equal: 4x the cost
-            return
         self._F_applied = self._F_input.copy()
         self._itg.load_changed()
 
