@@ -71,10 +71,6 @@ def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
     return Adapter(slave_class, resources, instance_name, visible)
 
 
-def _real(value) -> float:
-    return float(value)
-
-
 class Adapter:
     """One FMU instance: the slave and the calls of the native layer."""
 
@@ -118,7 +114,7 @@ class Adapter:
 
     # -- values -------------------------------------------------------------------
     def get_real(self, refs):
-        return [_real(x) for x in self.slave.get_real(refs)]
+        return list(map(float, self.slave.get_real(refs)))
 
     def get_integer(self, refs):
         return [int(x) for x in self.slave.get_integer(refs)]
