@@ -601,6 +601,13 @@ class CompiledDriver:
         self.coefficients = step.coefficients.copy()
         self.coefficients[A_TOL], self.coefficients[A_FLOOR] = integrator.tol, integrator.floor
         self.n = n
+        # u, v, a, f, p of the current and previous state as drive() left them,
+        # and the integrator's state object and States they stand for: while
+        # those are still the integrator's, the arrays need not be filled again
+        self._current = np.zeros((5, n))
+        self._previous = np.zeros((5, n))
+        self._in_arrays = (None, None, None)
+        self._no_rows = (np.empty((0, 6)), np.empty((0, 3, n)))
 
     def held_load(self, integrator):
         """The :class:`~hfdi.HeldLoad`'s value as :func:`drive` adds it (empty
@@ -623,20 +630,21 @@ class CompiledDriver:
         ``(reason, taken, rows, rejections)`` with ``rows`` a dict of arrays
         (``None`` unless ``save_rows``) and ``rejections`` those of the step
         handed over."""
-        from ..evaluation import State
         s = integrator._s
         ev = integrator.ev
         st = s.statistics
         n = self.n
         cur, prev = s.current, s.previous
-        current = np.empty((5, n))
-        current[U], current[V], current[A], current[P] = cur.u, cur.v, cur.a, cur.p
-        current[F] = cur.f if cur.f is not None else 0.0
-        previous = np.zeros((5, n))
-        if prev is not None:
-            previous[U], previous[V], previous[A] = prev.u, prev.v, prev.a
-            previous[F] = prev.f if prev.f is not None else 0.0
-            previous[P] = prev.p
+        current, previous = self._current, self._previous
+        saved, before, last = self._in_arrays
+        if not (s is saved and cur is before and prev is last):
+            current[U], current[V], current[A], current[P] = cur.u, cur.v, cur.a, cur.p
+            current[F] = cur.f if cur.f is not None else 0.0
+            previous[:] = 0.0
+            if prev is not None:
+                previous[U], previous[V], previous[A] = prev.u, prev.v, prev.a
+                previous[F] = prev.f if prev.f is not None else 0.0
+                previous[P] = prev.p
         scalars = np.array([cur.t, prev.t if prev is not None else cur.t, s.proposed_step,
                             s.potential, s.initial_potential, s.work, s.energy_error,
                             s.energy_scale, s.last_step, s.last_energy_increment,
@@ -650,9 +658,11 @@ class CompiledDriver:
         self.switches[SAVE_ROWS] = save_rows
         self.switches[MAX_STEPS] = integrator.max_steps
         self.switches[CALL_STEPS] = STEPS_PER_CALL
-        size = STEPS_PER_CALL if save_rows else 0
-        row_scalars = np.empty((size, 6))
-        row_states = np.empty((size, 3, n))
+        if save_rows:
+            row_scalars, row_states = np.empty((STEPS_PER_CALL, 6)), \
+                np.empty((STEPS_PER_CALL, 3, n))
+        else:
+            row_scalars, row_states = self._no_rows
         step = self.step
         params = step.params()
         reason, taken = drive(
@@ -668,14 +678,15 @@ class CompiledDriver:
         st.error_test_failures = int(counters[ERROR_TEST_FAILURES])
         s.proposed_step = float(scalars[PROPOSED])
         if taken:
-            s.current = State(float(scalars[T_CURRENT]), current[U].copy(), current[V].copy(),
-                              current[A].copy(),
-                              current[F].copy() if counters[CURRENT_HAS_F] else None,
-                              current[P].copy())
-            s.previous = State(float(scalars[T_PREV]), previous[U].copy(), previous[V].copy(),
-                               previous[A].copy(),
-                               previous[F].copy() if counters[PREVIOUS_HAS_F] else None,
-                               previous[P].copy())
+            # States own their arrays (one block each, never written again):
+            # drive() writes into current and previous at the next call
+            if taken == 1:
+                s.previous = cur        # one step: the previous state is the one it started from
+            else:
+                s.previous = _state(float(scalars[T_PREV]), previous.copy(),
+                                    counters[PREVIOUS_HAS_F])
+            s.current = _state(float(scalars[T_CURRENT]), current.copy(),
+                               counters[CURRENT_HAS_F])
             s.potential, s.work = float(scalars[POTENTIAL]), float(scalars[WORK])
             s.energy_error = float(scalars[ENERGY_ERROR])
             s.energy_scale = float(scalars[ENERGY_SCALE])
@@ -693,4 +704,11 @@ class CompiledDriver:
                     "energy_increment": row_scalars[:taken, R_INCREMENT].copy(),
                     "total_energy": row_scalars[:taken, R_ENERGY].copy(),
                     "external_work": row_scalars[:taken, R_WORK].copy()}
+        self._in_arrays = (s, s.current, s.previous)
         return int(reason), taken, rows, int(counters[REJECTIONS])
+
+
+def _state(t, block, has_f):
+    """A :class:`~hfdi.evaluation.State` on the rows of ``block`` (5, N), its own copy."""
+    from ..evaluation import State
+    return State(t, block[U], block[V], block[A], block[F] if has_f else None, block[P])
