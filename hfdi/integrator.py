@@ -1101,11 +1101,11 @@ class Integrator:
         accepted steps in bulk (the arrays of :class:`Result`), in order with
         the callbacks.
         """
-        from .compiled.driver import ENERGY_CHECK, HAND_OVER
+        driver = self._driver
         while self.t < t_stop:
             if self.failed:
                 return False
-            held = self._driver.held_load(self)
+            held = driver.held_load(self)
             if self._s.first_step_pending or held is None:
                 # the controller's init; or a faulty held load, which the
                 # Python driver reports as it does any faulty load
@@ -1114,18 +1114,17 @@ class Integrator:
                 continue
             start = time.process_time()
             limit = t_stop if self.t_bound is None else min(t_stop, self.t_bound)
-            reason, taken, arrays, pending = self._driver.run(self, limit, rows is not None,
-                                                              held)
+            reason, taken, arrays, pending = driver.run(self, limit, rows is not None, held)
             self._cpu(start)
             self._sync_counters()
             if taken:
                 self._arrival = self._s.current
                 if rows is not None:
                     rows(arrays)
-            if reason == ENERGY_CHECK:
+            if reason == driver.ENERGY_CHECK:
                 return self._energy_growth()
             self._mark_finished()
-            if reason == HAND_OVER and not self._python_step(t_stop, callback, pending):
+            if reason == driver.HAND_OVER and not self._python_step(t_stop, callback, pending):
                 return False
         return True
 

@@ -42,6 +42,7 @@ from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
+from ..evaluation import State
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 
 __all__ = ["drive"]
@@ -552,6 +553,10 @@ class CompiledDriver:
         built-in controller (see :func:`hfdi.compiled.driver_reason`).
     """
 
+    #: why :meth:`run` returned (the integrator reads them here: importing
+    #: them at every call of its loop cost as much as a row of the state)
+    REACHED, FULL, HAND_OVER, ENERGY_CHECK = REACHED, FULL, HAND_OVER, ENERGY_CHECK
+
     def __init__(self, integrator):
         from ..controller import Combined, ErrorControl, FixedStep, IterationCount
         step = integrator._compiled
@@ -670,30 +675,29 @@ class CompiledDriver:
             held, self.config, self.coefficients, step.Md, step.Mf,
             step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
             self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
-        # the integrator's state and statistics from the arrays
-        ev.nfev, ev.njev, ev.ntev, ev.nlu, ev.npev = (int(x) for x in counters[C_NFEV:C_NPEV + 1])
-        st.steps, st.accepted, st.rejected = (int(counters[STEPS]), int(counters[ACCEPTED]),
-                                              int(counters[REJECTED]))
-        st.newton_iterations = int(counters[NEWTON_ITERATIONS])
-        st.error_test_failures = int(counters[ERROR_TEST_FAILURES])
-        s.proposed_step = float(scalars[PROPOSED])
+        # the integrator's state and statistics from the arrays (as Python
+        # numbers: one tolist() costs what two float(array[i]) cost)
+        sc, co = scalars.tolist(), counters.tolist()
+        ev.nfev, ev.njev, ev.ntev, ev.nlu, ev.npev = co[C_NFEV:C_NPEV + 1]
+        st.steps, st.accepted, st.rejected = co[STEPS], co[ACCEPTED], co[REJECTED]
+        st.newton_iterations = co[NEWTON_ITERATIONS]
+        st.error_test_failures = co[ERROR_TEST_FAILURES]
+        s.proposed_step = sc[PROPOSED]
         if taken:
             # States own their arrays (one block each, never written again):
             # drive() writes into current and previous at the next call
             if taken == 1:
                 s.previous = cur        # one step: the previous state is the one it started from
             else:
-                s.previous = _state(float(scalars[T_PREV]), previous.copy(),
-                                    counters[PREVIOUS_HAS_F])
-            s.current = _state(float(scalars[T_CURRENT]), current.copy(),
-                               counters[CURRENT_HAS_F])
-            s.potential, s.work = float(scalars[POTENTIAL]), float(scalars[WORK])
-            s.energy_error = float(scalars[ENERGY_ERROR])
-            s.energy_scale = float(scalars[ENERGY_SCALE])
-            s.last_step = float(scalars[LAST_STEP])
-            s.last_energy_increment = float(scalars[LAST_ENERGY_INCREMENT])
-            s.last_iterations = int(counters[LAST_ITERATIONS])
-            s.grid_origin, s.grid_steps = float(scalars[GRID_ORIGIN]), int(counters[GRID_STEPS])
+                s.previous = _state(sc[T_PREV], previous.copy(), co[PREVIOUS_HAS_F])
+            s.current = _state(sc[T_CURRENT], current.copy(), co[CURRENT_HAS_F])
+            s.potential, s.work = sc[POTENTIAL], sc[WORK]
+            s.energy_error = sc[ENERGY_ERROR]
+            s.energy_scale = sc[ENERGY_SCALE]
+            s.last_step = sc[LAST_STEP]
+            s.last_energy_increment = sc[LAST_ENERGY_INCREMENT]
+            s.last_iterations = co[LAST_ITERATIONS]
+            s.grid_origin, s.grid_steps = sc[GRID_ORIGIN], co[GRID_STEPS]
             st.t_reached = s.current.t
         rows = None
         if save_rows:
@@ -705,10 +709,9 @@ class CompiledDriver:
                     "total_energy": row_scalars[:taken, R_ENERGY].copy(),
                     "external_work": row_scalars[:taken, R_WORK].copy()}
         self._in_arrays = (s, s.current, s.previous)
-        return int(reason), taken, rows, int(counters[REJECTIONS])
+        return int(reason), taken, rows, co[REJECTIONS]
 
 
 def _state(t, block, has_f):
     """A :class:`~hfdi.evaluation.State` on the rows of ``block`` (5, N), its own copy."""
-    from ..evaluation import State
     return State(t, block[U], block[V], block[A], block[F] if has_f else None, block[P])
