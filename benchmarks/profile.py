@@ -23,7 +23,8 @@ the per-iteration time is taken from the plain runs.
 ``--paths`` instead compares the Python path with the compiled path
 (``compiled=True``: the compiled driver, docs/compiled.md) on the same runs:
 µs per Newton iteration of each, best of ``--repeats`` runs made in turn,
-and their ratio; with ``--rtol R`` the runs are error-controlled instead of
+their ratio, and the floor: the same scheme's Newton iteration in a minimal
+compiled loop (:mod:`benchmarks.floor`) at the compiled run's mean step; with ``--rtol R`` the runs are error-controlled instead of
 at ``--target``. The compiled run's time is split into the model's kernels,
 the dense linear algebra and the rest (the compiled driver) from its
 evaluation counts and the unit costs of each kernel and of a solve and a
@@ -44,6 +45,8 @@ import hfdi
 from validation import options as opt
 from hfdi.files import write_atomic
 from validation.experiments import SCHEME_ORDER, experiment, names
+
+from .floor import floor_us
 from validation.runs import integrate
 
 __all__ = ["profile_run", "compare_paths", "compiled_unit_costs", "compiled_split", "main"]
@@ -162,6 +165,12 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
     model = experiment(problem).model()
     costs = compiled_unit_costs(model, results[True].u[-1])
     split = compiled_split({"scheme": scheme}, results[True], costs, best[True])
+    # the floor: a minimal compiled loop at the compiled run's mean step and
+    # Newton tolerance
+    mode = dict(target_iterations=target) if rtol is None else dict(rtol=rtol)
+    tol = hfdi.Integrator(model, scheme, compiled=False, **mode).tol
+    floor, floor_per_step = floor_us(model, scheme, end / max(counts[True][0], 1), end, tol,
+                                     repeats)
     return {"problem": problem, "scheme": scheme, "target": target, "rtol": rtol,
             "unit_costs_us": costs, "compiled_split": split,
             "steps": steps, "newton_iterations": iterations,
@@ -169,6 +178,7 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
             "python_us": 1e6 * best[False] / max(iterations, 1),
             "compiled_us": 1e6 * best[True] / max(counts[True][1], 1),
             "speedup": (best[False] / max(iterations, 1)) / (best[True] / max(counts[True][1], 1)),
+            "floor_us": floor, "floor_iterations_per_step": floor_per_step,
             "same_counts": counts[False] == counts[True]}
 
 
@@ -277,7 +287,8 @@ def compiled_split(row: dict, result, costs: dict, wall_s: float) -> dict:
 def _print_paths(args) -> list:
     rows = []
     print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'python µs/it':>13s} "
-          f"{'compiled µs/it':>15s} {'ratio':>6s}  compiled: model  linalg  driver")
+          f"{'compiled µs/it':>15s} {'ratio':>6s} {'floor µs/it':>12s}  compiled: model  "
+          f"linalg  driver")
     for problem in args.problems or names():
         for scheme in args.schemes:
             row = compare_paths(problem, scheme, args.target, args.rtol, args.repeats,
@@ -289,7 +300,8 @@ def _print_paths(args) -> list:
             f = row["compiled_split"]
             print(f"{problem:12s} {scheme:8s} {row['steps']:6d} {row['newton_iterations']:6d} "
                   f"{row['python_us']:13.1f} {row['compiled_us']:15.1f} "
-                  f"{row['speedup']:6.2f}  {f['model']:15.2f}  {f['linear_algebra']:6.2f}  "
+                  f"{row['speedup']:6.2f} {row['floor_us']:12.2f}  {f['model']:15.2f}  "
+                  f"{f['linear_algebra']:6.2f}  "
                   f"{f['driver']:6.2f}{note}", flush=True)
     return rows
 

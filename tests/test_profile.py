@@ -55,4 +55,41 @@ def test_paths_compare_the_same_runs(tmp_path, capsys):
         assert row["same_counts"] and row["newton_iterations"] >= row["steps"] > 0
         assert row["python_us"] > 0 and row["compiled_us"] > 0
         assert math.isclose(row["speedup"], row["python_us"] / row["compiled_us"])
-    assert "compiled µs/it" in capsys.readouterr().out
+        assert row["floor_us"] > 0 and row["floor_iterations_per_step"] >= 1
+    assert "floor µs/it" in capsys.readouterr().out
+
+
+def _floor_case(problem, t_end, step):
+    import numpy as np
+
+    import hfdi
+    from benchmarks.floor import floor_run
+    pytest.importorskip("numba")
+    make = getattr(hfdi.models, problem)
+
+    def check(scheme):
+        # HFDI's floor takes the load rate as a difference quotient
+        library = hfdi.HFDI(load_rate="difference") if scheme == "hfdi" else scheme
+        ref = hfdi.integrate(make(), library, t_end, step=step, tol=1e-12, compiled=False)
+        u, v, iterations = floor_run(make(), scheme, step, t_end, 1e-12)
+        assert iterations >= ref.stats.steps
+        for got, want in ((u, ref.u[-1]), (v, ref.v[-1])):
+            assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max()
+    return check
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_the_floor_loop_takes_the_librarys_steps(scheme):
+    """The minimal loop whose cost is the floor (benchmarks/floor.py) computes
+    the same steps as the library: the same end state, to the Newton tolerance,
+    at the same fixed step."""
+    _floor_case("dumbbell", 0.2, 1e-3)(scheme)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("problem, t_end, step", [("tetrahedra", 1.0, 0.01),
+                                                   ("articulated", 0.2, 1e-3),
+                                                   ("toss_rule", 0.002, 1e-5)])
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_the_floor_loop_takes_the_librarys_steps_on_every_model(problem, t_end, step, scheme):
+    _floor_case(problem, t_end, step)(scheme)
