@@ -36,6 +36,17 @@ def _loops():
     from hfdi.compiled.lapack import gesv, work_arrays
 
     @njit
+    def correct(tangent, du, u, lu, pivots, ints, tol):
+        """``u += tangent⁻¹ du`` (``du`` holds ``−residual``); converged by Eq. 38."""
+        gesv(tangent, du, lu, pivots, ints)
+        step2, size2 = 0.0, 0.0
+        for i in range(u.shape[0]):
+            u[i] += du[i]
+            step2 += du[i] * du[i]
+            size2 += u[i] * u[i]
+        return math.sqrt(step2) <= tol * max(math.sqrt(size2), 1.0)
+
+    @njit
     def newton(force, stiffness, params, M, ca, rhs, u, tol, work, counters):
         """Newton on ``ca M u + f(u) = rhs`` from ``u`` (in place)."""
         n = u.shape[0]
@@ -49,14 +60,8 @@ def _loops():
                 for j in range(n):
                     tangent[i, j] = K[i, j]
                 tangent[i, i] += ca * M[i]
-            gesv(tangent, du, lu, pivots, ints)
             counters[0] += 1
-            step2, size2 = 0.0, 0.0
-            for i in range(n):
-                u[i] += du[i]
-                step2 += du[i] * du[i]
-                size2 += u[i] * u[i]
-            if math.sqrt(step2) <= tol * max(math.sqrt(size2), 1.0):
+            if correct(tangent, du, u, lu, pivots, ints, tol):
                 return
 
     @njit
@@ -155,14 +160,8 @@ def _loops():
                         tangent[i, j] = c2 * K[i, j] - c * T[i, j]
                     S[i, i] += M[i]
                 tangent += S @ (S / b.reshape(n, 1))
-                gesv(tangent, du, lu, pivots, ints)
                 iterations += 1
-                step2, size2 = 0.0, 0.0
-                for i in range(n):
-                    x[i] += du[i]
-                    step2 += du[i] * du[i]
-                    size2 += x[i] * x[i]
-                if math.sqrt(step2) <= tol * max(math.sqrt(size2), 1.0):
+                if correct(tangent, du, x, lu, pivots, ints, tol):
                     break
             f_n = force(x, params)
             for i in range(n):
