@@ -28,7 +28,6 @@ renamed over the destination only when complete.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import pprint
@@ -45,6 +44,7 @@ from xml.etree import ElementTree
 from hfdi.files import atomic_file
 
 from . import metadata
+from .slave import package_digest
 
 __all__ = ["BuildError", "problems", "build", "build_all"]
 
@@ -74,17 +74,6 @@ def problems() -> list:
     """Names of the models an FMU can be built for (``hfdi.models.available()``)."""
     import hfdi.models
     return hfdi.models.available()
-
-
-def _digest(*texts: str, package: Path = None) -> str:
-    h = hashlib.sha256()
-    for text in texts:
-        h.update(text.encode("utf-8") + b"\0")
-    if package is not None:
-        for path in sorted(p for p in package.rglob("*") if p.is_file()):
-            h.update(path.relative_to(package).as_posix().encode("utf-8") + b"\0")
-            h.update(path.read_bytes() + b"\0")
-    return h.hexdigest()[:12]
 
 
 def build(problem: str, out_dir=".") -> Path:
@@ -137,9 +126,9 @@ def build(problem: str, out_dir=".") -> Path:
         stage = Path(tmp)
         shutil.copytree(package, stage / "hfdi",
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo"))
-        alias = f"_hfdi_fmu_{_digest(package=stage / 'hfdi')}"
-        core = f"hfdi_fmu_core_{_digest(core_source)}"
-        module = f"hfdi_{problem}_{_digest(alias, core, meta_text)}"
+        alias = f"_hfdi_fmu_{package_digest(stage / 'hfdi')}"
+        core = f"hfdi_fmu_core_{package_digest(None, core_source)}"
+        module = f"hfdi_{problem}_{package_digest(None, alias, core, meta_text)}"
         (stage / f"{core}.py").write_text(core_source, encoding="utf-8")
         script = stage / f"{module}.py"
         cls = "Hfdi" + "".join(part.capitalize() for part in problem.split("_") if part)
@@ -147,7 +136,7 @@ def build(problem: str, out_dir=".") -> Path:
                                          meta=meta_text), encoding="utf-8")
         library = compile_native(stage / "native")
         entry_source = Path(__file__).with_name("entry.py").read_text(encoding="utf-8")
-        entry = f"hfdi_fmu_entry_{_digest(entry_source)}"
+        entry = f"hfdi_fmu_entry_{package_digest(None, entry_source)}"
         (stage / f"{entry}.py").write_text(entry_source, encoding="utf-8")
         loaded = set(sys.modules)
         try:

@@ -425,3 +425,103 @@ def test_demo_command_matches_in_process(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "largest relative difference 0.00e+00" in printed
     assert (tmp_path / "hfdi_dumbbell.fmu").is_file()
+
+
+# -- the lasting copy of the bundled package ------------------------------------------
+def _bundle(tmp_path):
+    from fmu.slave import package_digest
+    bundled = tmp_path / "resources" / "hfdi"
+    (bundled / "sub").mkdir(parents=True)
+    (bundled / "__init__.py").write_text("X = 1\n")
+    (bundled / "sub" / "m.py").write_text("Y = 2\n")
+    return bundled, f"_hfdi_fmu_{package_digest(bundled)}"
+
+
+def test_the_bundle_has_a_lasting_copy_checked_before_every_use(tmp_path, monkeypatch):
+    """Extractions of one FMU share a copy of its hfdi (so numba's cache beside
+    it lasts); a copy whose files no longer give the digest in the bundle's
+    name is made again, and without a copy the bundle itself is used."""
+    from pathlib import Path
+
+    from fmu.slave import lasting_copy
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
+    bundled, alias = _bundle(tmp_path)
+    copy = lasting_copy(alias, str(bundled))
+    assert Path(copy) == tmp_path / "cache" / "fmu" / alias / "hfdi"
+    assert (Path(copy) / "sub" / "m.py").read_text() == "Y = 2\n"
+    (Path(copy) / "sub" / "__pycache__").mkdir()          # numba's cache: not part of it
+    (Path(copy) / "sub" / "__pycache__" / "m.f-1.py311.nbi").write_bytes(b"\0")
+    assert lasting_copy(alias, str(bundled)) == copy
+    assert (Path(copy) / "sub" / "__pycache__" / "m.f-1.py311.nbi").exists()
+    (Path(copy) / "sub" / "m.py").write_text("import os\n")  # changed: made again
+    assert lasting_copy(alias, str(bundled)) == copy
+    assert (Path(copy) / "sub" / "m.py").read_text() == "Y = 2\n"
+    assert sorted(p.name for p in (tmp_path / "cache" / "fmu" / alias).iterdir()) == ["hfdi"]
+    # a bundle that is not the one its name says (a damaged FMU): used as it
+    # is, so that it fails as it would without a copy; never copied
+    (bundled / "__init__.py").write_text("X = 3\n")
+    assert lasting_copy(alias, str(bundled)) == str(bundled)
+    assert (Path(copy) / "__init__.py").read_text() == "X = 1\n"
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "other"))
+    assert lasting_copy(alias, str(bundled)) == str(bundled)
+    assert not (tmp_path / "other" / "fmu" / alias).exists()
+    # a cache that cannot be written: the bundle itself
+    (tmp_path / "a-file").write_text("")
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "a-file"))
+    (bundled / "__init__.py").write_text("X = 1\n")
+    assert lasting_copy(alias, str(bundled)) == str(bundled)
+
+
+def test_copies_unused_for_a_month_are_removed_when_another_is_made(tmp_path, monkeypatch):
+    import os
+    import time
+
+    from fmu.slave import UNUSED_COPY_DAYS, lasting_copy
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
+    folder = tmp_path / "cache" / "fmu"
+    old, recent = folder / "_hfdi_fmu_000000000000", folder / "_hfdi_fmu_111111111111"
+    for path in (old, recent):
+        (path / "hfdi").mkdir(parents=True)
+    past = time.time() - (UNUSED_COPY_DAYS + 1) * 86400.0
+    os.utime(old, (past, past))
+    bundled, alias = _bundle(tmp_path)
+    lasting_copy(alias, str(bundled))
+    assert sorted(p.name for p in folder.iterdir()) == sorted([recent.name, alias])
+
+
+@pytest.mark.slow
+def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus, tmp_path):
+    """The compiled FMU compiles its bundled kernels once per machine, not once
+    per extraction: a second process extracting the FMU anew loads the driver
+    from numba's cache beside the lasting copy."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    code = (
+        "import sys\n"
+        "from fmpy import extract\n"
+        "from fmu.master import Unit\n"
+        "path = sys.argv[1]\n"
+        "with Unit(path, 'x', unzip_dir=extract(path)) as unit:\n"
+        "    unit.initialize({'compiled': True}, stop_time=1.0)\n"
+        "    assert unit.step(0.0, 0.1)\n"
+        "name = [m for m in sys.modules if m.startswith('_hfdi_fmu_')\n"
+        "        and m.endswith('.compiled.driver')][0]\n"
+        "stats = sys.modules[name].drive.stats\n"
+        "print(sys.modules[name].__file__)\n"
+        "print(stats.cache_hits.total(), stats.cache_misses.total())\n")
+    env = dict(os.environ, HFDI_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    runs = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", code, str(fmus["dumbbell"])], env=env,
+                             capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-2000:]
+        where, counts = out.stdout.strip().splitlines()[-2:]
+        runs.append((Path(where), [int(x) for x in counts.split()]))
+    for where, _ in runs:
+        assert (tmp_path / "cache" / "fmu") in where.parents
+    assert runs[0][1] == [0, 1]                    # compiled in the first process
+    assert runs[1][1] == [1, 0]                    # loaded in the second
