@@ -161,6 +161,8 @@ def lasting_copy(alias: str, bundled: str) -> str:
     digest = alias.rsplit("_", 1)[-1]
     root = os.environ.get("HFDI_CACHE_DIR") or os.path.join(os.path.expanduser("~"),
                                                            ".cache", "hfdi")
+    if not os.path.isabs(root):        # no home folder found: nowhere to keep a copy
+        return bundled
     home = os.path.join(root, "fmu", alias)
     target = os.path.join(home, "hfdi")
     try:

@@ -465,6 +465,12 @@ def test_the_bundle_has_a_lasting_copy_checked_before_every_use(tmp_path, monkey
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "other"))
     assert lasting_copy(alias, str(bundled)) == str(bundled)
     assert not (tmp_path / "other" / "fmu" / alias).exists()
+    # no absolute folder for the cache (no home folder): the bundle itself
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HFDI_CACHE_DIR", "relative")
+    (bundled / "__init__.py").write_text("X = 1\n")
+    assert lasting_copy(alias, str(bundled)) == str(bundled)
+    assert not (tmp_path / "relative").exists()
     # a cache that cannot be written: the bundle itself
     (tmp_path / "a-file").write_text("")
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "a-file"))
