@@ -43,7 +43,10 @@ def drop_stale_cache(package: Path = _PACKAGE) -> bool:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return False
     cache = package / "__pycache__"
-    stamp = source_stamp(package)
+    try:
+        stamp = source_stamp(package)
+    except OSError:          # sources that cannot be read: numba will not cache them either
+        return False
     try:
         if (cache / _STAMP).read_text() == stamp:
             return False
