@@ -32,6 +32,7 @@ import math
 import numpy as np
 from numba import njit, types
 
+from ..evaluation import State
 from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
                       NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt)
 from .attempt import HAS_PREVIOUS as A_HAS_PREVIOUS
@@ -42,7 +43,6 @@ from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
-from ..evaluation import State
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 
 __all__ = ["drive"]
@@ -670,6 +670,7 @@ class CompiledDriver:
             row_scalars, row_states = self._no_rows
         step = self.step
         params = step.params()
+        self._in_arrays = (None, None, None)     # until drive() has returned
         reason, taken = drive(
             step.kernel_set, params, params if self._load_reads_params else self.load_params,
             held, self.config, self.coefficients, step.Md, step.Mf,
