@@ -106,6 +106,39 @@ def test_generated_source_is_cached_by_its_text(tmp_path, monkeypatch):
     assert sorted((tmp_path / "kernels").glob("*.py")) == files
 
 
+def test_kernels_of_a_copy_under_another_name_import_that_copy(tmp_path):
+    """An FMU imports its bundled hfdi under another name, in hosts that may
+    have no ``hfdi``: the generated kernels must import their signatures from
+    the copy that generated them, never from a package named ``hfdi``."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    copy = tmp_path / "bundle"
+    shutil.copytree(os.path.dirname(hfdi.__file__), copy,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    script = f"""
+import importlib.util, sys
+sys.modules["hfdi"] = None          # import hfdi fails from here on
+spec = importlib.util.spec_from_file_location(
+    "other_name", {str(copy / "__init__.py")!r}, submodule_search_locations=[{str(copy)!r}])
+package = importlib.util.module_from_spec(spec)
+sys.modules["other_name"] = package
+spec.loader.exec_module(package)
+from other_name.compiled.symbolic import energy_model_kernels
+kernels = energy_model_kernels(package.models.spring_chain(3))
+print(type(kernels.force).__name__, kernels.force.__module__)
+"""
+    env = dict(os.environ, HFDI_CACHE_DIR=str(tmp_path / "cache"))
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         env=env, cwd=tmp_path, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    kind, module = run.stdout.split()
+    assert kind == "CPUDispatcher" and module.startswith("hfdi_energy_kernels_")
+    source = next((tmp_path / "cache" / "kernels").glob("*.py")).read_text()
+    assert "from other_name.compiled.signatures import" in source
+
+
 def test_an_expression_without_a_compiled_form_is_refused_when_printed():
     from hfdi.compiled.symbolic import KernelSourceError, kernel_source
     x = sympy.Symbol("x")
