@@ -338,6 +338,7 @@ class HfdiSlave(Fmi2Slave):
         self._F_applied = np.zeros(n)        # inputs the integrator's current state was computed with
         self._cache = None                   # outputs at the current state, computed on demand
         self._state_outputs = {}             # value reference of u[i], v[i], a[i] -> (key, i)
+        self._read_plans = {}                # references -> how get_real reads them (_read_plan)
 
         dof_pattern = meta.get("dofs") or [["m", "degree of freedom {k}"]]
         self._dof_units = [dof_pattern[i % len(dof_pattern)][0] for i in range(n)]
@@ -864,20 +865,41 @@ class HfdiSlave(Fmi2Slave):
         except Exception:  # a message must not raise past _reject
             return repr(vrs)
 
+    def _read_plan(self, vrs):
+        """``(keys, picks)`` reading the state outputs ``vrs`` (``u[i]``, ``v[i]``,
+        ``a[i]``): the arrays to read and, per reference, ``(array, index)``;
+        ``None`` when another variable is among them. Kept for the next call
+        with the same references (a master reads the same ones after every
+        doStep), up to a few dozen lists."""
+        where = self._state_outputs
+        if not all(vr in where for vr in vrs):
+            return None
+        keys = sorted({where[vr][0] for vr in vrs})
+        plan = keys, [(keys.index(where[vr][0]), where[vr][1]) for vr in vrs]
+        if len(self._read_plans) < 64:
+            self._read_plans[tuple(vrs)] = plan
+        return plan
+
     def get_real(self, vrs):
         try:
             # a master reads the states after every doStep: those straight from
             # the outputs, without a getter call per variable
-            where = self._state_outputs
             try:
-                pairs = [where[vr] for vr in vrs]
-            except (KeyError, TypeError):
+                keys, picks = self._read_plans[tuple(vrs)]
+            except KeyError:
+                plan = self._read_plan(vrs)
+                if plan is None:
+                    return super().get_real(vrs)
+                keys, picks = plan
+            except TypeError:
                 return super().get_real(vrs)
             if self._itg is not None:       # the current state itself, no other output
                 state = self._itg.state
-                return [float(getattr(state, key)[i]) for key, i in pairs]
-            outputs = self._outputs()
-            return [float(outputs[key][i]) for key, i in pairs]
+                rows = [getattr(state, key).tolist() for key in keys]
+            else:
+                outputs = self._outputs()
+                rows = [np.asarray(outputs[key], dtype=float).tolist() for key in keys]
+            return [rows[k][i] for k, i in picks]
         except Exception as exc:
             self._reject(f"fmi2GetReal({self._names(vrs)}): {exc!r}")
 

@@ -622,12 +622,17 @@ class CompiledDriver:
         if extra is None:
             return np.zeros(0)
         try:
-            value = np.asarray(extra.source(), dtype=np.float64)
+            value = np.ascontiguousarray(extra.source(), dtype=np.float64)
         except Exception:
             return None
-        if value.shape != (self.n,) or not np.all(np.isfinite(value)):
+        if value.shape != (self.n,):
             return None
-        return np.ascontiguousarray(value)
+        # called before every advance (a co-simulation step): the sum of
+        # squares is finite exactly when every entry is, but for an overflow,
+        # where the entry-wise test decides
+        if not math.isfinite(value.dot(value)) and not np.isfinite(value).all():
+            return None
+        return value
 
     def run(self, integrator, t_stop: float, save_rows: bool, held):
         """Steps of ``integrator`` towards ``t_stop`` (``<= t_bound``) with the held
