@@ -411,6 +411,9 @@ class Integrator:
         self.check_stiffness = check_stiffness
         self.ev = ev = Evaluator(system, extra_load)
         self.system = system
+        # a model that counts the changes of its parameters (EnergyModel): the
+        # integrator follows them (model_changed) before its next step
+        self._model_version = getattr(system, "parameter_version", None)
         if isinstance(self.scheme, HFDI) and self.scheme.load_rate == "exact" \
                 and not ev.has_load_rate:
             why = "extra_load is given" if system.load_rate is not None else \
@@ -725,6 +728,54 @@ class Integrator:
         self._refresh_load()
         self._sync_counters()
 
+    def model_changed(self) -> None:
+        """Tell the integrator that the model changed at the current time (its
+        parameters, say); called by itself before its next step when the model
+        counts its changes (``parameter_version``, as :class:`EnergyModel` does).
+
+        The current state keeps the internal force ``f_n``, the acceleration
+        ``a_n`` and the potential energy computed with the model as it was;
+        the schemes read ``f_n`` and ``a_n`` and the energy balance the
+        potential. All three are recomputed with the model now (``a_n`` being
+        the right limit of the acceleration's jump), so that the energy
+        balance (Eq. 40) counts no spurious energy for the change, and the
+        step history is dropped as at a load breakpoint: the predictor's and
+        the error estimate's extrapolation would run across the jump.
+
+        Raises
+        ------
+        ModelError
+            When the model cannot be evaluated at the current state (the
+            integrator is then left as it was).
+        """
+        s, ev = self._s, self.ev
+        current = s.current
+        try:
+            f = ev.force(current.u)
+            p = ev.load(current.t)
+            a = ev.acceleration(current.t, current.u, current.v, f, p)
+            potential = float(ev.potential_energy(current.u))
+        except ModelError:
+            raise
+        except Exception as exc:
+            raise ModelError(f"the changed model cannot be evaluated at the current state "
+                             f"(t = {current.t:.10g}): {type(exc).__name__}: {exc}") from None
+        finally:
+            self._sync_counters()
+        s.current = State(current.t, current.u, current.v, a, f, p)
+        s.previous = None
+        s.potential = potential
+        self._model_version = getattr(self.system, "parameter_version", None)
+
+    def _follow_model(self) -> bool:
+        """:meth:`model_changed` if the model's ``parameter_version`` moved;
+        ``False`` (status MODEL_ERROR) when the changed model fails there."""
+        try:
+            self.model_changed()
+        except ModelError as exc:
+            return self._fail(Status.MODEL_ERROR, str(exc))
+        return True
+
     def _refresh_load(self):
         current = self._s.current
         p = self.ev.load(current.t)
@@ -981,6 +1032,10 @@ class Integrator:
             return False
         if not t_limit > self.t:
             raise ValueError(f"t_limit must be > t = {self.t}, got {t_limit!r}")
+        if self._model_version is not None \
+                and self.system.parameter_version != self._model_version \
+                and not self._follow_model():
+            return False
         if self.t_bound is not None:
             t_limit = min(t_limit, self.t_bound)
         start = time.process_time()
@@ -1104,6 +1159,10 @@ class Integrator:
         driver = self._driver
         while self.t < t_stop:
             if self.failed:
+                return False
+            if self._model_version is not None \
+                    and self.system.parameter_version != self._model_version \
+                    and not self._follow_model():
                 return False
             held = driver.held_load(self)
             if self._s.first_step_pending or held is None:

@@ -144,6 +144,46 @@ def test_dumbbell_parameters_follow_the_hand_written_model():
         assert rel(model.stiffness_derivative(u, w), reference.stiffness_derivative(u, w)) < 1e-10
 
 
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_a_parameter_changed_mid_run_continues_as_a_run_started_there(scheme):
+    """set_parameters between two advances: the run goes on as a run of the
+    changed model started from the state reached (force, acceleration and
+    potential energy of the changed model, no history), and the energy balance
+    counts nothing for the change itself."""
+    h, t1, t2 = 0.01, 0.5, 1.0
+    model = spring_chain(3)
+    itg = hfdi.Integrator(model, scheme, step=h, compiled=False)
+    assert itg.advance(t1)
+    reached, error_before = itg.state, itg.energy_error
+    model.set_parameters(k=30.0)
+    assert itg.advance(t2)
+    fresh = hfdi.Integrator(spring_chain(3, k=30.0), scheme, step=h, compiled=False,
+                            t0=reached.t, u0=reached.u, v0=reached.v)
+    assert fresh.advance(t2)
+    assert itg.statistics.steps - 50 == fresh.statistics.steps == 50
+    np.testing.assert_allclose(itg.state.u, fresh.state.u, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(itg.state.v, fresh.state.v, rtol=1e-12, atol=1e-14)
+    assert itg.total_energy == pytest.approx(fresh.total_energy, rel=1e-12)
+    # the change of the potential (about 20 J here) is not an energy error
+    assert abs(itg.energy_error - error_before - fresh.energy_error) \
+        < 1e-9 * itg.total_energy
+
+
+def test_a_changed_model_that_cannot_be_evaluated_stops_the_run():
+    x = sympy.Symbol("x")
+    c = sympy.Symbol("c")
+    model = EnergyModel((x,), x ** 2 / 2 + c * x ** 4, [1.0], parameters={c: 0.0},
+                        initial_displacement=[2.0])
+    itg = hfdi.Integrator(model, "newmark", step=0.01, compiled=False)
+    assert itg.advance(0.1)
+    state = itg.state
+    model.set_parameters(c=1e308)       # the force overflows
+    assert not itg.advance(0.2)
+    assert itg.status == hfdi.Status.MODEL_ERROR and "changed model" in itg.message
+    assert itg.t == state.t
+    np.testing.assert_array_equal(itg.state.u, state.u)
+
+
 def test_set_parameters_rejects_unknown_names_and_bad_values():
     model = elastic_pendulum()
     with pytest.raises(ValueError, match="not a parameter"):

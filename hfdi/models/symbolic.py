@@ -354,6 +354,7 @@ class EnergyModel(SecondOrderSystem):
         self.energy = energy
         self.parameter_symbols = param_symbols
         self._param_values = param_values
+        self.parameter_version = 0           # counts set_parameters (Integrator.model_changed)
         self.velocity_symbols = velocity_symbols
         self.time_symbol = time
         self._quantity_names, self._quantity_sizes, quantity_exprs = self._parse_quantities(
@@ -545,6 +546,10 @@ class EnergyModel(SecondOrderSystem):
     def set_parameters(self, values: Mapping | None = None, **by_name) -> None:
         """Change parameter values in place; the compiled functions are kept.
 
+        An :class:`~hfdi.Integrator` running this model follows the change from
+        its current time on (it sees :attr:`parameter_version` change and calls
+        its :meth:`~hfdi.Integrator.model_changed`).
+
         Parameters
         ----------
         values : dict of sympy.Symbol (or name) to float, optional
@@ -562,6 +567,7 @@ class EnergyModel(SecondOrderSystem):
                 raise ValueError(f"{key!r} is not a parameter of this model (parameters: {known})")
             current[index[key]] = _real(value, f"parameter {key}")
         self._param_values = tuple(current)
+        self.parameter_version += 1
 
     def with_parameters(self, values: Mapping | None = None, **by_name) -> "EnergyModel":
         """A copy with other parameter values, sharing the compiled functions."""
