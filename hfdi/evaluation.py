@@ -81,7 +81,7 @@ def _first_bad(values) -> str:
     return f"{float(value)!r} at {index}"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class State:
     """The solution at one time.
 
@@ -102,6 +102,13 @@ class State:
     a: np.ndarray
     f: np.ndarray
     p: np.ndarray
+
+    def __init__(self, t, u, v, a, f, p):
+        # the fields written once, past the frozen class's __setattr__, which
+        # costs three times as much (a co-simulation step makes one or two States)
+        fields = self.__dict__
+        fields["t"], fields["u"], fields["v"], fields["a"], fields["f"], fields["p"] = \
+            t, u, v, a, f, p
 
     def copy(self) -> "State":
         """A copy owning copies of its arrays (``copy.deepcopy``, at a tenth of its cost)."""

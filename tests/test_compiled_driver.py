@@ -299,8 +299,8 @@ def test_a_faulty_held_load_fails_the_run_as_on_the_python_path():
     value[1] = np.nan
     assert not itg.advance(0.02)
     assert itg.t == 0.01 and "not finite" in itg.message
-    # the driver's test of the value: a finite load whose sum of squares
-    # overflows is a load; an infinite one goes to the Python driver's report
+    # the driver's test of the value: a huge finite load is a load; an
+    # infinite one goes to the Python driver's report
     value[1] = 1e200
     assert itg._driver.held_load(itg) is value
     value[1] = -np.inf
