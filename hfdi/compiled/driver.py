@@ -35,6 +35,7 @@ from numba import njit, types
 from ..evaluation import State
 from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
                       NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt)
+from .lapack import all_finite
 from .attempt import HAS_PREVIOUS as A_HAS_PREVIOUS
 from .attempt import HAS_START_FORCE as A_HAS_START_FORCE
 from .attempt import FLOOR as A_FLOOR
@@ -370,6 +371,10 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
     history = np.empty((2, n))
     taken = 0
     rejections = 0
+    if held.shape[0] and not all_finite(held):
+        # the Python driver evaluates the load and reports which entry
+        counters[REJECTIONS] = 0
+        return HAND_OVER, taken
     while scalars[T_CURRENT] < t_stop:
         if taken >= capacity:
             counters[REJECTIONS] = rejections
@@ -616,8 +621,9 @@ class CompiledDriver:
 
     def held_load(self, integrator):
         """The :class:`~hfdi.HeldLoad`'s value as :func:`drive` adds it (empty
-        without one), or ``None`` when it is not a finite (N,) vector: the
-        Python driver then takes the steps and reports the fault."""
+        without one), or ``None`` when it is not an (N,) vector: the Python
+        driver then takes the steps and reports the fault (as it does for a
+        value that is not finite, which :func:`drive` hands over)."""
         extra = integrator.ev.extra_load
         if extra is None:
             return np.zeros(0)
@@ -626,10 +632,6 @@ class CompiledDriver:
         except Exception:
             return None
         if value.shape != (self.n,):
-            return None
-        # called before every advance (a co-simulation step): the method, not
-        # np.all, whose dispatch costs four times the test
-        if not np.isfinite(value).all():
             return None
         return value
 
