@@ -19,7 +19,6 @@ pytest.importorskip("pythonfmu")
 fmpy = pytest.importorskip("fmpy")
 
 from fmpy import extract, read_model_description  # noqa: E402
-from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
 from fmu.build import BuildError, build  # noqa: E402
 from fmu.master import CoSimulationError, Unit  # noqa: E402

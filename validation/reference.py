@@ -63,7 +63,6 @@ import inspect
 import io
 import json
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field, replace
