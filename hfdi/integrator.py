@@ -748,21 +748,17 @@ class Integrator:
             When the model cannot be evaluated at the current state (the
             integrator is then left as it was).
         """
-        s, ev = self._s, self.ev
-        current = s.current
+        s = self._s
         try:
-            f = ev.force(current.u)
-            p = ev.load(current.t)
-            a = ev.acceleration(current.t, current.u, current.v, f, p)
-            potential = float(ev.potential_energy(current.u))
+            potential = self.ev.potential_energy(s.current.u)
+            self._refresh_load(new_force=True)      # the state is replaced last
         except ModelError:
             raise
         except Exception as exc:
             raise ModelError(f"the changed model cannot be evaluated at the current state "
-                             f"(t = {current.t:.10g}): {type(exc).__name__}: {exc}") from None
+                             f"(t = {s.current.t:.10g}): {type(exc).__name__}: {exc}") from None
         finally:
             self._sync_counters()
-        s.current = State(current.t, current.u, current.v, a, f, p)
         s.previous = None
         s.potential = potential
         self._model_version = getattr(self.system, "parameter_version", None)
@@ -770,16 +766,20 @@ class Integrator:
     def _follow_model(self) -> bool:
         """:meth:`model_changed` if the model's ``parameter_version`` moved;
         ``False`` (status MODEL_ERROR) when the changed model fails there."""
+        if self._model_version is None or self.system.parameter_version == self._model_version:
+            return True
         try:
             self.model_changed()
         except ModelError as exc:
             return self._fail(Status.MODEL_ERROR, str(exc))
         return True
 
-    def _refresh_load(self):
+    def _refresh_load(self, new_force=False):
+        """The current state with ``p_n`` and ``a_n`` (the right limit) from
+        the load now, and ``f_n`` too with ``new_force`` (or when not kept)."""
         current = self._s.current
         p = self.ev.load(current.t)
-        f = current.f if current.f is not None else self.ev.force(current.u)
+        f = self.ev.force(current.u) if new_force or current.f is None else current.f
         a = self.ev.acceleration(current.t, current.u, current.v, f, p)
         self._s.current = State(current.t, current.u, current.v, a, f, p)
 
@@ -1032,9 +1032,7 @@ class Integrator:
             return False
         if not t_limit > self.t:
             raise ValueError(f"t_limit must be > t = {self.t}, got {t_limit!r}")
-        if self._model_version is not None \
-                and self.system.parameter_version != self._model_version \
-                and not self._follow_model():
+        if not self._follow_model():
             return False
         if self.t_bound is not None:
             t_limit = min(t_limit, self.t_bound)
@@ -1160,9 +1158,7 @@ class Integrator:
         while self.t < t_stop:
             if self.failed:
                 return False
-            if self._model_version is not None \
-                    and self.system.parameter_version != self._model_version \
-                    and not self._follow_model():
+            if not self._follow_model():
                 return False
             held = driver.held_load(self)
             if self._s.first_step_pending or held is None:
