@@ -10,7 +10,8 @@ import numpy as np
 from .evaluation import Evaluator, ModelError, NonFiniteError, State
 from .linalg import SingularMatrixError, all_finite
 
-__all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton", "solve_step", "StepOutcome"]
+__all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton",
+           "solve_step", "StepOutcome", "CONSTANT_MEMORY", "NO_MEASUREMENT"]
 
 _isfinite = math.isfinite
 _sqrt = math.sqrt
@@ -122,45 +123,103 @@ def velocity_history_factor(sigma: float, order: int) -> float:
     return 1.0 + (3.0 + 2.0 * sigma) * sigma ** (1 - order)
 
 
-def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: int):
+#: Memory of the corrector's carried quadratic constant (docs/algorithm.md,
+#: "Corrector"). A measurement replaces the constant when it is larger, else
+#: the constant shrinks by this factor: the constant varies with the
+#: direction of the error from step to step, and a memory of its peaks keeps
+#: one small measurement from stopping the next corrections too early.
+#: A Newton run that stops after one correction measures nothing; the test
+#: then uses a guard, the constant divided by this factor once for every such
+#: run since the last measurement: trust in an old measurement fades, and a
+#: second correction, which measures again, comes back from time to time.
+CONSTANT_MEMORY = 0.9
+
+#: The carried quadratic constant and its guard before any measurement.
+NO_MEASUREMENT = (math.inf, math.inf)
+
+_EPS = float(np.finfo(float).eps)
+
+
+def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: int,
+           memory: tuple = NO_MEASUREMENT, estimated: bool = False):
     """Newton's method on ``problem`` from the guess ``u``.
 
     Converged when ``‖Δu‖ ≤ tol · max(‖u‖, floor)`` (Eq. 38 with an absolute
-    floor). Returns ``(u, corrections, converged, message, error)``, ``error``
-    an estimate of ``‖u − u*‖`` left after the last correction: from the
-    observed rate ``ρ`` of the last two corrections, ``ρ/(1 − ρ) ‖Δu‖``
-    (SUNDIALS' test); after a single correction, the quadratic
-    ``‖Δu‖² / max(‖u‖, floor)``.
+    floor) or, with ``estimated``, also when the estimate of the error
+    ``‖u − u*‖`` left after the correction is at most that bound: after the
+    first correction ``G ‖Δu‖²`` with the guard ``G`` of the quadratic
+    constant carried from earlier corrections (``memory``; ``inf`` when none
+    was measured, and then the first correction is never enough), after later
+    ones ``ρ/(1 − ρ) ‖Δu‖`` with the observed rate ``ρ`` of the last two
+    (SUNDIALS' test, for quadratic convergence or not).
+
+    Every correction after the first measures the constant,
+    ``m = max(‖Δu_k‖, ε max(‖u‖, floor)) / ‖Δu_{k−1}‖²`` (a correction below
+    rounding tells no more than rounding): the constant becomes
+    ``max(m, CONSTANT_MEMORY · C)`` (``m`` for the first) and the guard the
+    constant. A run that converges after one correction divides the guard by
+    :data:`CONSTANT_MEMORY`.
+
+    Parameters
+    ----------
+    memory : (float, float)
+        The carried constant ``C`` and its guard ``G`` (:data:`NO_MEASUREMENT`).
+    estimated : bool
+        Stop on the estimated error too (``Integrator(newton_test="error")``).
+
+    Returns
+    -------
+    u, corrections, converged, message, error, memory
+        ``error`` the estimate of ``‖u − u*‖`` after the last correction: as
+        above, with ``C`` rather than ``G`` after one correction (the guard
+        is a safety margin, not the estimate), and the quadratic
+        ``‖Δu‖² / max(‖u‖, floor)`` when Eq. 38 passes at the first.
+        ``memory`` the constant and guard after this run of corrections.
     """
     residual_and_jacobian = problem.residual_and_jacobian
     solve = ev.solve
+    constant, guard = memory
     previous = math.inf
     for k in range(1, max_iterations + 1):
         residual, tangent = residual_and_jacobian(u)
         if not all_finite(residual):
-            return u, k - 1, False, "residual is not finite", math.inf
+            return u, k - 1, False, "residual is not finite", math.inf, (constant, guard)
         try:
             du = solve(tangent, -residual)
         except SingularMatrixError as exc:
-            return u, k - 1, False, f"tangent is singular ({exc})", math.inf
+            return u, k - 1, False, f"tangent is singular ({exc})", math.inf, (constant, guard)
         # ‖Δu‖² as np.linalg.norm forms it; NaN or infinity in Δu makes it
         # non-finite (an overflow too, hence the entry-wise test only then)
         du2 = du.dot(du)
         if not _isfinite(du2) and not all_finite(du):
-            return u, k, False, "Newton correction is not finite", math.inf
+            return u, k, False, "Newton correction is not finite", math.inf, (constant, guard)
         u = u + du
         size = _sqrt(u.dot(u))
-        if _sqrt(du2) <= tol * max(size, floor):
-            step = _sqrt(du2)
-            if previous < math.inf:
-                rate = step / previous
-                error = step * rate / (1.0 - rate) if rate < 1.0 else step
-            else:
-                error = du2 / max(size, floor)
-            return u, k, True, "", error
-        previous = _sqrt(du2)
+        step = _sqrt(du2)
+        scale = max(size, floor)
+        bound = tol * scale
+        # a correction larger than the bound is > 0, so previous > 0 here
+        if previous < math.inf:
+            measured = max(step, _EPS * scale) / (previous * previous)
+            constant = measured if constant == math.inf else \
+                max(measured, CONSTANT_MEMORY * constant)
+            guard = constant
+            rate = step / previous
+            error = step * rate / (1.0 - rate) if rate < 1.0 else step
+            founded = estimated and rate < 1.0
+        else:
+            # Eq. 38's own estimate when it passes, else the carried constant's
+            error = du2 / scale
+            founded = estimated and step > bound and guard * du2 <= bound
+            if founded:
+                error = constant * du2
+        if step <= bound or (founded and error <= bound):
+            if k == 1:
+                guard = guard / CONSTANT_MEMORY
+            return u, k, True, "", error, (constant, guard)
+        previous = step
     return u, max_iterations, False, f"no convergence in N_max = {max_iterations} corrections", \
-        math.inf
+        math.inf, (constant, guard)
 
 
 @dataclass
@@ -180,6 +239,9 @@ class StepOutcome:
     newton_error : float
         The largest estimate over the stages of the error the corrector left
         in ``u`` (see :func:`newton`).
+    newton_memory : (float, float)
+        The corrector's carried quadratic constant and its guard after the
+        attempt (see :func:`newton`).
     """
 
     state: State | None
@@ -187,6 +249,7 @@ class StepOutcome:
     message: str = ""
     stages: list = field(default_factory=list)
     newton_error: float = 0.0
+    newton_memory: tuple = NO_MEASUREMENT
 
     @property
     def converged(self) -> bool:
@@ -198,10 +261,13 @@ class StepOutcome:
 
 
 def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
-               tol: float, floor: float, max_iterations: int) -> StepOutcome:
+               tol: float, floor: float, max_iterations: int,
+               memory: tuple = NO_MEASUREMENT, estimated: bool = False) -> StepOutcome:
     """One attempt at the step ``start.t → t_end``: every stage, predictor then Newton.
 
     ``predictor(s)`` gives the initial guess a time ``s`` after ``start.t``.
+    ``tol``, ``floor``, ``max_iterations``, ``memory`` and ``estimated`` are
+    :func:`newton`'s; the memory passes from stage to stage.
     A non-finite value or an exception raised by the model fails the attempt
     with its message, like a diverged corrector: a shorter step may avoid the
     state where the model fails. A wrong shape (:class:`ModelError`) is a
@@ -214,8 +280,9 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
     try:
         for index, fraction in enumerate(scheme.stage_fractions):
             problem = scheme.stage(ev, start, t_end, index, done)
-            u, k, ok, message, error = newton(ev, problem, predictor(fraction * h), tol, floor,
-                                              max_iterations)
+            u, k, ok, message, error, memory = newton(
+                ev, problem, predictor(fraction * h), tol, floor, max_iterations, memory,
+                estimated)
             iterations.append(k)
             newton_error = max(newton_error, error)
             if not ok:
@@ -232,4 +299,5 @@ def solve_step(ev: Evaluator, scheme, start: State, t_end: float, predictor,
         return StepOutcome(None, iterations, str(exc))
     except Exception as exc:  # the model failed at some state: treat as a failed attempt
         return StepOutcome(None, iterations, f"model raised {type(exc).__name__}: {exc}")
-    return StepOutcome(done[-1], iterations, stages=done[:-1], newton_error=newton_error)
+    return StepOutcome(done[-1], iterations, stages=done[:-1], newton_error=newton_error,
+                       newton_memory=memory)

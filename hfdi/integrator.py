@@ -37,6 +37,8 @@ __all__ = ["Integrator", "IntegratorState", "Result", "Statistics", "Status", "i
 
 _EPS = float(np.finfo(float).eps)
 _SQRT_EPS = math.sqrt(_EPS)
+#: Values of ``Integrator(newton_test=...)``.
+NEWTON_TESTS = ("correction", "error")
 
 
 class Status(enum.IntEnum):
@@ -147,6 +149,8 @@ class IntegratorState:
     last_energy_increment: float
     grid_origin: float
     grid_steps: int
+    newton_constant: float
+    newton_guard: float
     controller: str
     n_dof: int
 
@@ -234,13 +238,14 @@ class IntegratorState:
 
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
-STATE_FORMAT = "hfdi-integrator-state/1"
+STATE_FORMAT = "hfdi-integrator-state/2"
 _STATE_ARRAYS = ("u", "v", "a", "f", "p")
 _STATE_SCALARS = {"proposed_step": float, "first_step_pending": bool, "status": int,
                   "message": str, "potential": float, "initial_potential": float,
                   "work": float, "energy_error": float, "energy_scale": float,
                   "last_step": float, "last_iterations": int, "last_energy_increment": float,
-                  "grid_origin": float, "grid_steps": int, "controller": str, "n_dof": int}
+                  "grid_origin": float, "grid_steps": int, "newton_constant": float,
+                  "newton_guard": float, "controller": str, "n_dof": int}
 _STATISTICS_FIELDS = tuple(f.name for f in dataclasses.fields(Statistics))
 
 
@@ -331,6 +336,16 @@ class Integrator:
         Newton tolerance ``η`` of Eq. 38, in (0, 1). Default ``1e-8``, and at
         most ``rtol/1000`` (not below ``1e-12``) under error control so that
         the corrector's error stays below the one controlled.
+    newton_test : {"correction", "error"}, optional
+        When the corrector stops: ``"correction"``, the paper's Eq. 38 (the
+        last correction at most ``η · max(‖u‖, u_scale)``); ``"error"``, that
+        or the estimate of the error the correction left at most that bound
+        (after the first correction from the quadratic constant of the
+        corrections before, after later ones from their observed rate;
+        :func:`hfdi.corrector.newton`), which saves the confirming
+        correction most steps take. Default ``"error"`` under error control
+        alone, ``"correction"`` in the other modes (whose Newton counts are
+        the paper's ``N``). docs/algorithm.md, "Corrector", says why.
     first_step : float, optional
         First trial step. Default: ``1/ω`` with ``ω`` a Gershgorin bound of the
         highest frequency of ``(K(u0), M)``, capped by ``max_step``.
@@ -403,7 +418,7 @@ class Integrator:
                  tol=None, first_step=None, min_step=None, max_step=None, max_halvings=30,
                  max_steps=1_000_000, max_iterations=None, first_step_trials=40, t_bound=None,
                  energy_limit=None, extra_load=None, breakpoints=None, check_stiffness=True,
-                 compiled=None):
+                 compiled=None, newton_test=None):
         self.scheme: Scheme = get_scheme(scheme)
         checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
         if not isinstance(check_stiffness, bool):
@@ -438,6 +453,13 @@ class Integrator:
         self.max_iterations = c.max_iterations if max_iterations is None else \
             checks.integer("max_iterations", max_iterations, 1)
         self.tol = self._newton_tolerance(tol)
+        if newton_test is None:
+            newton_test = "error" if isinstance(c, ErrorControl) else "correction"
+        if newton_test not in NEWTON_TESTS:
+            raise ValueError(f"newton_test must be one of {', '.join(map(repr, NEWTON_TESTS))}, "
+                             f"got {newton_test!r}")
+        self.newton_test = newton_test
+        self._estimated = newton_test == "error"
         self.floor = float(getattr(system, "u_scale", 1.0) or 1.0)
         self.breakpoints = self._breakpoints(breakpoints) if c.uses_error_estimate else \
             np.empty(0)
@@ -472,7 +494,7 @@ class Integrator:
             energy_error=0.0,
             energy_scale=ev.kinetic_energy(current.v), last_step=math.nan,
             last_iterations=0, last_energy_increment=0.0, grid_origin=self.t0, grid_steps=0,
-            controller=repr(c), n_dof=n)
+            newton_constant=math.inf, newton_guard=math.inf, controller=repr(c), n_dof=n)
         self._arrival = current
         self._cpu(start)
 
@@ -714,6 +736,10 @@ class Integrator:
         if not (math.isfinite(saved.proposed_step) and saved.proposed_step > 0):
             raise ValueError(f"state.proposed_step must be finite and > 0, got "
                              f"{saved.proposed_step!r}")
+        for name in ("newton_constant", "newton_guard"):
+            if not getattr(saved, name) >= 0:
+                raise ValueError(f"state.{name} must be >= 0 (inf: none measured), got "
+                                 f"{getattr(saved, name)!r}")
 
     def load_changed(self) -> None:
         """Tell the integrator that the load jumps at the current time.
@@ -761,6 +787,7 @@ class Integrator:
             self._sync_counters()
         s.previous = None
         s.potential = potential
+        s.newton_constant = s.newton_guard = math.inf     # measured on the model as it was
         self._model_version = getattr(self.system, "parameter_version", None)
 
     def _follow_model(self) -> bool:
@@ -927,13 +954,20 @@ class Integrator:
         try:
             if self._compiled is not None:
                 outcome = self._compiled.solve_step(current, previous, t_end, self.tol,
-                                                    self.floor, self.max_iterations)
+                                                    self.floor, self.max_iterations,
+                                                    (s.newton_constant, s.newton_guard),
+                                                    self._estimated)
             else:
                 outcome = solve_step(ev, self.scheme, current, t_end,
                                      lambda offset: predict(current, previous, offset),
-                                     self.tol, self.floor, self.max_iterations)
+                                     self.tol, self.floor, self.max_iterations,
+                                     (s.newton_constant, s.newton_guard), self._estimated)
         finally:
             ev.left_limit_at = None
+        if outcome.converged:
+            # what the corrector measured (a failed attempt's measurements are
+            # not kept: the compiled attempt reports them only on success)
+            s.newton_constant, s.newton_guard = outcome.newton_memory
         attempt = Attempt(h, proposed, clipped, outcome.converged, outcome.total_iterations,
                           outcome.message, history=previous is not None)
         attempt.outcome = outcome

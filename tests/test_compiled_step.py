@@ -91,11 +91,15 @@ def test_compiled_attempt_takes_the_same_steps(problem, scheme, mode):
         return
     # Under error control the step sizes follow the error estimate, a
     # difference of nearly equal states, and the controller carries it from
-    # step to step: rounding differences of K and T move the step sizes by up
-    # to ~1e-6 relative here. The counts stay equal, and the end states
-    # (both runs land on t_end) agree to ~3e-11.
+    # step to step: rounding differences of K and T move the step sizes. The
+    # weights of v also hold the corrector's estimated remaining error, which
+    # after a single correction is the carried quadratic constant times
+    # ‖Δu‖², the constant measured from second corrections at the level of
+    # rounding: the step sizes differ by up to ~3e-5 relative here (~2e-8
+    # with newton_test="correction"). The counts stay equal, and the end
+    # states (both runs land on t_end) agree to ~3e-11.
     _assert_same_counts(python, compiled)
-    np.testing.assert_allclose(compiled.t, python.t, rtol=1e-5, atol=0)
+    np.testing.assert_allclose(compiled.t, python.t, rtol=2e-4, atol=0)
     assert _relative_error(compiled.u[-1], python.u[-1]) < 1e-10
     assert _relative_error(compiled.v[-1], python.v[-1]) < 1e-8
 

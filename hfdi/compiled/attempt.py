@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit, types
 from numba.experimental import structref
 
-from ..corrector import StepOutcome
+from ..corrector import CONSTANT_MEMORY, NO_MEASUREMENT, StepOutcome
 from ..evaluation import ModelError, NonFiniteError, State
 from ..schemes import HFDI, Bathe, Newmark
 from .lapack import all_finite as _all_finite
@@ -57,15 +57,18 @@ STEP_MATRIX_SINGULAR = 9
 # schemes
 NEWMARK, BATHE, HFDI_SCHEME = 0, 1, 2
 # entries of ``config`` (int64)
-SCHEME, HAS_PREVIOUS, HAS_START_FORCE, MAX_ITERATIONS, MASS_KIND, DAMPING_KIND = range(6)
+SCHEME, HAS_PREVIOUS, HAS_START_FORCE, MAX_ITERATIONS, MASS_KIND, DAMPING_KIND, \
+    NEWTON_TEST = range(7)
 # entries of ``coefficients`` (float64)
-GAMMA, BETA, T_START, T_PREVIOUS, T_END, TOL, FLOOR = range(7)
+GAMMA, BETA, T_START, T_PREVIOUS, T_END, TOL, FLOOR, NEWTON_CONSTANT, NEWTON_GUARD = range(9)
 # entries of the returned ``info`` (int64)
 ITERATIONS_0, ITERATIONS_1, STAGES_COUNTED, NFEV, NJEV, NTEV, NLU, FAILED_STAGE = range(8)
 # rows of the returned ``out``: the end state, then Bathe's mid-step state
 END_U, END_V, END_A, END_F, MID_U, MID_V, MID_A = range(7)
 # kinds of M and C
 NONE, DIAGONAL, DENSE = 0, 1, 2
+
+_EPS = float(np.finfo(np.float64).eps)
 
 
 # -- small dense linear algebra ----------------------------------------------------
@@ -145,40 +148,56 @@ def _predict(u, v, a, has_previous, H, u_previous, v_previous, s):
 
 
 @njit(**JIT_OPTIONS)
-def _newton_update(u, tangent, residual, tol, floor, previous, counters, du, lu, pivots,
-                   ints):
+def _newton_update(u, tangent, residual, tol, floor, previous, constant, guard, estimated,
+                   counters, du, lu, pivots, ints):
     """One correction ``Δu = −tangent⁻¹ residual`` added to ``u`` in place, and
-    the test of Eq. 38, as :func:`hfdi.corrector.newton`: ``(status, done,
-    error, |Δu|)`` with ``done`` true when converged. ``du`` and LAPACK's
-    ``lu``, ``pivots`` and ``ints`` are work arrays."""
+    the convergence test of :func:`hfdi.corrector.newton` (Eq. 38, or with
+    ``estimated`` the estimated remaining error too): ``(status, done, error,
+    |Δu|, constant, guard)`` with ``done`` true when converged and the
+    carried quadratic constant and its guard. ``du`` and LAPACK's ``lu``,
+    ``pivots`` and ``ints`` are work arrays."""
     counters[NLU] += 1
     for i in range(du.shape[0]):
         du[i] = -residual[i]
     if not gesv(tangent, du, lu, pivots, ints):
-        return TANGENT_SINGULAR, False, math.inf, previous
+        return TANGENT_SINGULAR, False, math.inf, previous, constant, guard
     du2 = np.dot(du, du)
     if not math.isfinite(du2) and not _all_finite(du):
-        return CORRECTION_NOT_FINITE, False, math.inf, previous
+        return CORRECTION_NOT_FINITE, False, math.inf, previous, constant, guard
     u += du
     size = math.sqrt(np.dot(u, u))
     step = math.sqrt(du2)
-    if step <= tol * max(size, floor):
-        if previous < math.inf:
-            rate = step / previous
-            error = step * rate / (1.0 - rate) if rate < 1.0 else step
+    scale = max(size, floor)
+    bound = tol * scale
+    if previous < math.inf:
+        measured = max(step, _EPS * scale) / (previous * previous)
+        if constant == math.inf:
+            constant = measured
         else:
-            error = du2 / max(size, floor)
-        return OK, True, error, step
-    return OK, False, math.inf, step
+            constant = max(measured, CONSTANT_MEMORY * constant)
+        guard = constant
+        rate = step / previous
+        error = step * rate / (1.0 - rate) if rate < 1.0 else step
+        founded = estimated and rate < 1.0
+    else:
+        error = du2 / scale
+        founded = estimated and step > bound and guard * du2 <= bound
+        if founded:
+            error = constant * du2
+    if step <= bound or (founded and error <= bound):
+        if previous == math.inf:
+            guard = guard / CONSTANT_MEMORY
+        return OK, True, error, step, constant, guard
+    return OK, False, math.inf, step, constant, guard
 
 
 @njit(**JIT_OPTIONS)
 def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0,
-                   p, u, tol, floor, max_iterations, counters):
+                   p, u, tol, floor, max_iterations, constant, guard, estimated, counters):
     """Newton on ``ca M u + cv C u + f(u) = p − M a0 − C v0`` (``_InertiaStage``)
-    from the guess ``u``, corrected in place: ``(status, k, error)``, ``k = −1``
-    when a model value failed (the stage's corrections are then not counted,
-    as on the Python path)."""
+    from the guess ``u``, corrected in place: ``(status, k, error, constant, guard)``,
+    ``k = −1`` when a model value failed (the stage's corrections are then not
+    counted, as on the Python path)."""
     n = u.shape[0]
     rhs = p - _times(Md, Mf, m_kind, a0)
     if c_kind != NONE:
@@ -196,7 +215,7 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
         counters[NFEV] += 1
         f = force(u, params)
         if not _all_finite(f):
-            return FORCE_NOT_FINITE, -1, math.inf
+            return FORCE_NOT_FINITE, -1, math.inf, constant, guard
         _times_into(Md, Mf, m_kind, u, work)
         for i in range(n):
             residual[i] = ca * work[i] + f[i] - rhs[i]
@@ -207,7 +226,7 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
         counters[NJEV] += 1
         K = stiffness(u, params)
         if not _all_finite(K):
-            return STIFFNESS_NOT_FINITE, -1, math.inf
+            return STIFFNESS_NOT_FINITE, -1, math.inf, constant, guard
         # ca M + cv C + K, summed as hfdi.linalg.combine sums them
         for i in range(n):
             for j in range(n):
@@ -219,17 +238,17 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
                 tangent[i, j] = entry + K[i, j]
             tangent[i, i] += shift[i]
         if not _all_finite(residual):
-            return RESIDUAL_NOT_FINITE, k - 1, math.inf
-        status, done, error, previous = _newton_update(u, tangent, residual, tol, floor,
-                                                       previous, counters, du, lu, pivots,
-                                                       ints)
+            return RESIDUAL_NOT_FINITE, k - 1, math.inf, constant, guard
+        status, done, error, previous, constant, guard = _newton_update(
+            u, tangent, residual, tol, floor, previous, constant, guard, estimated, counters, du,
+            lu, pivots, ints)
         if status == TANGENT_SINGULAR:
-            return status, k - 1, math.inf
+            return status, k - 1, math.inf, constant, guard
         if status != OK:
-            return status, k, math.inf
+            return status, k, math.inf, constant, guard
         if done:
-            return OK, k, error
-    return NO_CONVERGENCE, max_iterations, math.inf
+            return OK, k, error, constant, guard
+    return NO_CONVERGENCE, max_iterations, math.inf, constant, guard
 
 
 @njit(**JIT_OPTIONS)
@@ -273,11 +292,12 @@ def _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots,
 
 @njit(**JIT_OPTIONS)
 def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_kind, u_n, v_n,
-                f_n, p_n, p, pt, h, u, tol, floor, max_iterations, counters, out):
+                f_n, p_n, p, pt, h, u, tol, floor, max_iterations, constant, guard, estimated,
+                counters, out):
     """Newton on the HFDI residual ``F(u)`` of Eq. 21 with its exact tangent
     ``S B⁻¹ S + C + 2h/3 K − h²/6 T(u)[v_D]`` (``_HFDIStage``) from the guess
     ``u``, corrected in place, then the end state into ``out``:
-    ``(status, k, error)``."""
+    ``(status, k, error, constant, guard)``."""
     n = u.shape[0]
     c = h * h / 6.0
     c2 = 2.0 * h / 3.0
@@ -299,13 +319,13 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
             B[i, i] += d[i]
         counters[NLU] += 1
         if not getrf(B, B_lu, b_pivots, b_ints):
-            return STEP_MATRIX_SINGULAR, 0, math.inf
+            return STEP_MATRIX_SINGULAR, 0, math.inf, constant, guard
     else:
         _add_diagonal(b_diagonal, c2, Md, m_kind)
         _add_diagonal(b_diagonal, c, Cd, c_kind)
         for i in range(n):
             if not (b_diagonal[i] != 0.0 and math.isfinite(b_diagonal[i])):
-                return STEP_MATRIX_SINGULAR, 0, math.inf
+                return STEP_MATRIX_SINGULAR, 0, math.inf, constant, guard
     q0 = -_times(Md, Mf, m_kind, u_n + (h / 3.0) * v_n)
     F0 = -_times(Md, Mf, m_kind, v_n) - _times(Cd, Cf, c_kind, u_n) - (h / 3.0) * g_n
     dense_mass, dense_damping = m_kind == DENSE, c_kind == DENSE
@@ -321,13 +341,13 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         counters[NFEV] += 1
         f = force(u, params)
         if not _all_finite(f):
-            return FORCE_NOT_FINITE, -1, math.inf
+            return FORCE_NOT_FINITE, -1, math.inf, constant, guard
         for i in range(n):
             g[i] = p[i] - f[i]
         counters[NJEV] += 1
         K = stiffness(u, params)
         if not _all_finite(K):
-            return STIFFNESS_NOT_FINITE, -1, math.inf
+            return STIFFNESS_NOT_FINITE, -1, math.inf, constant, guard
         _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints,
                             vD)
         # residual = M v_D − c2 g + c (p' − K v_D) + F0 (+ C u)
@@ -344,7 +364,7 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         counters[NTEV] += 1
         T = derivative(u, vD, params)
         if not _all_finite(T):
-            return DERIVATIVE_NOT_FINITE, -1, math.inf
+            return DERIVATIVE_NOT_FINITE, -1, math.inf, constant, guard
         # S = M − c K and R = C + c2 K − c T, summed as hfdi.linalg.combine sums them
         for i in range(n):
             for j in range(n):
@@ -366,26 +386,26 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
             getrs_columns(B_lu, b_pivots, b_ints, SB, work_matrix)
         tangent += S @ SB
         if not _all_finite(residual):
-            return RESIDUAL_NOT_FINITE, k - 1, math.inf
-        status, done, error, previous = _newton_update(u, tangent, residual, tol, floor,
-                                                       previous, counters, du, lu, pivots,
-                                                       ints)
+            return RESIDUAL_NOT_FINITE, k - 1, math.inf, constant, guard
+        status, done, error, previous, constant, guard = _newton_update(
+            u, tangent, residual, tol, floor, previous, constant, guard, estimated, counters, du,
+            lu, pivots, ints)
         if status == TANGENT_SINGULAR:
-            return status, k - 1, math.inf
+            return status, k - 1, math.inf, constant, guard
         if status != OK:
-            return status, k, math.inf
+            return status, k, math.inf, constant, guard
         if done:
             k_done = k
             converged = True
             break
     if not converged:
-        return NO_CONVERGENCE, max_iterations, math.inf
+        return NO_CONVERGENCE, max_iterations, math.inf, constant, guard
     # the end state: f, v_D and a = M⁻¹(p − f − C v) (Eq. 14)
     counters[NFEV] += 1
     f = force(u, params)
     if not _all_finite(f):
         out[END_U] = u
-        return FORCE_NOT_FINITE, k_done, error
+        return FORCE_NOT_FINITE, k_done, error, constant, guard
     for i in range(n):
         g[i] = p[i] - f[i]
     v = np.empty(n)
@@ -400,8 +420,8 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
     out[END_A] = a
     out[END_F] = f
     if not _end_finite(out):
-        return END_NOT_FINITE, k_done, error
-    return OK, k_done, error
+        return END_NOT_FINITE, k_done, error, constant, guard
+    return OK, k_done, error, constant, guard
 
 
 _SIGNATURE = types.Tuple((types.int64, MATRIX, INDEX_VECTOR, types.float64))(
@@ -420,12 +440,17 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     ----------
     force, stiffness, derivative : compiled kernels (see :mod:`hfdi.compiled.signatures`)
     params : ndarray (P,)
-    config : ndarray (6,) int64
+    config : ndarray (7,) int64
         Scheme (0 Newmark, 1 Bathe, 2 HFDI), history present, ``start`` has
-        ``f``, ``N_max``, kind of ``M`` and of ``C`` (0 none, 1 diagonal, 2 dense).
-    coefficients : ndarray (7,)
+        ``f``, ``N_max``, kind of ``M`` and of ``C`` (0 none, 1 diagonal, 2
+        dense), and whether Newton stops on the estimated error too
+        (``estimated`` of :func:`hfdi.corrector.newton`).
+    coefficients : ndarray (9,)
         Scheme parameters ``γ``, ``β`` (Newmark; ``γ`` alone for Bathe),
-        ``t_start``, ``t_previous``, ``t_end``, Newton tolerance ``η`` and floor.
+        ``t_start``, ``t_previous``, ``t_end``, Newton tolerance ``η``, floor,
+        and Newton's carried quadratic constant and its guard
+        (:func:`hfdi.corrector.newton`), replaced by theirs after the attempt
+        when it succeeds (status 0).
     Md, Mf, Cd, Cf : ndarray (N,) and (N, N)
         ``M`` and ``C`` as a diagonal or a dense array, whichever their kind says.
     start : ndarray (5, N)
@@ -455,6 +480,8 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     m_kind, c_kind = config[MASS_KIND], config[DAMPING_KIND]
     t0, t_end = coefficients[T_START], coefficients[T_END]
     tol, floor = coefficients[TOL], coefficients[FLOOR]
+    constant, guard = coefficients[NEWTON_CONSTANT], coefficients[NEWTON_GUARD]
+    estimated = config[NEWTON_TEST] != 0
     H = t0 - coefficients[T_PREVIOUS]
     u_n, v_n, a_n = start[0], start[1], start[2]
     h = t_end - t0
@@ -468,34 +495,40 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
             if not _all_finite(f_n):
                 return FORCE_NOT_FINITE, out, info, math.inf
         guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
-        status, k, error = _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd,
-                                       Cf, c_kind, u_n, v_n, f_n, start[4], loads[1], loads[2],
-                                       h, guess, tol, floor, max_iterations, info, out)
+        status, k, error, constant, guard = _hfdi_stage(
+            force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_kind, u_n, v_n, f_n,
+            start[4], loads[1], loads[2], h, guess, tol, floor, max_iterations, constant, guard,
+            estimated, info, out)
         if k >= 0:
             info[ITERATIONS_0] = k
             info[STAGES_COUNTED] = 1
+        if status == OK:
+            coefficients[NEWTON_CONSTANT], coefficients[NEWTON_GUARD] = constant, guard
         return status, out, info, error
     if scheme == NEWMARK:
         ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, h, coefficients[GAMMA],
                                                coefficients[BETA])
         u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
-        status, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf,
-                                          c_kind, ca, cv, a0, v0, loads[1], u, tol, floor,
-                                          max_iterations, info)
+        status, k, error, constant, guard = _inertia_stage(
+            force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0, loads[1],
+            u, tol, floor, max_iterations, constant, guard, estimated, info)
         if k >= 0:
             info[ITERATIONS_0] = k
             info[STAGES_COUNTED] = 1
         if status != OK:
             return status, out, info, math.inf
         status = _inertia_end(out, u, ca, cv, a0, v0)
-        return status, out, info, (error if status == OK else math.inf)
+        if status != OK:
+            return status, out, info, math.inf
+        coefficients[NEWTON_CONSTANT], coefficients[NEWTON_GUARD] = constant, guard
+        return status, out, info, error
     # Bathe: the trapezoidal rule over γ h, then the three-point backward formula
     g = coefficients[GAMMA]
     ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25)
     u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h)
-    status, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind,
-                                      ca, cv, a0, v0, loads[0], u, tol, floor, max_iterations,
-                                      info)
+    status, k, error, constant, guard = _inertia_stage(
+        force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0, loads[0], u,
+        tol, floor, max_iterations, constant, guard, estimated, info)
     if k >= 0:
         info[ITERATIONS_0] = k
         info[STAGES_COUNTED] = 1
@@ -517,16 +550,19 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     a0 = c1 * v_n + c2 * mid_v + c3 * v0
     info[FAILED_STAGE] = 1
     u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
-    status, k, error = _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind,
-                                      c3 * c3, c3, a0, v0, loads[1], u, tol, floor,
-                                      max_iterations, info)
+    status, k, error, constant, guard = _inertia_stage(
+        force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, c3 * c3, c3, a0, v0, loads[1],
+        u, tol, floor, max_iterations, constant, guard, estimated, info)
     if k >= 0:
         info[ITERATIONS_1] = k
         info[STAGES_COUNTED] = 2
     if status != OK:
         return status, out, info, math.inf
     status = _inertia_end(out, u, c3 * c3, c3, a0, v0)
-    return status, out, info, (max(newton_error, error) if status == OK else math.inf)
+    if status != OK:
+        return status, out, info, math.inf
+    coefficients[NEWTON_CONSTANT], coefficients[NEWTON_GUARD] = constant, guard
+    return status, out, info, max(newton_error, error)
 
 
 # -- the Python side -------------------------------------------------------------------
@@ -608,9 +644,9 @@ class CompiledStep:
         n = ev.n
         m_kind, self.Md, self.Mf = _kind_and_arrays(ev.mass, n)
         c_kind, self.Cd, self.Cf = _kind_and_arrays(ev.damping, n)
-        self.config = np.zeros(6, np.int64)
+        self.config = np.zeros(7, np.int64)
         self.config[MASS_KIND], self.config[DAMPING_KIND] = m_kind, c_kind
-        self.coefficients = np.zeros(7)
+        self.coefficients = np.zeros(9)
         if type(scheme) is Newmark:
             self.config[SCHEME] = NEWMARK
             self.coefficients[GAMMA], self.coefficients[BETA] = scheme.gamma, scheme.beta
@@ -647,7 +683,8 @@ class CompiledStep:
         return loads
 
     def solve_step(self, start: State, previous, t_end: float, tol: float, floor: float,
-                   max_iterations: int) -> StepOutcome:
+                   max_iterations: int, memory: tuple = NO_MEASUREMENT,
+                   estimated: bool = False) -> StepOutcome:
         """One attempt at the step ``start.t → t_end`` from the history ``previous``
         (``None`` after a restart): :func:`hfdi.corrector.solve_step` with the
         predictor :func:`hfdi.corrector.predict`."""
@@ -664,6 +701,8 @@ class CompiledStep:
         config[HAS_PREVIOUS] = previous is not None
         config[HAS_START_FORCE] = start.f is not None
         config[MAX_ITERATIONS] = max_iterations
+        config[NEWTON_TEST] = estimated
+        coefficients[NEWTON_CONSTANT], coefficients[NEWTON_GUARD] = memory
         coefficients[T_START], coefficients[T_END] = start.t, t_end
         coefficients[T_PREVIOUS] = previous.t if previous is not None else start.t
         coefficients[TOL], coefficients[FLOOR] = tol, floor
@@ -696,4 +735,6 @@ class CompiledStep:
             stages.append(State(t_mid, out[MID_U], out[MID_V], out[MID_A], None, loads[0]))
         f = out[END_F] if kind == HFDI_SCHEME else None
         end = State(t_end, out[END_U], out[END_V], out[END_A], f, loads[1])
-        return StepOutcome(end, iterations, stages=stages, newton_error=float(newton_error))
+        return StepOutcome(end, iterations, stages=stages, newton_error=float(newton_error),
+                           newton_memory=(float(coefficients[NEWTON_CONSTANT]),
+                                          float(coefficients[NEWTON_GUARD])))

@@ -42,6 +42,9 @@ from .attempt import FLOOR as A_FLOOR
 from .attempt import GAMMA as A_GAMMA
 from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import MAX_ITERATIONS as A_MAX_ITERATIONS
+from .attempt import NEWTON_CONSTANT as A_NEWTON_CONSTANT
+from .attempt import NEWTON_GUARD as A_NEWTON_GUARD
+from .attempt import NEWTON_TEST as A_NEWTON_TEST
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
@@ -327,7 +330,9 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
     held : ndarray (N,) or (0,)
         A :class:`~hfdi.HeldLoad`'s value, added to the load (none: empty).
     config, coefficients : the attempt's (see :func:`hfdi.compiled.attempt.attempt`),
-        scheme, ``N_max``, kinds of ``M`` and ``C``, ``γ``, ``β``, ``η`` and floor set
+        scheme, ``N_max``, kinds of ``M`` and ``C``, the Newton test, ``γ``, ``β``,
+        ``η`` and floor set; Newton's carried constant and guard read and updated
+        in place
     Md, Mf, Cd, Cf : ``M`` and ``C`` (see :func:`~hfdi.compiled.attempt.attempt`)
     settings : ndarray (12,)
         The controllers' sizes and factors, the energy limit (``inf``: none),
@@ -425,6 +430,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         if has_previous:
             history[0] = previous[U]
             history[1] = previous[V]
+        constant, guard = coefficients[A_NEWTON_CONSTANT], coefficients[A_NEWTON_GUARD]
         status, out, info, newton_error = attempt(
             force, stiffness, derivative, params, config, coefficients, Md, Mf, Cd, Cf,
             current, history, loads)
@@ -460,6 +466,8 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
             stops = a_stops or b_stops
         if stops:
             # the run stops here: the Python driver redoes this attempt and says why
+            # (from the corrector's memory as it was before it)
+            coefficients[A_NEWTON_CONSTANT], coefficients[A_NEWTON_GUARD] = constant, guard
             counters[REJECTIONS] = rejections
             return HAND_OVER, taken
         counters[STEPS] += 1
@@ -608,6 +616,7 @@ class CompiledDriver:
         self.breakpoints = np.ascontiguousarray(integrator.breakpoints, dtype=np.float64)
         self.config = step.config.copy()
         self.config[A_MAX_ITERATIONS] = integrator.max_iterations
+        self.config[A_NEWTON_TEST] = integrator.newton_test == "error"
         self.coefficients = step.coefficients.copy()
         self.coefficients[A_TOL], self.coefficients[A_FLOOR] = integrator.tol, integrator.floor
         self.n = n
@@ -669,6 +678,8 @@ class CompiledDriver:
         self.switches[SAVE_ROWS] = save_rows
         self.switches[MAX_STEPS] = integrator.max_steps
         self.switches[CALL_STEPS] = STEPS_PER_CALL
+        self.coefficients[A_NEWTON_CONSTANT] = s.newton_constant
+        self.coefficients[A_NEWTON_GUARD] = s.newton_guard
         if save_rows:
             row_scalars, row_states = np.empty((STEPS_PER_CALL, 6)), \
                 np.empty((STEPS_PER_CALL, 3, n))
@@ -690,6 +701,8 @@ class CompiledDriver:
         st.newton_iterations = co[NEWTON_ITERATIONS]
         st.error_test_failures = co[ERROR_TEST_FAILURES]
         s.proposed_step = sc[PROPOSED]
+        s.newton_constant = float(self.coefficients[A_NEWTON_CONSTANT])
+        s.newton_guard = float(self.coefficients[A_NEWTON_GUARD])
         if taken:
             # States own their arrays (one block each, never written again):
             # drive() writes into current and previous at the next call
