@@ -455,7 +455,7 @@ class Integrator:
         self.tol = self._newton_tolerance(tol)
         if newton_test is None:
             newton_test = "error" if isinstance(c, ErrorControl) else "correction"
-        if newton_test not in NEWTON_TESTS:
+        if not (isinstance(newton_test, str) and newton_test in NEWTON_TESTS):
             raise ValueError(f"newton_test must be one of {', '.join(map(repr, NEWTON_TESTS))}, "
                              f"got {newton_test!r}")
         self.newton_test = newton_test
