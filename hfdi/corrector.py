@@ -170,11 +170,13 @@ def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: 
     Returns
     -------
     u, corrections, converged, message, error, memory
-        ``error`` the estimate of ``‖u − u*‖`` after the last correction: as
-        above, with ``C`` rather than ``G`` after one correction (the guard
-        is a safety margin, not the estimate), and the quadratic
-        ``‖Δu‖² / max(‖u‖, floor)`` when Eq. 38 passes at the first.
-        ``memory`` the constant and guard after this run of corrections.
+        ``error`` the estimate of ``‖u − u*‖`` after the last correction,
+        which widens the velocity's weights (docs/algorithm.md, "Error
+        control"): as above, with ``C`` rather than ``G`` after one
+        correction (the guard is a safety margin, not the estimate), and the
+        quadratic ``‖Δu‖² / max(‖u‖, floor)`` when Eq. 38 passes at the
+        first. ``memory`` the constant and guard after this run of
+        corrections.
     """
     residual_and_jacobian = problem.residual_and_jacobian
     solve = ev.solve
@@ -206,14 +208,14 @@ def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: 
             guard = constant
             rate = step / previous
             error = step * rate / (1.0 - rate) if rate < 1.0 else step
-            founded = estimated and rate < 1.0
+            estimate_passes = estimated and rate < 1.0 and error <= bound
         else:
             # Eq. 38's own estimate when it passes, else the carried constant's
             error = du2 / scale
-            founded = estimated and step > bound and guard * du2 <= bound
-            if founded:
+            estimate_passes = estimated and step > bound and guard * du2 <= bound
+            if estimate_passes:
                 error = constant * du2
-        if step <= bound or (founded and error <= bound):
+        if step <= bound or estimate_passes:
             if k == 1:
                 guard = guard / CONSTANT_MEMORY
             return u, k, True, "", error, (constant, guard)

@@ -178,13 +178,13 @@ def _newton_update(u, tangent, residual, tol, floor, previous, constant, guard, 
         guard = constant
         rate = step / previous
         error = step * rate / (1.0 - rate) if rate < 1.0 else step
-        founded = estimated and rate < 1.0
+        estimate_passes = estimated and rate < 1.0 and error <= bound
     else:
         error = du2 / scale
-        founded = estimated and step > bound and guard * du2 <= bound
-        if founded:
+        estimate_passes = estimated and step > bound and guard * du2 <= bound
+        if estimate_passes:
             error = constant * du2
-    if step <= bound or (founded and error <= bound):
+    if step <= bound or estimate_passes:
         if previous == math.inf:
             guard = guard / CONSTANT_MEMORY
         return OK, True, error, step, constant, guard
