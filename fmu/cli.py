@@ -115,7 +115,15 @@ def build_parser():
 def main(argv=None) -> int:
     """Entry point of ``hfdi-fmu`` and ``python -m fmu``; returns the exit status."""
     args = build_parser().parse_args(argv)
-    from .build import BuildError, build, build_all, problems
+    try:
+        # inside the try: Ctrl-C during these imports (hfdi, numba) is an interrupt
+        from .build import BuildError, build, build_all, problems
+    except KeyboardInterrupt:
+        return _interrupted()
+    except ImportError as exc:
+        if isinstance(exc.__cause__, KeyboardInterrupt):
+            return _interrupted()       # Ctrl-C while a C extension initialised
+        raise
 
     def check_problem(name, also=""):
         # before --out is created and before anything is imported or built
@@ -154,12 +162,18 @@ def main(argv=None) -> int:
         print(f"hfdi-fmu: error: {exc}", file=sys.stderr)
         return 1
     except Exception as exc:
+        if isinstance(exc, ImportError) and isinstance(exc.__cause__, KeyboardInterrupt):
+            return _interrupted()       # Ctrl-C while a C extension initialised
         from .master import CoSimulationError
         if not isinstance(exc, CoSimulationError):
             raise
         print(f"hfdi-fmu: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("hfdi-fmu: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
     return 0
+
+
+def _interrupted() -> int:
+    print("hfdi-fmu: interrupted", file=sys.stderr)
+    return 130

@@ -577,6 +577,31 @@ def test_an_interrupt_inside_an_import_is_an_interrupt(monkeypatch, capsys, tmp_
         assert "Traceback" not in "\n".join(err)
 
 
+@pytest.mark.parametrize("during", ["import", "run"])
+@pytest.mark.parametrize("fault", ["plain", "inside a C extension"])
+def test_hfdi_fmu_says_interrupted_whenever_ctrl_c_comes(monkeypatch, capsys, during, fault):
+    """Ctrl-C while hfdi-fmu imports its build machinery (hfdi, numba) or while
+    it runs: exit status 130 and one line, no traceback."""
+    import fmu.build
+    import fmu.cli
+
+    def interrupt(*args, **kwargs):
+        if fault == "plain":
+            raise KeyboardInterrupt
+        _interrupt_inside_an_import()
+
+    if during == "import":
+        class Interrupting(type(fmu.build)):
+            def __getattr__(self, name):
+                interrupt()
+        monkeypatch.setitem(sys.modules, "fmu.build", Interrupting("fmu.build"))
+    else:
+        monkeypatch.setattr(fmu.build, "problems", interrupt)
+    assert fmu.cli.main(["list"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["hfdi-fmu: interrupted"]
+
+
 def test_other_exceptions_still_propagate(monkeypatch):
     import validation.cli
 
