@@ -11,7 +11,8 @@ from .evaluation import Evaluator, ModelError, NonFiniteError, State
 from .linalg import SingularMatrixError, all_finite
 
 __all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton",
-           "solve_step", "StepOutcome", "CONSTANT_MEMORY", "NO_MEASUREMENT"]
+           "convergence_test", "solve_step", "StepOutcome", "CONSTANT_MEMORY",
+           "NO_MEASUREMENT"]
 
 _isfinite = math.isfinite
 _sqrt = math.sqrt
@@ -198,30 +199,45 @@ def newton(ev: Evaluator, problem, u, tol: float, floor: float, max_iterations: 
         u = u + du
         size = _sqrt(u.dot(u))
         step = _sqrt(du2)
-        scale = max(size, floor)
-        bound = tol * scale
-        # a correction larger than the bound is > 0, so previous > 0 here
-        if previous < math.inf:
-            measured = max(step, _EPS * scale) / (previous * previous)
-            constant = measured if constant == math.inf else \
-                max(measured, CONSTANT_MEMORY * constant)
-            guard = constant
-            rate = step / previous
-            error = step * rate / (1.0 - rate) if rate < 1.0 else step
-            estimate_passes = estimated and rate < 1.0 and error <= bound
-        else:
-            # Eq. 38's own estimate when it passes, else the carried constant's
-            error = du2 / scale
-            estimate_passes = estimated and step > bound and guard * du2 <= bound
-            if estimate_passes:
-                error = constant * du2
-        if step <= bound or estimate_passes:
-            if k == 1:
-                guard = guard / CONSTANT_MEMORY
+        done, error, constant, guard = convergence_test(step, du2, previous, max(size, floor),
+                                                        tol, constant, guard, estimated)
+        if done:
             return u, k, True, "", error, (constant, guard)
         previous = step
     return u, max_iterations, False, f"no convergence in N_max = {max_iterations} corrections", \
         math.inf, (constant, guard)
+
+
+def convergence_test(step, du2, previous, scale, tol, constant, guard, estimated):
+    """The test of :func:`newton` after one correction: ``(done, error,
+    constant, guard)``.
+
+    ``step = ‖Δu‖`` and ``du2 = ‖Δu‖²`` of the correction, ``previous`` the
+    correction before it (``inf`` after the first), ``scale = max(‖u‖,
+    floor)``; ``error`` is ``inf`` when not done. Plain arithmetic on numbers:
+    the compiled attempt compiles this same function
+    (:mod:`hfdi.compiled.attempt`), so that both paths test alike.
+    """
+    bound = tol * scale
+    # a correction larger than the bound is > 0, so previous > 0 here
+    if previous < math.inf:
+        measured = max(step, _EPS * scale) / (previous * previous)
+        constant = measured if constant == math.inf else max(measured, CONSTANT_MEMORY * constant)
+        guard = constant
+        rate = step / previous
+        error = step * rate / (1.0 - rate) if rate < 1.0 else step
+        estimate_passes = estimated and rate < 1.0 and error <= bound
+    else:
+        # Eq. 38's own estimate when it passes, else the carried constant's
+        error = du2 / scale
+        estimate_passes = estimated and step > bound and guard * du2 <= bound
+        if estimate_passes:
+            error = constant * du2
+    if step <= bound or estimate_passes:
+        if previous == math.inf:
+            guard = guard / CONSTANT_MEMORY
+        return True, error, constant, guard
+    return False, math.inf, constant, guard
 
 
 @dataclass

@@ -14,10 +14,12 @@ The compiled function restates, operation for operation, the Python code it
 replaces: :func:`hfdi.corrector.predict` and :func:`hfdi.corrector.newton`,
 ``_InertiaStage`` (Newmark, Eqs. 3–5, and both Bathe sub-steps, Eqs. 6–10) and
 ``_HFDIStage`` (Eqs. 15–21, Table 1) of :mod:`hfdi.schemes`, with the same
-convergence test (Eq. 38), iteration counting, ``N_max``, error estimate and
-evaluation counters. Products with dense matrices and the solves call the
-Python path's BLAS and LAPACK routines (:mod:`hfdi.compiled.lapack`); sums
-of a few terms written out here may round differently from numpy's, so states
+iteration counting, ``N_max``, error estimate and evaluation counters; the
+convergence test (Eq. 38, or the estimated remaining error) is the Python
+path's own :func:`hfdi.corrector.convergence_test`, compiled. Products with
+dense matrices and the solves call the Python path's BLAS and LAPACK
+routines (:mod:`hfdi.compiled.lapack`); sums of a few terms written out here
+may round differently from numpy's, so states
 agree to rounding, not always bit for bit; ``tests/test_compiled_step.py``
 asserts equal step and Newton counts and states within 1e-12 on every paper
 model, scheme and mode.
@@ -30,7 +32,7 @@ import numpy as np
 from numba import njit, types
 from numba.experimental import structref
 
-from ..corrector import CONSTANT_MEMORY, NO_MEASUREMENT, StepOutcome
+from ..corrector import NO_MEASUREMENT, StepOutcome, convergence_test
 from ..evaluation import ModelError, NonFiniteError, State
 from ..schemes import HFDI, Bathe, Newmark
 from .lapack import all_finite as _all_finite
@@ -68,7 +70,8 @@ END_U, END_V, END_A, END_F, MID_U, MID_V, MID_A = range(7)
 # kinds of M and C
 NONE, DIAGONAL, DENSE = 0, 1, 2
 
-_EPS = float(np.finfo(np.float64).eps)
+# the Python path's test itself, compiled (hfdi.compiled.cache watches its source too)
+_convergence_test = njit(**JIT_OPTIONS)(convergence_test)
 
 
 # -- small dense linear algebra ----------------------------------------------------
@@ -151,8 +154,9 @@ def _predict(u, v, a, has_previous, H, u_previous, v_previous, s):
 def _newton_update(u, tangent, residual, tol, floor, previous, constant, guard, estimated,
                    counters, du, lu, pivots, ints):
     """One correction ``Δu = −tangent⁻¹ residual`` added to ``u`` in place, and
-    the convergence test of :func:`hfdi.corrector.newton` (Eq. 38, or with
-    ``estimated`` the estimated remaining error too): ``(status, done, error,
+    the convergence test of :func:`hfdi.corrector.newton`
+    (:func:`hfdi.corrector.convergence_test`: Eq. 38, or with ``estimated``
+    the estimated remaining error too): ``(status, done, error,
     |Δu|, constant, guard)`` with ``done`` true when converged and the
     carried quadratic constant and its guard. ``du`` and LAPACK's ``lu``,
     ``pivots`` and ``ints`` are work arrays."""
@@ -167,28 +171,9 @@ def _newton_update(u, tangent, residual, tol, floor, previous, constant, guard, 
     u += du
     size = math.sqrt(np.dot(u, u))
     step = math.sqrt(du2)
-    scale = max(size, floor)
-    bound = tol * scale
-    if previous < math.inf:
-        measured = max(step, _EPS * scale) / (previous * previous)
-        if constant == math.inf:
-            constant = measured
-        else:
-            constant = max(measured, CONSTANT_MEMORY * constant)
-        guard = constant
-        rate = step / previous
-        error = step * rate / (1.0 - rate) if rate < 1.0 else step
-        estimate_passes = estimated and rate < 1.0 and error <= bound
-    else:
-        error = du2 / scale
-        estimate_passes = estimated and step > bound and guard * du2 <= bound
-        if estimate_passes:
-            error = constant * du2
-    if step <= bound or estimate_passes:
-        if previous == math.inf:
-            guard = guard / CONSTANT_MEMORY
-        return OK, True, error, step, constant, guard
-    return OK, False, math.inf, step, constant, guard
+    done, error, constant, guard = _convergence_test(step, du2, previous, max(size, floor), tol,
+                                                     constant, guard, estimated)
+    return OK, done, error, step, constant, guard
 
 
 @njit(**JIT_OPTIONS)

@@ -7,7 +7,8 @@ after an edit of ``attempt.py`` alone the driver's cache would hand back the
 old attempt. The cache is therefore kept for one state of the whole package:
 a stamp of the sources of ``hfdi/compiled`` (names, sizes and modification
 times) lies beside numba's files, and where it differs from the sources the
-package's cached functions are removed before any is loaded.
+package's cached functions are removed before any is loaded. The stamp also
+covers ``hfdi/corrector.py``, whose convergence test the attempt compiles in.
 
 This covers numba's default place for the cache, ``__pycache__`` beside the
 sources. A cache elsewhere (``NUMBA_CACHE_DIR``, or a user-wide one where the
@@ -26,25 +27,30 @@ __all__ = ["drop_stale_cache", "source_stamp"]
 
 _PACKAGE = Path(__file__).resolve().parent
 _STAMP = "hfdi-compiled-sources.stamp"
+#: Sources outside the package whose functions its compiled code compiles in
+#: (the corrector's convergence test, compiled by the attempt).
+_COMPILED_IN = (_PACKAGE.parent / "corrector.py",)
 
 
-def source_stamp(package: Path = _PACKAGE) -> str:
-    """A digest of the names, sizes and modification times of ``package``'s sources."""
+def source_stamp(package: Path = _PACKAGE, compiled_in=_COMPILED_IN) -> str:
+    """A digest of the names, sizes and modification times of ``package``'s
+    sources and of the sources ``compiled_in``."""
     digest = hashlib.sha256()
-    for path in sorted(package.glob("*.py")):
+    for path in sorted(package.glob("*.py")) + list(compiled_in):
         status = path.stat()
         digest.update(f"{path.name} {status.st_size} {status.st_mtime_ns}\n".encode())
     return digest.hexdigest()
 
 
-def drop_stale_cache(package: Path = _PACKAGE) -> bool:
-    """Remove numba's cached functions of ``package`` when its sources changed
-    since they were cached; True when something was removed."""
+def drop_stale_cache(package: Path = _PACKAGE, compiled_in=_COMPILED_IN) -> bool:
+    """Remove numba's cached functions of ``package`` when its sources (or the
+    sources ``compiled_in``) changed since they were cached; True when
+    something was removed."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return False
     cache = package / "__pycache__"
     try:
-        stamp = source_stamp(package)
+        stamp = source_stamp(package, compiled_in)
     except OSError:          # sources that cannot be read: numba will not cache them either
         return False
     try:
