@@ -1043,6 +1043,16 @@ class Integrator:
                           f"energy balance broke down: spurious energy {s.energy_error:.4g} "
                           f"exceeds {self.energy_limit:g} x energy scale {s.energy_scale:.4g}")
 
+    def _native_synced(self, taken: int, cpu_time: float) -> None:
+        """After :meth:`hfdi.compiled.NativeAdvance.sync` wrote ``taken`` accepted
+        steps of native calls into the state: what :meth:`_drive` does after
+        the compiled driver returned."""
+        self._s.statistics.cpu_time += cpu_time
+        self._sync_counters()
+        if taken:
+            self._arrival = self._s.current
+        self._mark_finished()
+
     def _mark_finished(self):
         if self.finished:
             self._s.status = int(Status.SUCCESS)

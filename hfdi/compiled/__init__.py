@@ -18,10 +18,18 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 __all__ = ["CompiledKernels", "CompiledUnavailable", "InitialValues", "KERNEL_TOLERANCE",
-           "SparseKernels", "compiled_driver", "compiled_step", "driver_reason",
+           "NativeAdvance", "SparseKernels", "compiled_driver", "compiled_step", "driver_reason",
            "kernel_mismatch", "kernels_of", "numba_available", "sparse_kernels_of"]
 
 _log = logging.getLogger("hfdi.compiled")
+
+
+def __getattr__(name):
+    # NativeAdvance compiles (or loads) its C function on import: only when asked for
+    if name == "NativeAdvance":
+        from .native import NativeAdvance
+        return NativeAdvance
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class CompiledKernels(NamedTuple):

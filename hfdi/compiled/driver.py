@@ -650,10 +650,46 @@ class CompiledDriver:
         ``(reason, taken, rows, rejections)`` with ``rows`` a dict of arrays
         (``None`` unless ``save_rows``) and ``rejections`` those of the step
         handed over."""
+        n = self.n
+        scalars, counters = self.load(integrator)
+        self.settings[T_STOP] = t_stop
+        self.switches[SAVE_ROWS] = save_rows
+        self.switches[MAX_STEPS] = integrator.max_steps
+        self.switches[CALL_STEPS] = STEPS_PER_CALL
+        if save_rows:
+            row_scalars, row_states = np.empty((STEPS_PER_CALL, 6)), \
+                np.empty((STEPS_PER_CALL, 3, n))
+        else:
+            row_scalars, row_states = self._no_rows
+        step = self.step
+        params = step.params()
+        self._in_arrays = (None, None, None)     # until drive() has returned
+        reason, taken = drive(
+            step.kernel_set, params, params if self._load_reads_params else self.load_params,
+            held, self.config, self.coefficients, step.Md, step.Mf,
+            step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
+            self.breakpoints, scalars, counters, self._current, self._previous, row_scalars,
+            row_states)
+        rejections = self.store(integrator, scalars, counters, taken)
+        rows = None
+        if save_rows:
+            rows = {"t": row_scalars[:taken, R_T].copy(), "u": row_states[:taken, 0].copy(),
+                    "v": row_states[:taken, 1].copy(), "a": row_states[:taken, 2].copy(),
+                    "step_size": row_scalars[:taken, R_H].copy(),
+                    "iterations": row_scalars[:taken, R_ITERATIONS].astype(int),
+                    "energy_increment": row_scalars[:taken, R_INCREMENT].copy(),
+                    "total_energy": row_scalars[:taken, R_ENERGY].copy(),
+                    "external_work": row_scalars[:taken, R_WORK].copy()}
+        return int(reason), taken, rows, rejections
+
+    def load(self, integrator):
+        """The arrays :func:`drive` works on, filled from ``integrator``'s state:
+        ``current`` and ``previous`` (kept, filled only when they no longer
+        stand for the integrator's states), the Newton memory in
+        ``coefficients``, and new ``(scalars, counters)``."""
         s = integrator._s
         ev = integrator.ev
         st = s.statistics
-        n = self.n
         cur, prev = s.current, s.previous
         current, previous = self._current, self._previous
         saved, before, last = self._in_arrays
@@ -674,27 +710,20 @@ class CompiledDriver:
                              st.accepted, st.rejected, st.newton_iterations,
                              st.error_test_failures, ev.nfev, ev.njev, ev.ntev, ev.nlu, ev.npev,
                              s.last_iterations, 0, 0], dtype=np.int64)
-        self.settings[T_STOP] = t_stop
-        self.switches[SAVE_ROWS] = save_rows
-        self.switches[MAX_STEPS] = integrator.max_steps
-        self.switches[CALL_STEPS] = STEPS_PER_CALL
         self.coefficients[A_NEWTON_CONSTANT] = s.newton_constant
         self.coefficients[A_NEWTON_GUARD] = s.newton_guard
-        if save_rows:
-            row_scalars, row_states = np.empty((STEPS_PER_CALL, 6)), \
-                np.empty((STEPS_PER_CALL, 3, n))
-        else:
-            row_scalars, row_states = self._no_rows
-        step = self.step
-        params = step.params()
-        self._in_arrays = (None, None, None)     # until drive() has returned
-        reason, taken = drive(
-            step.kernel_set, params, params if self._load_reads_params else self.load_params,
-            held, self.config, self.coefficients, step.Md, step.Mf,
-            step.Cd, step.Cf, self.settings, self.switches, self.rtol, self.atol,
-            self.breakpoints, scalars, counters, current, previous, row_scalars, row_states)
-        # the integrator's state and statistics from the arrays (as Python
-        # numbers: one tolist() costs what two float(array[i]) cost)
+        return scalars, counters
+
+    def store(self, integrator, scalars, counters, taken):
+        """``integrator``'s state and statistics from the arrays :func:`drive`
+        left after ``taken`` accepted steps since :meth:`load`; the rejections
+        of the step handed over."""
+        s = integrator._s
+        ev = integrator.ev
+        st = s.statistics
+        cur = s.current
+        current, previous = self._current, self._previous
+        # as Python numbers: one tolist() costs what two float(array[i]) cost
         sc, co = scalars.tolist(), counters.tolist()
         ev.nfev, ev.njev, ev.ntev, ev.nlu, ev.npev = co[C_NFEV:C_NPEV + 1]
         st.steps, st.accepted, st.rejected = co[STEPS], co[ACCEPTED], co[REJECTED]
@@ -719,17 +748,8 @@ class CompiledDriver:
             s.last_iterations = co[LAST_ITERATIONS]
             s.grid_origin, s.grid_steps = sc[GRID_ORIGIN], co[GRID_STEPS]
             st.t_reached = s.current.t
-        rows = None
-        if save_rows:
-            rows = {"t": row_scalars[:taken, R_T].copy(), "u": row_states[:taken, 0].copy(),
-                    "v": row_states[:taken, 1].copy(), "a": row_states[:taken, 2].copy(),
-                    "step_size": row_scalars[:taken, R_H].copy(),
-                    "iterations": row_scalars[:taken, R_ITERATIONS].astype(int),
-                    "energy_increment": row_scalars[:taken, R_INCREMENT].copy(),
-                    "total_energy": row_scalars[:taken, R_ENERGY].copy(),
-                    "external_work": row_scalars[:taken, R_WORK].copy()}
         self._in_arrays = (s, s.current, s.previous)
-        return int(reason), taken, rows, co[REJECTIONS]
+        return co[REJECTIONS]
 
 
 def _state(t, block, has_f):

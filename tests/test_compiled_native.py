@@ -1,0 +1,170 @@
+"""advance as a C function (hfdi.compiled.NativeAdvance) against advance itself.
+
+A host calls the function through its address, as the FMU's native layer
+does (here through ctypes): every call that takes its step must leave, after
+sync(), the state, statistics and status advance() leaves, bit for bit; a
+call that does not take it must change nothing, so that advance() then takes
+the step and says why as always.
+"""
+import ctypes
+import math
+
+import numpy as np
+import pytest
+
+import hfdi
+from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
+from test_compiled_driver import _assert_same_state
+from test_compiled_step import case
+
+numba = pytest.importorskip("numba")
+from hfdi.compiled import NativeAdvance  # noqa: E402
+from hfdi.compiled.native import NOT_TAKEN, TAKEN  # noqa: E402
+
+PROBLEMS = {"dumbbell": (dumbbell, 0.01, 0.2), "tetrahedra": (tetrahedra, 2.5, 5.0),
+            "articulated": (articulated, 0.06, 0.2), "toss_rule": (toss_rule, 0.003, 0.012)}
+MODES = {"fixed": dict(step=1 / 40), "iterations": dict(target_iterations=3),
+         "error": dict(rtol=1e-6), "combined": dict(target_iterations=3, rtol=1e-5)}
+_FUNCTION = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double)
+
+
+class Host:
+    """A host of the native function: it calls it for every communication point
+    and hands the point to ``advance`` (after ``sync``) when the call does not
+    take it, as the FMU's native layer does."""
+
+    def __init__(self, itg, max_steps_per_call=None):
+        self.itg = itg
+        self.native = NativeAdvance(itg)
+        self.function = _FUNCTION(self.native.function_address)
+        self.max_steps_per_call = max_steps_per_call
+        self.taken = self.handed = 0
+
+    def call(self, t_stop):
+        return self.function(self.native.context_address, t_stop)
+
+    def advance(self, t_stop) -> bool:
+        if self.native.armed and self.call(t_stop) == TAKEN:
+            self.taken += 1
+            return True
+        self.native.sync()
+        self.handed += 1
+        ok = self.itg.advance(t_stop)
+        self.native.arm(self.max_steps_per_call)
+        return ok
+
+
+@pytest.mark.parametrize("mode", list(MODES))
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("problem", list(PROBLEMS))
+def test_native_calls_leave_what_advance_leaves_bit_for_bit(problem, scheme, mode):
+    make, t_end, options = case(problem, mode, PROBLEMS, MODES)
+    host = Host(hfdi.Integrator(make(), scheme, compiled=True, t_bound=t_end, **options))
+    plain = hfdi.Integrator(make(), scheme, compiled=True, t_bound=t_end, **options)
+    assert host.itg.driven
+    # communication points between and across internal steps, the last t_bound
+    for t_stop in np.linspace(0.0, t_end, 41)[1:]:
+        assert host.advance(t_stop) == plain.advance(t_stop)
+    host.native.sync()
+    _assert_same_state(host.itg, plain)
+    assert host.itg.status == plain.status == hfdi.Status.SUCCESS
+    assert host.taken >= 30, (host.taken, host.handed)
+
+
+def test_a_call_not_taken_changes_nothing():
+    """Past t_bound, NaN, before t, beyond the steps a call may take, and at a
+    load breakpoint (handed to Python by the driver): the state stays, and
+    advance() then takes the step as a plain run does."""
+    options = dict(rtol=1e-6, t_bound=0.2)
+    itg = hfdi.Integrator(articulated(), "hfdi", compiled=True, **options)
+    plain = hfdi.Integrator(articulated(), "hfdi", compiled=True, **options)
+    for i in (itg, plain):
+        assert i.advance(0.01)
+    host = Host(itg, max_steps_per_call=5)
+    assert host.native.arm(5) == ""
+    before = itg.get_state().to_bytes()
+    t = itg.t
+    breakpoint = float(next(b for b in itg.breakpoints if b > t))
+    for t_stop in (0.3, math.nan, math.inf, t - 1e-3, t + 0.05, breakpoint + 1e-4):
+        assert host.call(t_stop) == NOT_TAKEN, t_stop
+        assert host.native.calls == 0
+    assert host.native.sync() == 0
+    assert itg.get_state().to_bytes() == before
+    assert host.call(t) == TAKEN                 # t itself: nothing to do
+    for t_stop in sorted((t + 0.05, breakpoint + 1e-4, 0.2)):
+        assert host.advance(t_stop) and plain.advance(t_stop)
+    host.native.sync()
+    _assert_same_state(itg, plain)
+    assert host.handed >= 2
+
+
+def test_a_stop_is_advances_own_after_native_calls():
+    options = dict(rtol=1e-6, max_steps=57, t_bound=0.2)
+    host = Host(hfdi.Integrator(articulated(), "hfdi", compiled=True, **options))
+    plain = hfdi.Integrator(articulated(), "hfdi", compiled=True, **options)
+    results = []
+    for t_stop in np.linspace(0.0, 0.2, 81)[1:]:
+        results.append((host.advance(t_stop), plain.advance(t_stop)))
+        if not results[-1][1]:
+            break
+    assert results[-1] == (False, False)
+    assert host.itg.status == hfdi.Status.MAX_STEPS
+    assert host.itg.message == plain.message
+    _assert_same_state(host.itg, plain)
+    assert host.taken >= 2
+
+
+def test_held_load_changed_between_arms():
+    """A held load (a co-simulation input) changed between communication points:
+    advance after load_changed, armed again, then native calls."""
+    value = np.zeros(6)
+    runs = []
+    for native in (True, False):
+        itg = hfdi.Integrator(articulated(), "bathe", rtol=1e-6, compiled=True,
+                              extra_load=hfdi.HeldLoad(lambda: value))
+        host = Host(itg) if native else None
+        value[:] = 0.0
+        for k, t in enumerate(np.linspace(0.005, 0.08, 32)):
+            if k % 4 == 0:
+                if host is not None:
+                    host.native.sync()
+                value[:] = 50.0 * np.sin(k + np.arange(6))
+                itg.load_changed()
+                if host is not None:
+                    assert host.native.arm() == ("" if k else "the first step is pending")
+            assert (host.advance(t) if host is not None else itg.advance(t))
+        if host is not None:
+            host.native.sync()
+            assert host.taken >= 20
+        runs.append(itg)
+    _assert_same_state(*runs)
+
+
+def test_sync_counts_what_the_calls_did():
+    itg = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True)
+    host = Host(itg)
+    assert host.advance(0.01)
+    steps, cpu = itg.statistics.steps, itg.statistics.cpu_time
+    for k in range(1, 6):
+        assert host.call(0.01 + 0.02 * k) == TAKEN
+    assert itg.statistics.steps == steps         # not yet taken over
+    assert host.native.sync(cpu_time=0.25) == 5
+    assert itg.statistics.steps > steps and itg.t == 0.11
+    assert itg.statistics.cpu_time == pytest.approx(cpu + 0.25)
+    assert host.native.sync() == 0 and host.native.armed
+
+
+def test_arm_says_why_not_and_bad_input_is_refused():
+    itg = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True)
+    native = NativeAdvance(itg)
+    assert "first step" in native.arm() and not native.armed
+    assert itg.advance(0.01)
+    with pytest.raises(ValueError, match="max_steps_per_call must be >= 1"):
+        native.arm(0)
+    assert native.arm() == "" and native.armed
+    failed = hfdi.Integrator(articulated(), "hfdi", compiled=True, step=0.004, max_iterations=2)
+    assert not failed.advance(0.2)
+    assert NativeAdvance(failed).arm() == "the run has failed"
+    python = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=False)
+    with pytest.raises(ValueError, match="compiled driver"):
+        NativeAdvance(python)
