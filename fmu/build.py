@@ -193,7 +193,7 @@ def compile_native(out_dir: Path) -> Path:
     library = out_dir / "hfdi_fmi2.so"
     compiler = os.environ.get("CC", "cc")
     command = [compiler, "-shared", "-fPIC", "-O2", "-std=c99", "-o", str(library),
-               str(source), f"-I{headers}", "-ldl"]
+               str(source), f"-I{headers}", "-ldl", "-lm"]
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=300)
     except (OSError, subprocess.TimeoutExpired) as exc:

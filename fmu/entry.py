@@ -19,15 +19,27 @@ can load the FMU.
 """
 from __future__ import annotations
 
+import ctypes
 import importlib
 import json
 import os
 import sys
 
-__all__ = ["instantiate", "Adapter", "CONFIG"]
+__all__ = ["instantiate", "Adapter", "CONFIG", "GATE_FIELDS"]
 
 #: The build's description of the FMU, in its resources folder.
 CONFIG = "hfdi_fmu.json"
+
+#: The entries of the native path's gate, in the order of the native layer's
+#: ``GATE_*`` (``fmu/native/hfdi_fmi2.c``, which describes the protocol): armed,
+#: dirty (native steps not yet taken over by the slave), the C function and its
+#: context (:class:`hfdi.compiled.NativeAdvance`), the addresses of the time
+#: and of the state arrays, the value-reference table and its length, the CPU
+#: nanoseconds of the native steps not yet counted, and the doSteps and reads
+#: the native path served (for tests and diagnostics).
+GATE_FIELDS = ("armed", "dirty", "function", "context", "time", "state", "table",
+               "table_length", "cpu_ns", "steps", "reads")
+GATE_SIZE = 16
 
 
 def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
@@ -78,7 +90,26 @@ class Adapter:
         self._make = lambda: slave_class(instance_name=instance_name, resources=resources,
                                          visible=visible)
         self._pending = []
-        self.slave = self._make()
+        # the native path's gate: lives as long as this adapter, across resets
+        self.gate = (ctypes.c_int64 * GATE_SIZE)()
+        self.slave = self._attached(self._make())
+
+    def _attached(self, slave):
+        attach = getattr(slave, "attach_native_gate", None)
+        if attach is not None:
+            attach(self.gate, GATE_FIELDS)
+        return slave
+
+    # -- the native path ----------------------------------------------------------
+    def native_gate(self) -> int:
+        """The gate's address, for the native layer (0: no native path)."""
+        if getattr(self.slave, "attach_native_gate", None) is None:
+            return 0
+        return ctypes.addressof(self.gate)
+
+    def sync_native(self):
+        """The slave takes over the steps the native layer took."""
+        self.slave.sync_native()
 
     # -- log ------------------------------------------------------------------
     def take_log(self) -> list:
@@ -105,7 +136,9 @@ class Adapter:
 
     def reset(self):
         """``fmi2Reset``: a new slave, as after ``fmi2Instantiate``."""
-        fresh = self._make()
+        for i in range(GATE_SIZE):
+            self.gate[i] = 0
+        fresh = self._attached(self._make())
         self._pending += list(self.slave.log_queue)
         self.slave = fresh
 

@@ -339,6 +339,8 @@ class HfdiSlave(Fmi2Slave):
         self._cache = None                   # outputs at the current state, computed on demand
         self._state_outputs = {}             # value reference of u[i], v[i], a[i] -> (key, i)
         self._read_plans = {}                # references -> how get_real reads them (_read_plan)
+        self._gate = None                    # the native layer's gate (attach_native_gate)
+        self._native = None                  # hfdi.compiled.NativeAdvance of self._itg
 
         dof_pattern = meta.get("dofs") or [["m", "degree of freedom {k}"]]
         self._dof_units = [dof_pattern[i % len(dof_pattern)][0] for i in range(n)]
@@ -774,6 +776,7 @@ class HfdiSlave(Fmi2Slave):
                               f"t = {itg.t!r}")
             self._cache = None
             if ok:
+                self._arm_native()
                 return True
             self._rollback(snapshot)
             return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
@@ -788,6 +791,66 @@ class HfdiSlave(Fmi2Slave):
                 self.log(f"rollback failed ({again!r}); restore an FMU state",
                          Fmi2Status.error)
             return self._discard(f"doStep({current_time}, {step_size}) failed: {exc!r}")
+
+    # -- the native path (fmu/native/hfdi_fmi2.c: the gate and its protocol) -----------
+    def attach_native_gate(self, gate, fields):
+        """Take the native layer's gate (a ctypes int64 array whose entries are
+        named by ``fields``): from now on a doStep of this slave arms it when
+        the next steps can run without Python."""
+        self._gate = np.frombuffer(gate, dtype=np.int64)
+        self._gate_at = {name: i for i, name in enumerate(fields)}
+        self._gate_table = None
+
+    def _arm_native(self):
+        """Arm the gate after a doStep: when the integrator runs in the compiled
+        driver and the inputs are those applied, the native layer takes the
+        next doSteps (and reads the states) itself. Never raises: a native
+        path that cannot be armed leaves the doSteps to this slave."""
+        gate = self._gate
+        if gate is None:
+            return
+        try:
+            itg = self._itg
+            if itg is None or not itg.driven or self._phase != "stepping" or \
+                    self._F_input.tolist() != self._F_applied.tolist():
+                return
+            native = self._native
+            if native is None or native.integrator is not itg:
+                native = self._native = self._hfdi.compiled.NativeAdvance(itg)
+            if native.arm(max_steps_per_call=int(self._itg_key[0]["max_internal_steps"])):
+                return
+            at = self._gate_at
+            table = self._gate_table
+            if table is None:
+                # value reference of u[i], v[i], a[i] -> its entry in the state arrays
+                rows = {"u": 0, "v": 1, "a": 2}
+                table = np.full(max(self._state_outputs, default=-1) + 1, -1, dtype=np.int64)
+                for vr, (key, i) in self._state_outputs.items():
+                    table[vr] = rows[key] * native.n + i
+                self._gate_table = table
+            gate[at["function"]] = native.function_address
+            gate[at["context"]] = native.context_address
+            gate[at["time"]] = native.time_address
+            gate[at["state"]] = native.state_address
+            gate[at["table"]] = table.ctypes.data
+            gate[at["table_length"]] = table.size
+            gate[at["armed"]] = 1
+        except Exception as exc:
+            self._gate = None
+            self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)
+
+    def sync_native(self):
+        """Take over the doSteps the native layer took since the gate was armed."""
+        gate = self._gate
+        if gate is None:
+            return
+        at = self._gate_at
+        cpu_time = float(gate[at["cpu_ns"]]) * 1e-9
+        gate[at["cpu_ns"]] = 0
+        if self._native is not None:
+            self._native.sync(cpu_time)
+        gate[at["dirty"]] = 0
+        self._cache = None
 
     def _apply_inputs(self):
         """Make the current state consistent with the inputs changed at this

@@ -8,6 +8,9 @@ so the slaves import the ``hfdi`` bundled in each FMU, not the one under test
 here; both are the same sources.
 """
 import math
+import re
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +23,7 @@ from fmpy.fmi1 import FMICallException  # noqa: E402
 from fmpy.fmi2 import fmi2Error  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
+import fmu  # noqa: E402
 import hfdi  # noqa: E402
 from fmu.cli import main  # noqa: E402
 from fmu.master import Unit, coupled_dumbbells, cosimulate  # noqa: E402
@@ -248,6 +252,91 @@ def test_compiled_fmu_reproduces_the_compiled_integrator(dumbbell_fmu, scheme):
     assert budget.last_successful_time() == 0.0
     for v in (fast, slow, budget):
         v.close()
+
+
+def _gate(instance_name):
+    """The native path's gate of this process's FMU instance ``instance_name``,
+    by the names of ``fmu.entry.GATE_FIELDS`` (read live)."""
+    import gc
+    adapters = [o for o in gc.get_objects() if type(o).__name__ == "Adapter"
+                and getattr(getattr(o, "slave", None), "instance_name", None) == instance_name]
+    assert len(adapters) == 1
+    fields = sys.modules[type(adapters[0]).__module__].GATE_FIELDS
+    gate = adapters[0].gate
+    return lambda name: gate[fields.index(name)]
+
+
+def test_the_gate_fields_are_the_native_layers():
+    """fmu.entry.GATE_FIELDS names the entries of the native layer's enum, in its order."""
+    from fmu.entry import GATE_FIELDS, GATE_SIZE
+    source = (Path(fmu.__file__).parent / "native" / "hfdi_fmi2.c").read_text()
+    enum = re.search(r"enum \{ (GATE_ARMED[^}]*)\}", source).group(1)
+    names = [n.strip() for n in enum.split(",")]
+    assert names[-1] == f"GATE_SIZE = {GATE_SIZE}"
+    assert [n.removeprefix("GATE_").lower() for n in names[:-1]] == list(GATE_FIELDS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_native_path_takes_doSteps_and_reads_states_bit_for_bit(dumbbell_fmu, scheme):
+    """``compiled = true``: after its first doStep the FMU's native layer takes
+    the doSteps and reads the states itself (the compiled driver without
+    Python, hfdi.compiled.NativeAdvance), and hands over to the slave for
+    everything else: outputs that are not states, an input that changes,
+    FMU states, a step past the budget, a wrong time. Every value is the
+    compiled in-process integrator's, bit for bit."""
+    parameters = {"scheme": scheme, "target_iterations": 3.0, "compiled": True,
+                  "max_internal_steps": 200}
+    fast = unit(dumbbell_fmu, parameters, f"native-{scheme}")
+    gate = _gate(f"native-{scheme}")
+    held = np.zeros(N)
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), scheme, target_iterations=3.0,
+                          compiled=True, extra_load=hfdi.HeldLoad(lambda: held),
+                          max_steps=2 ** 62)
+    refs = [fast.vr(name) for name in STATE]
+    t, h, rows = 0.0, 1e-3, []
+    for k in range(400):
+        if k == 150:
+            saved, t_saved = fast.get_state(), t
+        if k in (200, 300):                       # an input changes: the slave's doStep
+            fast.set({"F[2]": 40.0 * k})
+            held[1] = 40.0 * k
+            itg.load_changed()
+        hk = 0.05 if k == 250 else h              # more internal steps than one
+        assert fast.step(t, hk), fast.messages[-3:]
+        t += hk
+        assert itg.advance(t)
+        row = fast.fmu.getReal(refs)
+        rows.append(row)
+        assert row == np.concatenate([itg.state.u, itg.state.v, itg.state.a]).tolist(), k
+        if k % 97 == 0:                          # outputs from the slave, after a sync
+            assert_rows_close(fast.get(OBSERVED), reference_row(itg), rtol=0.0)
+    assert gate("steps") >= 350 and gate("reads") >= 350, (gate("steps"), gate("reads"))
+    # a wrong time and a step past the budget: the slave's refusals, nothing changed
+    before = fast.get(STATE)
+    assert not fast.step(t + 0.5, h)
+    assert "but the FMU is at t =" in fast.messages[-1][2]
+    steps = gate("steps")
+    assert not fast.step(t, 5.0)
+    assert gate("steps") == steps
+    assert "max_internal_steps = 200 internal steps reached" in fast.messages[-1][2]
+    assert fast.last_successful_time() == t
+    np.testing.assert_array_equal(fast.get(STATE), before)
+    assert fast.step(t, h) and gate("steps") == steps   # the slave's again, then armed
+    assert fast.step(t + h, h) and gate("steps") == steps + 1
+    # back to the state saved at step 150: the same steps again, natively
+    fast.set_state(saved)
+    fast.free_state(saved)
+    fast.set({"F[2]": 0.0})
+    t = t_saved
+    for k in range(150, 400):
+        if k in (200, 300):
+            fast.set({"F[2]": 40.0 * k})
+        hk = 0.05 if k == 250 else h
+        assert fast.step(t, hk)
+        t += hk
+        assert fast.fmu.getReal(refs) == rows[k], k
+    fast.close()
 
 
 # -- FMU state -------------------------------------------------------------------------------

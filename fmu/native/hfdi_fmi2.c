@@ -23,10 +23,13 @@
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
+#include <math.h>
 #include <stdarg.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "fmi2Functions.h"
 
@@ -190,11 +193,33 @@ static int python_ready(const char* resources)
 /* ---------------------------------------------------------------------------
  * The instance
  * ------------------------------------------------------------------------- */
+/* ---------------------------------------------------------------------------
+ * The native path: a doStep (and a read of the states) without Python.
+ *
+ * The Adapter owns the gate, an int64 array the slave fills when its
+ * integrator runs in the compiled driver (entry.py, GATE_*): the address of
+ * hfdi.compiled.NativeAdvance's C function and context, of the state's time
+ * and of its arrays u, v, a, and a table from value references to entries
+ * of those arrays. While the gate is armed (the arrays are the slave's
+ * state), fmi2DoStep calls the function directly and fmi2GetReal of states
+ * reads the arrays: neither enters Python nor takes the GIL. A call that
+ * does enter Python first has the slave take over what the native steps did
+ * (sync_native, when the gate is dirty) and, unless it only reads, disarms
+ * the gate; the slave arms it again after a doStep of its own. A step the
+ * function does not take (a breakpoint, a stop, the budget of internal
+ * steps) changes nothing and is taken by the slave, so that every status and
+ * message has one source.
+ * ------------------------------------------------------------------------- */
+enum { GATE_ARMED, GATE_DIRTY, GATE_FUNCTION, GATE_CONTEXT, GATE_TIME, GATE_STATE,
+       GATE_TABLE, GATE_TABLE_LENGTH, GATE_CPU_NS, GATE_STEPS, GATE_READS, GATE_SIZE = 16 };
+typedef int64_t (*NativeAdvance)(int64_t* context, double t_stop);
+
 typedef struct {
     char* name;
     fmi2CallbackFunctions callbacks;
     int logging_on;
     PyObject* adapter;             /* the entry module's Adapter */
+    int64_t* gate;                 /* the Adapter's gate (see above), or NULL */
     double last_successful_time;
     char** strings;                /* what fmi2GetString returned last */
     size_t n_strings;
@@ -305,17 +330,99 @@ static void drain_log(Instance* inst)
     p_Py_DecRef(items);
 }
 
+/* The calls of the slave that only read its state: the gate stays armed. */
+static int reads_only(const char* method)
+{
+    static const char* readers[] = {"get_real", "get_integer", "get_boolean", "get_string",
+                                    "get_state", "serialize", NULL};
+    for (int i = 0; readers[i]; i++)
+        if (strcmp(method, readers[i]) == 0) return 1;
+    return 0;
+}
+
 /* adapter.<method>(*args): the result (new reference) or NULL with the
- * exception reported. `args` is a new reference to a tuple (or NULL), consumed. */
+ * exception reported. `args` is a new reference to a tuple (or NULL), consumed.
+ * With the GIL held. */
 static PyObject* invoke(Instance* inst, const char* method, PyObject* args, fmi2Status* status)
 {
+    int64_t* gate = inst->gate;
+    int64_t armed = 0;
+    if (gate) {
+        if (gate[GATE_DIRTY]) {
+            /* the slave takes over the native steps before anything else */
+            PyObject* synced = p_PyObject_GetAttrString(inst->adapter, "sync_native");
+            PyObject* done = synced ? p_PyObject_CallObject(synced, NULL) : NULL;
+            if (synced) p_Py_DecRef(synced);
+            if (done) p_Py_DecRef(done);
+            else {
+                gate[GATE_ARMED] = gate[GATE_DIRTY] = 0;
+                *status = report_exception(inst, "sync_native");
+                drain_log(inst);
+                if (args) p_Py_DecRef(args);
+                return NULL;
+            }
+        }
+        armed = gate[GATE_ARMED];
+        gate[GATE_ARMED] = 0;
+    }
     PyObject* bound = p_PyObject_GetAttrString(inst->adapter, method);
     PyObject* result = bound ? p_PyObject_CallObject(bound, args) : NULL;
     if (bound) p_Py_DecRef(bound);
     if (args) p_Py_DecRef(args);
+    if (gate && result && armed && reads_only(method)) gate[GATE_ARMED] = armed;
     if (!result) *status = report_exception(inst, method);
     drain_log(inst);
     return result;
+}
+
+static int64_t cpu_ns(void)
+{
+    struct timespec now;
+    if (clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &now) != 0) return 0;
+    return (int64_t)now.tv_sec * 1000000000 + now.tv_nsec;
+}
+
+/* doStep(t, h) on the native path: 1 when taken, 0 when the slave must take it
+ * (the gate is not armed, t is not the FMU's time, or the function did not
+ * take the step: then nothing changed). The tests of t and h are the slave's,
+ * which also says why when it refuses. */
+static int native_step(Instance* inst, double t, double h)
+{
+    int64_t* gate = inst->gate;
+    if (!gate || !gate[GATE_ARMED]) return 0;
+    double here = *(const double*)(intptr_t)gate[GATE_TIME];
+    if (!(isfinite(t) && isfinite(h) && h > 0.0)) return 0;
+    double larger = fabs(t) > fabs(here) ? fabs(t) : fabs(here);
+    double ulp = nextafter(larger, INFINITY) - larger;
+    double tolerance = 64.0 * ulp > 1e-10 * h ? 64.0 * ulp : 1e-10 * h;
+    if (!(fabs(t - here) <= tolerance)) return 0;
+    double t_end = t + h;
+    if (!(t_end > here && isfinite(t_end))) return 0;
+    NativeAdvance advance = (NativeAdvance)(intptr_t)gate[GATE_FUNCTION];
+    int64_t started = cpu_ns();
+    int64_t taken = advance((int64_t*)(intptr_t)gate[GATE_CONTEXT], t_end);
+    gate[GATE_CPU_NS] += cpu_ns() - started;
+    if (taken != 1) return 0;
+    gate[GATE_DIRTY] = 1;
+    gate[GATE_STEPS] += 1;
+    return 1;
+}
+
+/* fmi2GetReal of states on the native path: 1 when every reference is a
+ * state entry the gate's table knows (values written), else 0. */
+static int native_read(Instance* inst, const fmi2ValueReference vr[], size_t nvr,
+                       fmi2Real out[])
+{
+    int64_t* gate = inst->gate;
+    if (!gate || !gate[GATE_ARMED]) return 0;
+    const int64_t* table = (const int64_t*)(intptr_t)gate[GATE_TABLE];
+    int64_t length = gate[GATE_TABLE_LENGTH];
+    for (size_t i = 0; i < nvr; i++)
+        if ((int64_t)vr[i] >= length || table[vr[i]] < 0) return 0;
+    const double* state = (const double*)(intptr_t)gate[GATE_STATE];
+    for (size_t i = 0; i < nvr; i++) out[i] = state[table[vr[i]]];
+    gate[GATE_READS] += 1;
+    return 1;
 }
 
 #define INSTANCE_OR_ERROR(c)                                                       \
@@ -450,6 +557,18 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
         inst->adapter = p_PyObject_CallObject(make, args);
     }
     if (!inst->adapter) report_exception(inst, "fmi2Instantiate");
+    else {
+        /* the gate of the native path (0: none; no gate is no error) */
+        PyObject* bound = p_PyObject_GetAttrString(inst->adapter, "native_gate");
+        PyObject* address = bound ? p_PyObject_CallObject(bound, NULL) : NULL;
+        if (bound) p_Py_DecRef(bound);
+        if (address) {
+            long value = p_PyLong_AsLong(address);
+            if (value > 0 && !p_PyErr_Occurred()) inst->gate = (int64_t*)(intptr_t)value;
+            p_Py_DecRef(address);
+        }
+        p_PyErr_Clear();
+    }
 done:
     if (folder) p_Py_DecRef(folder);
     if (args) p_Py_DecRef(args);
@@ -559,6 +678,7 @@ static fmi2Status get_values(fmi2Component c, Kind kind, const fmi2ValueReferenc
         logf_(inst, fmi2Error, "%s: NULL array", FMI_GET[kind]);
         return fmi2Error;
     }
+    if (kind == REAL && native_read(inst, vr, nvr, (fmi2Real*)out)) return fmi2OK;
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     PyObject* args = p_PyTuple_New(1);
@@ -784,6 +904,10 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
 {
     (void)noSetFMUStatePriorToCurrentPoint;
     INSTANCE_OR_ERROR(c)
+    if (native_step(inst, currentCommunicationPoint, communicationStepSize)) {
+        inst->last_successful_time = currentCommunicationPoint + communicationStepSize;
+        return fmi2OK;
+    }
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     Step s = {currentCommunicationPoint, communicationStepSize};
