@@ -15,6 +15,8 @@ import shutil
 import tempfile
 import time
 
+import numpy as np
+
 import hfdi
 from validation import options as opt
 from hfdi.files import write_atomic
@@ -24,7 +26,8 @@ __all__ = ["benchmark", "main"]
 
 
 def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal_per_step=10,
-              t_end=None, repeats=5, fmu=None, compiled=False, communication_step=None) -> dict:
+              t_end=None, repeats=5, fmu=None, compiled=False, communication_step=None,
+              inputs=False) -> dict:
     """Time in-process ``advance`` and FMU ``doStep`` over the same communication points.
 
     The communication step is ``communication_step``, or else
@@ -32,7 +35,9 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
     ``compiled`` both sides take their internal steps in the compiled driver
     (``Integrator(compiled=True)`` and the FMU's parameter ``compiled``); the
     FMU is extracted once, and an untimed first instance compiles (or loads)
-    its bundled kernels. Returns a dict with both best times, their ratio (FMU
+    its bundled kernels. With ``inputs`` the force on the first DOF changes at
+    every communication point (``fmi2SetReal`` of ``F[1]``; in process a
+    :class:`hfdi.HeldLoad` and ``load_changed``). Returns a dict with both best times, their ratio (FMU
     over in-process), doSteps per second through the FMU, the communication
     step and the internal steps.
     """
@@ -52,12 +57,19 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
     names = [f"u[{i + 1}]" for i in range(model.n_dof)] + \
             [f"v[{i + 1}]" for i in range(model.n_dof)]
 
+    forces = [10.0 * math.sin(0.01 * k) for k in range(n_steps)]
+
     def in_process():
+        held = np.zeros(model.n_dof)
         itg = hfdi.Integrator(model, scheme, target_iterations=target_iterations,
-                              compiled=compiled)
+                              compiled=compiled,
+                              extra_load=hfdi.HeldLoad(lambda: held) if inputs else None)
         started = time.perf_counter()
         t = 0.0
-        for _ in range(n_steps):
+        for k in range(n_steps):
+            if inputs:
+                held[0] = forces[k]
+                itg.load_changed()
             itg.advance(t + h)
             t = t + h
             state = itg.state
@@ -74,10 +86,13 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
             with Unit(path, "bench", unzip_dir=unzipped) as unit:
                 unit.initialize(parameters, stop_time=t_end)
                 refs = [unit.vr(name) for name in names]
-                get_real, do_step = unit.fmu.getReal, unit.fmu.doStep
+                force_ref = [unit.vr("F[1]")]
+                get_real, set_real, do_step = unit.fmu.getReal, unit.fmu.setReal, unit.fmu.doStep
                 started = time.perf_counter()
                 t = 0.0
-                for _ in range(n_steps):
+                for k in range(n_steps):
+                    if inputs:
+                        set_real(force_ref, [forces[k]])
                     do_step(currentCommunicationPoint=t, communicationStepSize=h)
                     t = t + h
                     get_real(refs)
@@ -102,7 +117,7 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
             "internal_per_communication_step": own[0][1] / n_steps,
             "in_process_s": best_own, "fmu_s": best_fmu, "ratio": best_fmu / best_own,
             "do_steps_per_s": n_steps / best_fmu, "first_instance_s": first_instance_s,
-            "repeats": repeats}
+            "repeats": repeats, "inputs": bool(inputs)}
 
 
 def main(argv=None) -> int:
@@ -120,16 +135,20 @@ def main(argv=None) -> int:
                         help="end of the run (default: the problem's long time)")
     parser.add_argument("--paths", action="store_true",
                         help="the Python path and the compiled driver, one after the other")
+    parser.add_argument("--inputs", action="store_true",
+                        help="change the force F[1] at every communication point")
     parser.add_argument("--repeats", type=opt.positive_integer, default=5)
     parser.add_argument("--json", metavar="FILE", type=opt.output_file)
     args = parser.parse_args(argv)
     results = []
     for compiled in ((False, True) if args.paths else (False,)):
         result = benchmark(args.problem, args.scheme, repeats=args.repeats, compiled=compiled,
-                           communication_step=args.communication_step, t_end=args.t_end)
+                           communication_step=args.communication_step, t_end=args.t_end,
+                           inputs=args.inputs)
         results.append(result)
         repeats = args.repeats
         print(f"{args.problem}, {args.scheme}, {'compiled driver' if compiled else 'Python path'}"
+              f"{', F[1] changed at every point' if args.inputs else ''}"
               f": {result['communication_steps']} communication steps of "
               f"{result['communication_step']:.4g} s, "
               f"{result['internal_per_communication_step']:.1f} internal steps each "

@@ -33,12 +33,12 @@ CONFIG = "hfdi_fmu.json"
 #: The entries of the native path's gate, in the order of the native layer's
 #: ``GATE_*`` (``fmu/native/hfdi_fmi2.c``, which describes the protocol): armed,
 #: dirty (native steps not yet taken over by the slave), the C function and its
-#: context (:class:`hfdi.compiled.NativeAdvance`), the addresses of the time
-#: and of the state arrays, the value-reference table and its length, the CPU
-#: nanoseconds of the native steps not yet counted, and the doSteps and reads
-#: the native path served (for tests and diagnostics).
-GATE_FIELDS = ("armed", "dirty", "function", "context", "time", "state", "table",
-               "table_length", "cpu_ns", "steps", "reads")
+#: context (:class:`hfdi.compiled.NativeAdvance`), the addresses of the time,
+#: of the state arrays and of the inputs, the value-reference table and its
+#: length, the CPU nanoseconds of the native steps not yet counted, and the
+#: doSteps, reads and writes the native path served (for tests and diagnostics).
+GATE_FIELDS = ("armed", "dirty", "function", "context", "time", "state", "inputs", "table",
+               "table_length", "cpu_ns", "steps", "reads", "writes")
 GATE_SIZE = 16
 
 

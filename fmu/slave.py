@@ -338,6 +338,7 @@ class HfdiSlave(Fmi2Slave):
         self._F_applied = np.zeros(n)        # inputs the integrator's current state was computed with
         self._cache = None                   # outputs at the current state, computed on demand
         self._state_outputs = {}             # value reference of u[i], v[i], a[i] -> (key, i)
+        self._inputs = {}                    # value reference of F[i + 1] -> i
         self._read_plans = {}                # references -> how get_real reads them (_read_plan)
         self._gate = None                    # the native layer's gate (attach_native_gate)
         self._native = None                  # hfdi.compiled.NativeAdvance of self._itg
@@ -455,12 +456,14 @@ class HfdiSlave(Fmi2Slave):
     def _register_inputs(self):
         for i in range(self._n):
             unit = _DERIVED.get(self._dof_units[i], (None, None, "1"))[2]
-            self.register_variable(_Real(
+            variable = _Real(
                 f"F[{i + 1}]", unit=unit, causality=Fmi2Causality.input,
                 variability=Fmi2Variability.continuous,
                 description=f"external force on DOF {i + 1} ({self._dof_labels[i]}), added "
                             "to the model's load and held over each communication step",
-                getter=(lambda i=i: self._F_input[i]), setter=self._input_setter(i)))
+                getter=(lambda i=i: self._F_input[i]), setter=self._input_setter(i))
+            self.register_variable(variable)
+            self._inputs[variable.value_reference] = i
 
     def _input_setter(self, i):
         def setter(value):
@@ -817,21 +820,28 @@ class HfdiSlave(Fmi2Slave):
             native = self._native
             if native is None or native.integrator is not itg:
                 native = self._native = self._hfdi.compiled.NativeAdvance(itg)
-            if native.arm(max_steps_per_call=int(self._itg_key[0]["max_internal_steps"])):
+            if native.arm(max_steps_per_call=int(self._itg_key[0]["max_internal_steps"]),
+                          inputs=self._F_input):
                 return
             at = self._gate_at
             table = self._gate_table
             if table is None:
-                # value reference of u[i], v[i], a[i] -> its entry in the state arrays
+                # value reference of u[i], v[i], a[i] -> its entry in the state
+                # arrays; of F[i] -> -2 - i; of anything else -> -1
                 rows = {"u": 0, "v": 1, "a": 2}
-                table = np.full(max(self._state_outputs, default=-1) + 1, -1, dtype=np.int64)
+                inputs = self._inputs
+                size = max([*self._state_outputs, *inputs], default=-1) + 1
+                table = np.full(size, -1, dtype=np.int64)
                 for vr, (key, i) in self._state_outputs.items():
                     table[vr] = rows[key] * native.n + i
+                for vr, i in inputs.items():
+                    table[vr] = -2 - i
                 self._gate_table = table
             gate[at["function"]] = native.function_address
             gate[at["context"]] = native.context_address
             gate[at["time"]] = native.time_address
             gate[at["state"]] = native.state_address
+            gate[at["inputs"]] = self._F_input.ctypes.data
             gate[at["table"]] = table.ctypes.data
             gate[at["table_length"]] = table.size
             gate[at["armed"]] = 1
@@ -847,8 +857,10 @@ class HfdiSlave(Fmi2Slave):
         at = self._gate_at
         cpu_time = float(gate[at["cpu_ns"]]) * 1e-9
         gate[at["cpu_ns"]] = 0
-        if self._native is not None:
-            self._native.sync(cpu_time)
+        native = self._native
+        if native is not None and native.sync(cpu_time):
+            # the inputs the native steps applied (held from their start)
+            self._F_applied = native.held
         gate[at["dirty"]] = 0
         self._cache = None
 

@@ -276,12 +276,14 @@ def test_bad_options_are_one_line(args, words, capsys):
     assert len(err) == 1 and words in err[0]
 
 
-def test_cosim_runs_and_reports_a_ratio():
+@pytest.mark.parametrize("inputs", [False, True])
+def test_cosim_runs_and_reports_a_ratio(inputs):
     """``python -m benchmarks cosim``: the FMU through fmpy and the library
-    in-process take the same internal steps."""
+    in-process take the same internal steps, with inputs changing or not."""
     pytest.importorskip("fmpy")
     from benchmarks.cosim import benchmark
-    result = benchmark("dumbbell", "hfdi", t_end=0.2, repeats=1)
+    result = benchmark("dumbbell", "hfdi", t_end=0.2, repeats=1, inputs=inputs)
+    assert result["inputs"] is inputs
     assert result["internal_steps_fmu"] == result["internal_steps_in_process"]
     assert result["communication_steps"] >= 1
     assert result["ratio"] > 0 and result["in_process_s"] > 0 and result["fmu_s"] > 0

@@ -31,26 +31,38 @@ _FUNCTION = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double)
 class Host:
     """A host of the native function: it calls it for every communication point
     and hands the point to ``advance`` (after ``sync``) when the call does not
-    take it, as the FMU's native layer does."""
+    take it, as the FMU's native layer does. With ``applied`` (the array its
+    integrator's HeldLoad returns) it writes inputs into ``inputs`` between
+    calls; where it takes a point itself it applies them as the FMU's slave
+    does (``load_changed``)."""
 
-    def __init__(self, itg, max_steps_per_call=None):
+    def __init__(self, itg, max_steps_per_call=None, applied=None):
         self.itg = itg
         self.native = NativeAdvance(itg)
         self.function = _FUNCTION(self.native.function_address)
         self.max_steps_per_call = max_steps_per_call
+        self.applied = applied
+        self.inputs = None if applied is None else applied.copy()
         self.taken = self.handed = 0
 
     def call(self, t_stop):
         return self.function(self.native.context_address, t_stop)
 
+    def sync(self):
+        if self.native.sync() and self.applied is not None:
+            self.applied[:] = self.native.held
+
     def advance(self, t_stop) -> bool:
         if self.native.armed and self.call(t_stop) == TAKEN:
             self.taken += 1
             return True
-        self.native.sync()
+        self.sync()
         self.handed += 1
+        if self.applied is not None and self.inputs.tolist() != self.applied.tolist():
+            self.applied[:] = self.inputs
+            self.itg.load_changed()
         ok = self.itg.advance(t_stop)
-        self.native.arm(self.max_steps_per_call)
+        self.native.arm(self.max_steps_per_call, inputs=self.inputs)
         return ok
 
 
@@ -168,3 +180,58 @@ def test_arm_says_why_not_and_bad_input_is_refused():
     python = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=False)
     with pytest.raises(ValueError, match="compiled driver"):
         NativeAdvance(python)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("make", [dumbbell, articulated], ids=["dumbbell", "articulated"])
+def test_inputs_written_between_calls_are_held_as_load_changed_holds_them(make, scheme):
+    """A host writes the held load's new value between calls (an FMU's
+    fmi2SetReal of inputs): the call holds it from its start as
+    load_changed() does, bit for bit, also where a point goes to Python."""
+    n = make().n_dof
+    applied, reference = np.zeros(n), np.zeros(n)
+    options = dict(rtol=1e-6, compiled=True, t_bound=0.1)
+    itg = hfdi.Integrator(make(), scheme, extra_load=hfdi.HeldLoad(lambda: applied), **options)
+    plain = hfdi.Integrator(make(), scheme, extra_load=hfdi.HeldLoad(lambda: reference),
+                            **options)
+    host = Host(itg, applied=applied)
+    for k, t in enumerate(np.linspace(0.0, 0.1, 61)[1:]):
+        if k % 3:
+            value = 40.0 * np.sin(k + np.arange(n))
+            host.inputs[:] = value
+            if value.tolist() != reference.tolist():
+                reference[:] = value
+                plain.load_changed()
+        assert host.advance(t) and plain.advance(t)
+    host.sync()
+    _assert_same_state(itg, plain)
+    assert host.taken >= 40 and itg.statistics.accepted > 60
+
+
+def test_inputs_not_applied_natively_are_handed_to_python():
+    """Inputs that are not finite: the call changes nothing (Python then
+    reports them); bad arrays are refused at arm()."""
+    applied = np.zeros(4)
+    itg = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True,
+                          extra_load=hfdi.HeldLoad(lambda: applied))
+    host = Host(itg, applied=applied)
+    assert host.advance(0.01) and host.advance(0.02)
+    host.inputs[1] = math.nan
+    host.sync()
+    before = itg.get_state().to_bytes()
+    assert host.call(0.03) == NOT_TAKEN
+    host.sync()
+    assert itg.get_state().to_bytes() == before
+    host.inputs[1] = 5.0
+    assert host.call(0.03) == TAKEN
+    host.sync()
+    assert applied[1] == 5.0
+    with pytest.raises(ValueError, match="inputs must be a C-contiguous float64 array"):
+        host.native.arm(inputs=np.zeros(3))
+    host.inputs[1] = 6.0
+    with pytest.raises(ValueError, match="inputs must equal the held load"):
+        host.native.arm(inputs=host.inputs)
+    bare = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True)
+    assert bare.advance(0.01)
+    with pytest.raises(ValueError, match="HeldLoad"):
+        NativeAdvance(bare).arm(inputs=np.zeros(4))

@@ -200,9 +200,11 @@ static int python_ready(const char* resources)
  * integrator runs in the compiled driver (entry.py, GATE_*): the address of
  * hfdi.compiled.NativeAdvance's C function and context, of the state's time
  * and of its arrays u, v, a, and a table from value references to entries
- * of those arrays. While the gate is armed (the arrays are the slave's
- * state), fmi2DoStep calls the function directly and fmi2GetReal of states
- * reads the arrays: neither enters Python nor takes the GIL. A call that
+ * of those arrays and of the inputs F[i] (an entry -2 - i). While the gate
+ * is armed (the arrays are the slave's state), fmi2DoStep calls the function
+ * directly, fmi2GetReal of states reads the arrays and fmi2SetReal of inputs
+ * writes the slave's inputs (the function holds them from the next step on,
+ * as the slave does): none of them enters Python or takes the GIL. A call that
  * does enter Python first has the slave take over what the native steps did
  * (sync_native, when the gate is dirty) and, unless it only reads, disarms
  * the gate; the slave arms it again after a doStep of its own. A step the
@@ -211,7 +213,8 @@ static int python_ready(const char* resources)
  * message has one source.
  * ------------------------------------------------------------------------- */
 enum { GATE_ARMED, GATE_DIRTY, GATE_FUNCTION, GATE_CONTEXT, GATE_TIME, GATE_STATE,
-       GATE_TABLE, GATE_TABLE_LENGTH, GATE_CPU_NS, GATE_STEPS, GATE_READS, GATE_SIZE = 16 };
+       GATE_INPUTS, GATE_TABLE, GATE_TABLE_LENGTH, GATE_CPU_NS, GATE_STEPS, GATE_READS,
+       GATE_WRITES, GATE_SIZE = 16 };
 typedef int64_t (*NativeAdvance)(int64_t* context, double t_stop);
 
 typedef struct {
@@ -405,6 +408,23 @@ static int native_step(Instance* inst, double t, double h)
     if (taken != 1) return 0;
     gate[GATE_DIRTY] = 1;
     gate[GATE_STEPS] += 1;
+    return 1;
+}
+
+/* fmi2SetReal of inputs on the native path: 1 when every reference is an
+ * input (values written into the slave's inputs), else 0. */
+static int native_write(Instance* inst, const fmi2ValueReference vr[], size_t nvr,
+                        const fmi2Real in[])
+{
+    int64_t* gate = inst->gate;
+    if (!gate || !gate[GATE_ARMED] || !gate[GATE_INPUTS]) return 0;
+    const int64_t* table = (const int64_t*)(intptr_t)gate[GATE_TABLE];
+    int64_t length = gate[GATE_TABLE_LENGTH];
+    for (size_t i = 0; i < nvr; i++)
+        if ((int64_t)vr[i] >= length || table[vr[i]] > -2) return 0;
+    double* inputs = (double*)(intptr_t)gate[GATE_INPUTS];
+    for (size_t i = 0; i < nvr; i++) inputs[-2 - table[vr[i]]] = in[i];
+    gate[GATE_WRITES] += 1;
     return 1;
 }
 
@@ -724,6 +744,7 @@ static fmi2Status set_values(fmi2Component c, Kind kind, const fmi2ValueReferenc
         logf_(inst, fmi2Error, "%s: NULL array", FMI_SET[kind]);
         return fmi2Error;
     }
+    if (kind == REAL && native_write(inst, vr, nvr, (const fmi2Real*)in)) return fmi2OK;
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     PyObject* values = p_PyList_New((Py_ssize_t_)nvr);

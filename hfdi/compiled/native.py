@@ -31,10 +31,14 @@ from numba import carray, cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from .attempt import DAMPING_KIND as A_DAMPING_KIND
+from .attempt import DENSE, DIAGONAL
+from .attempt import MASS_KIND as A_MASS_KIND
 from .attempt import NEWTON_CONSTANT as A_NEWTON_CONSTANT
 from .attempt import NEWTON_GUARD as A_NEWTON_GUARD
-from .driver import (ACCEPTED, CALL_STEPS, FULL, MAX_STEPS, REACHED, SAVE_ROWS,
-                     STEPS, STEPS_PER_CALL, T_CURRENT, T_STOP, drive)
+from .driver import (ACCEPTED, C_NFEV, CALL_STEPS, CURRENT_HAS_F, FULL, MAX_STEPS, REACHED,
+                     SAVE_ROWS, STEPS, STEPS_PER_CALL, T_CURRENT, T_STOP, A, F, P, U, V, drive)
+from .lapack import all_finite
 from .signatures import JIT_OPTIONS, KERNEL_SET
 
 __all__ = ["NativeAdvance", "TAKEN", "NOT_TAKEN"]
@@ -49,8 +53,8 @@ _HEADER = 8
 _SLOT = 4                     # address and up to three extents per array
 (PARAMS, LOAD_PARAMS, HELD, CONFIG, COEFFICIENTS, MD, MF, CD, CF, SETTINGS, SWITCHES, RTOL,
  ATOL, BREAKPOINTS, SCALARS, COUNTERS, CURRENT, PREVIOUS, ROW_SCALARS, ROW_STATES,
- BOUNDS) = range(21)
-_ARRAYS = 21
+ BOUNDS, INPUTS) = range(22)
+_ARRAYS = 22
 
 
 @intrinsic
@@ -129,6 +133,40 @@ def _block(context, which):
     return carray(_float_pointer(context[i]), (context[i + 1], context[i + 2], context[i + 3]))
 
 
+@njit(**JIT_OPTIONS)
+def _apply_inputs(kernels, params, load_params, held, inputs, config, Md, Cd, scalars, counters,
+                  current):
+    """The held load becomes ``inputs`` at the current time, as
+    :meth:`hfdi.Integrator.load_changed` makes it (``p_n`` and ``a_n`` anew,
+    ``f_n`` evaluated when not kept), restated operation for operation
+    (Evaluator.load, .force, .acceleration with a diagonal M). False where that
+    is not done here (inputs not finite, a dense M or C, a load or force not
+    finite): the caller then hands the step to Python, which reports it."""
+    if not all_finite(inputs) or config[A_MASS_KIND] != DIAGONAL or \
+            config[A_DAMPING_KIND] == DENSE:
+        return False
+    held[:] = inputs
+    p = kernels.load(scalars[T_CURRENT], load_params)
+    p = p + held
+    if counters[CURRENT_HAS_F]:
+        f = current[F].copy()
+    else:
+        f = kernels.force(np.ascontiguousarray(current[U]), params)
+        counters[C_NFEV] += 1
+    if not (all_finite(p) and all_finite(f)):
+        return False
+    b = p - f
+    if config[A_DAMPING_KIND] == DIAGONAL:
+        b = b - Cd * current[V]
+    else:
+        b = b - np.zeros_like(b)
+    current[A] = b / Md
+    current[P] = p
+    current[F] = f
+    counters[CURRENT_HAS_F] = 1
+    return True
+
+
 @cfunc(types.int64(types.CPointer(types.int64), types.float64), **JIT_OPTIONS)
 def native_advance(context, t_stop):
     """:meth:`hfdi.Integrator.advance` to ``t_stop`` in the arrays of ``context``:
@@ -149,10 +187,21 @@ def native_advance(context, t_stop):
     counters = _index_vector(context, COUNTERS)
     current, previous = _matrix(context, CURRENT), _matrix(context, PREVIOUS)
     row_scalars, row_states = _matrix(context, ROW_SCALARS), _block(context, ROW_STATES)
+    inputs = _vector(context, INPUTS)
     # all or nothing: what drive() writes, kept to be put back
     saved_scalars, saved_counters = scalars.copy(), counters.copy()
     saved_current, saved_previous = current.copy(), previous.copy()
+    saved_held = held.copy()
     constant, guard = coefficients[A_NEWTON_CONSTANT], coefficients[A_NEWTON_GUARD]
+    changed = False
+    for i in range(inputs.shape[0]):
+        changed = changed or inputs[i] != held[i]    # NaN counts as changed
+    if changed and not _apply_inputs(kernels, params, load_params, held, inputs, config, Md,
+                                     Cd, scalars, counters, current):
+        held[:] = saved_held
+        counters[:] = saved_counters
+        current[:, :] = saved_current
+        return NOT_TAKEN
     settings[T_STOP] = t_stop
     switches[SAVE_ROWS] = 0
     switches[CALL_STEPS] = STEPS_PER_CALL
@@ -170,6 +219,7 @@ def native_advance(context, t_stop):
     counters[:] = saved_counters
     current[:, :] = saved_current
     previous[:, :] = saved_previous
+    held[:] = saved_held
     coefficients[A_NEWTON_CONSTANT], coefficients[A_NEWTON_GUARD] = constant, guard
     return NOT_TAKEN
 
@@ -237,7 +287,7 @@ class NativeAdvance:
         """Whether the arrays stand for the integrator's state (since :meth:`arm`)."""
         return self._armed
 
-    def arm(self, max_steps_per_call: int | None = None) -> str:
+    def arm(self, max_steps_per_call: int | None = None, inputs=None) -> str:
         """Fill the arrays from the integrator's state, so that the native
         ``advance`` continues from it; ``""`` when armed, else why not (the
         first step is pending, the run failed, the model changed, the held
@@ -247,6 +297,15 @@ class NativeAdvance:
         ``max_steps_per_call``: the steps one call may take at most (attempts
         counted as :attr:`hfdi.Statistics.steps` counts them); a call that
         would need more changes nothing. Also bounded by ``max_steps``.
+
+        ``inputs``: an (N,) float64 C-contiguous array that the host may write
+        between calls, for an integrator with a :class:`~hfdi.HeldLoad`: when it
+        differs from the held value (:attr:`held`), the next call holds it from
+        its start, as ``load_changed()`` after a change of the held load would
+        (with a diagonal M and C; otherwise, or when not finite, the call
+        changes nothing). After :meth:`sync` the host must have the held
+        load's source return :attr:`held`. The array must outlive the armed
+        state; at :meth:`arm` it must equal the held value.
         """
         self.sync()
         self._armed = False
@@ -263,10 +322,20 @@ class NativeAdvance:
             return "the held load is not a finite vector of N values"
         if max_steps_per_call is not None and int(max_steps_per_call) < 1:
             raise ValueError(f"max_steps_per_call must be >= 1, got {max_steps_per_call!r}")
+        if inputs is None:
+            inputs = np.zeros(0)
+        elif not (isinstance(inputs, np.ndarray) and inputs.dtype == np.float64
+                  and inputs.flags.c_contiguous and inputs.shape == (self.n,)):
+            raise ValueError(f"inputs must be a C-contiguous float64 array of shape "
+                             f"({self.n},), got {inputs!r}")
+        elif held.shape[0] == 0:
+            raise ValueError("inputs need an integrator with a hfdi.HeldLoad, it has none")
+        elif inputs.tolist() != held.tolist():
+            raise ValueError("inputs must equal the held load's value when armed")
         scalars, counters = driver.load(itg)
         self._scalars[:] = scalars
         self._counters[:] = counters
-        self._held = np.ascontiguousarray(held, dtype=np.float64)
+        self._held = np.array(held, dtype=np.float64)    # its own: calls write into it
         self._bounds[0] = math.inf if itg.t_bound is None else float(itg.t_bound)
         step = driver.step
         params = np.ascontiguousarray(step.params(), dtype=np.float64)
@@ -275,7 +344,7 @@ class NativeAdvance:
                   step.Md, step.Mf, step.Cd, step.Cf, driver.settings, driver.switches,
                   driver.rtol, driver.atol, driver.breakpoints, self._scalars, self._counters,
                   driver._current, driver._previous, driver._no_rows[0], driver._no_rows[1],
-                  self._bounds]
+                  self._bounds, inputs]
         context = self._context
         context[:] = 0
         context[KERNELS] = kernel_set_address(step.kernel_set)
@@ -294,6 +363,12 @@ class NativeAdvance:
         self._accepted_at_arm = int(counters[ACCEPTED])
         self._armed = True
         return ""
+
+    @property
+    def held(self) -> np.ndarray:
+        """The held load's value the armed state was computed with (a copy;
+        empty without a :class:`~hfdi.HeldLoad`)."""
+        return self._held.copy()
 
     @property
     def calls(self) -> int:
