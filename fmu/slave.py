@@ -803,6 +803,7 @@ class HfdiSlave(Fmi2Slave):
         self._gate = np.frombuffer(gate, dtype=np.int64)
         self._gate_at = {name: i for i, name in enumerate(fields)}
         self._gate_table = None
+        self._native_said = False
 
     def _arm_native(self):
         """Arm the gate after a doStep: when the integrator runs in the compiled
@@ -845,6 +846,11 @@ class HfdiSlave(Fmi2Slave):
             gate[at["table"]] = table.ctypes.data
             gate[at["table_length"]] = table.size
             gate[at["armed"]] = 1
+            if not self._native_said:
+                self._native_said = True
+                self.log(f"from t = {itg.t!r} the native layer takes the doSteps in the "
+                         "compiled driver, without Python, as long as they need nothing "
+                         "else", Fmi2Status.ok)
         except Exception as exc:
             self._gate = None
             self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)

@@ -104,6 +104,38 @@ def test_a_host_without_python_runs_the_fmu(fmu, host, tmp_path):
     assert values == list(expected)
 
 
+@pytest.mark.slow
+def test_a_host_without_python_runs_the_compiled_fmu_natively(fmu, host, tmp_path):
+    """``compiled = true`` in a C host: the doSteps run in the native layer
+    (it says so in the log), an input set in the middle of the run included,
+    and the values are those of the same run in this Python process, bit for
+    bit. The compiled code comes from the FMU cache of this user."""
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    names = ["u[1]", "u[2]", "v[3]", "a[4]"]
+    vrs = [vr_of(fmu, n) for n in names]
+    force = 25.0
+    env = {"PATH": "/usr/bin:/bin", "HOME": os.path.expanduser("~"), **BLAS_ENV}
+    if os.environ.get("HFDI_CACHE_DIR"):
+        env["HFDI_CACHE_DIR"] = os.environ["HFDI_CACHE_DIR"]
+    done = run_host(host, unzip, vrs=[f"b{vr_of(fmu, 'compiled')}=1",
+                                      f"r{vr_of(fmu, 'F[2]')}={force!r}", *vrs], env=env)
+    assert done.returncode == 0, (done.stdout, done.stderr)
+    assert "the native layer takes the doSteps" in done.stdout
+    values = [float(line.split()[2]) for line in done.stdout.splitlines()
+              if line.startswith("value ")]
+    unit = Unit(fmu, "reference", unzip_dir=unzip)
+    unit.initialize({"compiled": True}, start_time=0.0)
+    t, h = 0.0, 0.01
+    for k in range(STEPS):
+        if k == STEPS // 2:
+            unit.set({"F[2]": force})
+        assert unit.step(t, h)
+        t += h
+    expected = unit.get(names)
+    unit.close()
+    assert values == list(expected)
+
+
 @pytest.mark.parametrize("name", ["a b", "ü", "a (b)", "100%", "x#y", "%s%n"])
 @pytest.mark.slow
 def test_paths_with_any_character(fmu, host, tmp_path, name):

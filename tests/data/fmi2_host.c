@@ -41,7 +41,8 @@ static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status sta
 int main(int argc, char** argv)
 {
     if (argc < 5) {
-        printf("usage: fmi2_host LIBRARY RESOURCE_URI GUID STEPS [s<vr>=<text>]... [<vr>]...\n");
+        printf("usage: fmi2_host LIBRARY RESOURCE_URI GUID STEPS [s<vr>=<text>]... "
+               "[b<vr>=<0|1>]... [r<vr>=<real>]... [<vr>]...\n");
         return 2;
     }
     void* lib = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL);
@@ -54,6 +55,8 @@ int main(int argc, char** argv)
     LOAD(fmi2EnterInitializationMode)
     LOAD(fmi2ExitInitializationMode)
     LOAD(fmi2SetString)
+    LOAD(fmi2SetBoolean)
+    LOAD(fmi2SetReal)
     LOAD(fmi2DoStep)
     LOAD(fmi2GetReal)
     LOAD(fmi2Terminate)
@@ -70,19 +73,35 @@ int main(int argc, char** argv)
         || fmi2EnterInitializationMode(c) != fmi2OK)
         status = 4;
     for (int i = 5; !status && i < argc; i++) {
-        if (argv[i][0] != 's') continue;
+        if (argv[i][0] != 's' && argv[i][0] != 'b') continue;
         char* equals = strchr(argv[i], '=');
         if (!equals) return 2;
         fmi2ValueReference vr = (fmi2ValueReference)atoi(argv[i] + 1);
+        if (argv[i][0] == 'b') {
+            fmi2Boolean value = atoi(equals + 1) != 0;
+            if (fmi2SetBoolean(c, &vr, 1, &value) != fmi2OK) status = 4;
+            continue;
+        }
         fmi2String value = equals + 1;
         if (fmi2SetString(c, &vr, 1, &value) != fmi2OK) status = 4;
     }
     if (!status && fmi2ExitInitializationMode(c) != fmi2OK) status = 4;
     double t = 0.0, h = 0.01;
-    for (int k = 0; !status && k < atoi(argv[4]); k++, t += h)
-        if (fmi2DoStep(c, t, h, fmi2True) != fmi2OK) status = 5;
+    int steps = atoi(argv[4]);
+    for (int k = 0; !status && k < steps; k++, t += h) {
+        /* r<vr>=<real>: an input set before the step at the middle of the run */
+        for (int i = 5; k == steps / 2 && !status && i < argc; i++) {
+            if (argv[i][0] != 'r') continue;
+            char* equals = strchr(argv[i], '=');
+            if (!equals) return 2;
+            fmi2ValueReference vr = (fmi2ValueReference)atoi(argv[i] + 1);
+            double value = atof(equals + 1);
+            if (fmi2SetReal(c, &vr, 1, &value) != fmi2OK) status = 5;
+        }
+        if (!status && fmi2DoStep(c, t, h, fmi2True) != fmi2OK) status = 5;
+    }
     for (int i = 5; !status && i < argc; i++) {
-        if (argv[i][0] == 's') continue;
+        if (argv[i][0] == 's' || argv[i][0] == 'b' || argv[i][0] == 'r') continue;
         fmi2ValueReference vr = (fmi2ValueReference)atoi(argv[i]);
         double value;
         if (fmi2GetReal(c, &vr, 1, &value) != fmi2OK) status = 6;
