@@ -597,6 +597,7 @@ class HfdiSlave(Fmi2Slave):
         self._itg_key = (dict(self._params), dict(self._mparams), self._start_time)
         self._phase = "stepping"
         self._cache = None
+        self._prepare_native()
         self.log(f"{self.model_name}: scheme {self._params['scheme']}, controller "
                  f"{itg.controller!r}, t0 = {self._start_time}, first trial "
                  f"step {itg.proposed_step:.6g}", Fmi2Status.ok)
@@ -804,6 +805,17 @@ class HfdiSlave(Fmi2Slave):
         self._gate_at = {name: i for i, name in enumerate(fields)}
         self._gate_table = None
         self._native_said = False
+
+    def _prepare_native(self):
+        """The native path's C function for the new integrator, loaded (or
+        compiled, once per machine) now rather than at the first doStep."""
+        if self._gate is None or not self._itg.driven:
+            return
+        try:
+            self._native = self._hfdi.compiled.NativeAdvance(self._itg)
+        except Exception as exc:
+            self._gate = None
+            self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)
 
     def _arm_native(self):
         """Arm the gate after a doStep: when the integrator runs in the compiled
