@@ -804,7 +804,6 @@ class HfdiSlave(Fmi2Slave):
         self._gate = np.frombuffer(gate, dtype=np.int64)
         self._gate_at = {name: i for i, name in enumerate(fields)}
         self._gate_table = None
-        self._native_said = False
 
     def _prepare_native(self):
         """The native path's C function for the new integrator, loaded (or
@@ -816,6 +815,11 @@ class HfdiSlave(Fmi2Slave):
         except Exception as exc:
             self._gate = None
             self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)
+            return
+        # said here, once per run: a message at the first native doStep would
+        # not come again when the steps are repeated after a restored state
+        self.log("doSteps after the first run in the native layer (the compiled driver "
+                 "without Python) whenever they need nothing else", Fmi2Status.ok)
 
     def _arm_native(self):
         """Arm the gate after a doStep: when the integrator runs in the compiled
@@ -858,11 +862,6 @@ class HfdiSlave(Fmi2Slave):
             gate[at["table"]] = table.ctypes.data
             gate[at["table_length"]] = table.size
             gate[at["armed"]] = 1
-            if not self._native_said:
-                self._native_said = True
-                self.log(f"from t = {itg.t!r} the native layer takes the doSteps in the "
-                         "compiled driver, without Python, as long as they need nothing "
-                         "else", Fmi2Status.ok)
         except Exception as exc:
             self._gate = None
             self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)

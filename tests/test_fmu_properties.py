@@ -2,7 +2,8 @@
 
 A Hypothesis state machine drives one FMU instance through fmpy's low-level
 FMI 2.0 API with random sequences of: parameters (valid and invalid, before
-and after initialization), inputs (NaN, infinities, huge and ordinary
+and after initialization; ``compiled`` among them, which puts the doSteps,
+the reads of states and the writes of inputs on the native path), inputs (NaN, infinities, huge and ordinary
 values), the initialization calls, ``doStep`` with any step size and a
 current time that need not be the FMU's, ``fmi2GetFMUstate`` /
 ``fmi2SetFMUstate``, (de)serialization, corrupt serialized states, String
@@ -111,6 +112,8 @@ PARAMETER_VALUES = st.one_of(
     _real("A", st.floats(1e4, 1e6), [1e-300]),
     _real("sigma", st.floats(0.7, 0.85), [1e-300, 100.0]),
     st.sampled_from([1, 20, WORK_LIMIT]).map(lambda v: ("max_internal_steps", v, True)),
+    # the compiled driver, and with it the native layer's doSteps and reads
+    st.sampled_from([True, False]).map(lambda v: ("compiled", v, True)),
     st.sampled_from([0, -1, -2 ** 31]).map(lambda v: ("max_internal_steps", v, False)),
 )
 INPUT_VALUES = st.one_of(
@@ -327,6 +330,33 @@ class FmuMachine(RuleBasedStateMachine):
             assert np.all(np.isfinite(self.outputs(after))), (current, h, after)
         return status, messages, after
 
+    def _run_of_steps(self, n, h, value):
+        """``n`` doSteps of ``h`` at the FMU's time with nothing but a read of the
+        states between them (on the compiled path: the native layer's own), an
+        input set before the middle one when ``value`` is given."""
+        fmu = self.unit.fmu
+        refs = [self.unit.vr(name) for name in OUTPUTS[:3 * N]]
+        answers = []
+        states = list(fmu.getReal(refs))
+        for k in range(n):
+            if value is not None and k == n // 2:
+                self._set_input(1, value)
+            before = states
+            status, _, messages = self.call(fmu.doStep, self.track.t, h)
+            assert status in ("OK", "DISCARD")
+            states = list(fmu.getReal(refs))
+            if status == "DISCARD":
+                assert states == before, "a discarded step changed the FMU"
+            else:
+                self.track.t = self.track.t + h
+                assert all(map(math.isfinite, states)), states
+            answers.append((status, [m[2] for m in messages], states))
+        after = self.read()
+        # the states read by the native layer are those the slave reads
+        assert np.asarray(states, dtype=float).tobytes() == \
+            np.asarray(self.outputs(after)[:3 * N]).tobytes()
+        return answers, after
+
     def _read_outputs(self):
         read = self.read()
         if self.track.phase in ("stepping", "terminated"):
@@ -350,10 +380,13 @@ class FmuMachine(RuleBasedStateMachine):
         return status, messages
 
     # -- rules --------------------------------------------------------------------------
-    @initialize(start=st.sampled_from([None, 0.0, 0.0, 1.25]))
-    def start(self, start):
-        """Most runs begin initialized, as a master would have it."""
+    @initialize(start=st.sampled_from([None, 0.0, 0.0, 1.25]), compiled=st.booleans())
+    def start(self, start, compiled):
+        """Most runs begin initialized, as a master would have it; half of them
+        compiled (the native path)."""
         self.limit_work()
+        if compiled:
+            self.apply("set_parameter", ("compiled", True, True))
         if start is not None:
             self.apply("begin_initialization", (start,))
             self.apply("exit_initialization", ())
@@ -379,6 +412,13 @@ class FmuMachine(RuleBasedStateMachine):
     @rule(where=CURRENT_TIMES, h=STEP_SIZES)
     def do_step(self, where, h):
         self.apply("do_step", (where, h))
+
+    @precondition(lambda self: self.track.phase == "stepping")
+    @rule(n=st.integers(2, 8), h=st.floats(1e-4, 0.02),
+          value=st.one_of(st.none(), st.floats(-1e3, 1e3)))
+    def run_of_steps(self, n, h, value):
+        """A master's ordinary run of doSteps (see :meth:`_run_of_steps`)."""
+        self.apply("run_of_steps", (n, h, value))
 
     @rule()
     def read_outputs(self):
