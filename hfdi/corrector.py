@@ -12,10 +12,55 @@ from .linalg import SingularMatrixError, all_finite
 
 __all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton",
            "convergence_test", "solve_step", "StepOutcome", "CONSTANT_MEMORY",
-           "NO_MEASUREMENT"]
+           "NO_MEASUREMENT", "SHORT_STEP", "is_short", "keeps_history", "short_step"]
+
+#: A step shorter than this fraction of the step proposed is a *short step*:
+#: a step the controller did not ask for, forced by a landing point (a
+#: communication point a few rounding units past a load breakpoint or the
+#: last step's end). Two things go wrong in such a step otherwise:
+#:
+#: - the schemes form ``a`` (and ``v``) from differences of ``u`` divided by
+#:   ``h²`` (``h``): rounding in ``u`` (``ε‖u‖``) reaches them amplified by
+#:   ``1/h²``; a step of 1e-15 after steps of 1e-2 changed ``a`` by a factor
+#:   1e13 and ``v`` by 3 %;
+#: - as the history of the extrapolations (:func:`predict`,
+#:   :func:`local_error`) it amplifies rounding by ``(s/H)^4`` and ``(s/H)^2``;
+#:   past a breakpoint (``H`` = 2e-17, ``s`` = 1e-4) every later attempt failed.
+#:
+#: A short step is therefore taken by Taylor's expansion with the acceleration
+#: from the equation of motion (:func:`short_step`) and does not become the
+#: history (:func:`keeps_history`). docs/algorithm.md, "Short steps".
+SHORT_STEP = 1e-3
 
 _isfinite = math.isfinite
 _sqrt = math.sqrt
+
+
+def is_short(h: float, proposed: float) -> bool:
+    """Whether a step of size ``h`` where ``proposed`` was proposed is a short
+    step (see :data:`SHORT_STEP`)."""
+    return h < SHORT_STEP * proposed
+
+
+def keeps_history(h: float, next_step: float) -> bool:
+    """Whether an accepted step of size ``h``, followed by the proposed step
+    ``next_step``, becomes the history (see :data:`SHORT_STEP`)."""
+    return h >= SHORT_STEP * next_step
+
+
+def short_step(ev: Evaluator, current: State, t_end: float, keep_force: bool) -> State:
+    """A short step (see :data:`SHORT_STEP`) from ``current`` to ``t_end``:
+    ``u = u_n + h v_n + h² a_n / 2``, ``a`` from the equation of motion there
+    (Eq. 14, with ``v_n + h a_n``), ``v = v_n + h (a_n + a) / 2``; its errors
+    are ``O(h³)``, ``SHORT_STEP³`` of the scheme's own at the proposed step.
+    ``f`` is kept in the state when ``keep_force`` (HFDI)."""
+    h = t_end - current.t
+    u = current.u + h * current.v + (0.5 * h * h) * current.a
+    p = ev.load(t_end)
+    f = ev.force(u)
+    a = ev.acceleration(t_end, u, current.v + h * current.a, f, p)
+    v = current.v + (0.5 * h) * (current.a + a)
+    return State(t_end, u, v, a, f if keep_force else None, p)
 
 
 def predict(current: State, previous: State | None, s: float):

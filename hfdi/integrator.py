@@ -26,9 +26,11 @@ from . import checks, serial
 from .compiled import InitialValues, compiled_driver, compiled_step
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
-from .corrector import local_error, predict, solve_step
+from .corrector import (StepOutcome, is_short, keeps_history, local_error, predict,
+                        short_step, solve_step)
 from .dense import Solution, hermite_quintic
 from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
+from .linalg import all_finite
 from .schemes import HFDI, Scheme, get_scheme
 from .system import SecondOrderSystem
 
@@ -986,6 +988,29 @@ class Integrator:
                 outcome.newton_error + _EPS * float(np.abs(new.u).max())) / h
         return attempt
 
+    def _short_step(self, t_end: float) -> bool:
+        """A short step to ``t_end`` (:func:`hfdi.corrector.short_step`), accepted
+        as it is: its error is far below the scheme's at the proposed step, and
+        the proposed step carries over."""
+        s = self._s
+        current = s.current
+        ev = self.ev
+        h = t_end - current.t
+        ev.left_limit_at = t_end if (self.breakpoints.size and t_end in self.breakpoints) \
+            else None
+        try:
+            new = short_step(ev, current, t_end, keep_force=type(self.scheme) is HFDI)
+        finally:
+            ev.left_limit_at = None
+        if not (all_finite(new.u) and all_finite(new.v) and all_finite(new.a)):
+            return self._fail(Status.MODEL_ERROR, f"the short step of {h:.3g} to t = "
+                                                  f"{t_end:.10g} gives values that are not "
+                                                  "finite")
+        s.statistics.steps += 1
+        attempt = Attempt(h, s.proposed_step, True, True, 0)
+        attempt.outcome = StepOutcome(new, [0])
+        return self._accept(attempt)
+
     def _accept(self, attempt) -> bool:
         s = self._s
         ev = self.ev
@@ -1006,7 +1031,9 @@ class Integrator:
         for a, b in zip([old, *outcome.stages], [*outcome.stages, new]):
             work += 0.5 * float((b.u - a.u) @ (a.p + b.p))
         increment = potential - s.potential + kinetic_new - kinetic_old - work  # Eq. 40
-        s.previous, s.current = old, new
+        if keeps_history(h, s.proposed_step):
+            s.previous = old
+        s.current = new
         if self.fixed:
             if attempt.clipped and new.t != s.grid_origin + (s.grid_steps + 1) * h \
                     and abs(new.t - (s.grid_origin + (s.grid_steps + 1) * attempt.proposed)) \
@@ -1104,6 +1131,9 @@ class Integrator:
                 return self._fail(Status.MAX_STEPS,
                                   f"max_steps = {self.max_steps} reached (attempts, rejected "
                                   f"ones included){before}")
+            t_end, clipped = self._clip(s.proposed_step, limit)
+            if 0.0 < t_end - self.t and is_short(t_end - self.t, s.proposed_step):
+                return self._short_step(t_end)
             attempt = self._try(s.proposed_step, limit)
             if attempt is None:
                 # the step went below the spacing of floating-point times at t

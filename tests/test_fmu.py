@@ -339,6 +339,41 @@ def test_native_path_takes_doSteps_and_reads_states_bit_for_bit(dumbbell_fmu, sc
     fast.close()
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["articulated", "toss_rule"])
+def test_native_path_on_other_models_under_error_control(fmus, name):
+    """The articulated system's load breakpoints (handed to the slave under error
+    control) and the 21-DOF beam: the compiled FMU with its native path and
+    inputs changed now and then gives the compiled in-process integrator's
+    states bit for bit."""
+    model = hfdi.models.get(name)
+    n = model.n_dof
+    stop = 0.1 * experiment(name).observation_time
+    h = stop / 200
+    fast = Unit(fmus[name], f"native-{name}")
+    fast.initialize({"compiled": True, "rtol": 1e-6, "target_iterations": 0.0}, start_time=0.0)
+    gate = _gate(f"native-{name}")
+    held = np.zeros(n)
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6, compiled=True, max_steps=2 ** 62,
+                          extra_load=hfdi.HeldLoad(lambda: held))
+    refs = [fast.vr(f"{k}[{i}]") for k in "uva" for i in range(1, n + 1)]
+    t = 0.0
+    for k in range(200):
+        if k % 40 == 13:
+            value = 0.5 * math.sin(k)
+            fast.set({"F[1]": value})
+            held[0] = value
+            itg.load_changed()
+        assert fast.step(t, h), fast.messages[-2:]
+        t += h
+        assert itg.advance(t)
+        assert fast.fmu.getReal(refs) == np.concatenate(
+            [itg.state.u, itg.state.v, itg.state.a]).tolist(), k
+    assert int(fast.get(["internal_steps"])[0]) == itg.statistics.steps
+    assert gate("steps") >= 150 and gate("writes") >= 4, (gate("steps"), gate("writes"))
+    fast.close()
+
+
 # -- FMU state -------------------------------------------------------------------------------
 @pytest.mark.parametrize("scheme", ["bathe", "hfdi"])
 def test_rollback_and_serialization_are_bit_identical(dumbbell_fmu, scheme):

@@ -13,8 +13,9 @@ balance (Eqs. 40–41).
 It hands the step back to the Python driver, before the attempt that needs it
 and with the rejections of the step so far, whenever a step is not ordinary:
 an attempt that lands on a load breakpoint (one-sided loads and the load's
-right limit after it), a decision that would stop the run (the controller's
-message), ``max_steps``, a step below the resolution of time. The Python
+right limit after it), a short step (:data:`hfdi.corrector.SHORT_STEP`), a
+decision that would stop the run (the controller's message), ``max_steps``,
+a step below the resolution of time. The Python
 driver then takes that one step as always, so that the statuses and messages
 have one source. After a step that breaks the energy limit it returns at
 once, and Python applies its own test.
@@ -48,10 +49,16 @@ from .attempt import NEWTON_TEST as A_NEWTON_TEST
 from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
+from ..corrector import is_short as _is_short
+from ..corrector import keeps_history as _keeps_history
 
 __all__ = ["drive"]
 
 _EPS = float(np.finfo(float).eps)
+
+# the Python driver's rule, compiled as it is (hfdi.compiled.cache watches corrector.py)
+keeps_history = njit(**JIT_OPTIONS)(_keeps_history)
+is_short = njit(**JIT_OPTIONS)(_is_short)
 
 # -- why drive() returned ------------------------------------------------------------
 REACHED = 0          # t_stop reached
@@ -405,7 +412,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
             else:
                 t_end, clipped = t + take, take != proposed
         h = t_end - t
-        if not h > 0.0 or _is_breakpoint(breakpoints, t_end):
+        if not h > 0.0 or _is_breakpoint(breakpoints, t_end) or is_short(h, proposed):
             counters[REJECTIONS] = rejections
             return HAND_OVER, taken
         # the loads at the stage times (CompiledStep._loads)
@@ -495,10 +502,11 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         else:
             work = 0.5 * float(np.dot(out[END_U] - current[U], current[P] + loads[1]))
         increment = potential - scalars[POTENTIAL] + kinetic_new - kinetic_old - work
-        previous[:, :] = current
-        counters[PREVIOUS_HAS_F] = counters[CURRENT_HAS_F]
-        scalars[T_PREV] = t
-        counters[HAS_PREV] = 1
+        if keeps_history(h, scalars[PROPOSED]):
+            previous[:, :] = current
+            counters[PREVIOUS_HAS_F] = counters[CURRENT_HAS_F]
+            scalars[T_PREV] = t
+            counters[HAS_PREV] = 1
         current[U] = out[END_U]
         current[V] = out[END_V]
         current[A] = out[END_A]
@@ -735,7 +743,9 @@ class CompiledDriver:
         if taken:
             # States own their arrays (one block each, never written again):
             # drive() writes into current and previous at the next call
-            if taken == 1:
+            if not co[HAS_PREV]:
+                s.previous = None       # short steps after a breakpoint (keeps_history)
+            elif taken == 1 and sc[T_PREV] == cur.t:
                 s.previous = cur        # one step: the previous state is the one it started from
             else:
                 s.previous = _state(sc[T_PREV], previous.copy(), co[PREVIOUS_HAS_F])

@@ -1,0 +1,104 @@
+"""Short steps (hfdi.corrector.SHORT_STEP): steps far shorter than the step
+proposed, forced by a landing point a few rounding units away.
+
+Before they were taken apart, a step of 1e-15 after steps of 1e-2 changed
+the acceleration by a factor up to 1e13 and the velocity by 3 % (the schemes
+divide differences of u by h²), and a communication point 2e-17 past a load
+breakpoint made every later attempt fail its error test (the extrapolations
+divide by the history step). These tests fail on that version.
+"""
+import numpy as np
+import pytest
+
+import hfdi
+from hfdi.corrector import SHORT_STEP
+from hfdi.models import articulated, dumbbell
+from test_compiled_driver import _assert_same_state
+
+SCHEMES = ["newmark", "bathe", "hfdi"]
+MODES = {"iterations": dict(target_iterations=3), "error": dict(rtol=1e-6),
+         "fixed": dict(step=2e-3)}
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["python", "compiled"])
+@pytest.mark.parametrize("mode", list(MODES))
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_a_short_step_changes_the_state_as_the_motion_does(scheme, mode, compiled):
+    """v and a change by what the motion gives over the short step, not by
+    rounding divided by h²; and the run after it is the run without it."""
+    itg = hfdi.Integrator(dumbbell(), scheme, compiled=compiled, **MODES[mode])
+    assert itg.advance(0.1)
+    before = itg.get_state()
+    u0, v0, a0 = itg.state.u, itg.state.v, itg.state.a
+    # the scheme's a_n is the equation of motion's up to the corrector's tolerance
+    gap = np.abs(a0 - itg.ev.acceleration(0.1, u0, v0)).max()
+    for d in (1e-15, 1e-12, 1e-9):
+        itg.set_state(before)
+        assert itg.advance(0.1 + d)
+        state = itg.state
+        assert np.abs(state.v - v0 - d * a0).max() <= 1e-6 * d * np.abs(a0).max() + \
+            4 * np.spacing(np.abs(v0).max())
+        # |a'| of the dumbbell stays below 1e6 |a| per second
+        assert np.abs(state.a - a0).max() <= 1e6 * d * np.abs(a0).max() + 2 * gap + \
+            1e-12 * np.abs(a0).max()
+        assert np.abs(state.u - u0).max() <= 2 * d * np.abs(v0).max() + \
+            4 * np.spacing(np.abs(u0).max())
+    itg.set_state(before)
+    direct = hfdi.Integrator(dumbbell(), scheme, compiled=compiled, **MODES[mode])
+    assert direct.advance(0.1)
+    assert itg.advance(0.1 + 1e-13) and itg.advance(0.3) and direct.advance(0.3)
+    # within a tenth of the tolerance (the short step's a is the equation of
+    # motion's, the scheme's a_n differs from it by the corrector's tolerance)
+    scale = np.abs(direct.state.u).max()
+    assert np.abs(itg.state.u - direct.state.u).max() <= 1e-7 * scale
+    assert itg.statistics.steps <= 1.01 * direct.statistics.steps + 3
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_communication_points_rounding_units_past_a_breakpoint(scheme):
+    """Communication points summed as a master sums them (t += h) fall 2e-17
+    past the articulated system's load breakpoint at 0.025: the run goes on,
+    as accurate and about as cheap as with the points at k h."""
+    options = dict(rtol=1e-6, compiled=True)
+    summed = hfdi.Integrator(articulated(), scheme, **options)
+    exact = hfdi.Integrator(articulated(), scheme, **options)
+    h, t = 0.05 / 200, 0.0
+    for k in range(1, 201):
+        t += h
+        assert summed.advance(t), summed.message
+        assert exact.advance(min(k * h, t))
+    assert t != 0.05 and 0.025 in summed.breakpoints
+    reference = hfdi.Integrator(articulated(), "hfdi", rtol=1e-11, compiled=True)
+    assert reference.advance(t)
+    scale = np.abs(reference.state.u).max()
+    error = np.abs(summed.state.u - reference.state.u).max() / scale
+    error_exact = np.abs(exact.state.u - reference.state.u).max() / scale
+    assert error <= 3 * error_exact + 1e-9, (error, error_exact)
+    assert summed.statistics.steps <= 1.2 * exact.statistics.steps
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_both_drivers_take_short_steps_alike(scheme):
+    """The compiled driver hands a short step to the Python driver: the runs
+    stay bit for bit the same."""
+    runs = []
+    for driven in (True, False):
+        itg = hfdi.Integrator(articulated(), scheme, rtol=1e-6, compiled=True)
+        if not driven:
+            itg._driver = None
+        t = 0.0
+        for k in range(60):
+            t += 1e-3 if k % 7 else 1e-3 * SHORT_STEP / 50
+            assert itg.advance(t)
+        runs.append(itg)
+    _assert_same_state(*runs)
+
+
+def test_a_short_step_does_not_become_the_history():
+    itg = hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6)
+    assert itg.advance(0.1)
+    previous = itg.get_state().previous
+    assert itg.advance(0.1 + 1e-12)
+    assert itg.get_state().previous.t == previous.t
+    assert itg.advance(0.2)
+    assert itg.get_state().previous.t > 0.1
