@@ -1110,7 +1110,11 @@ class Integrator:
         start = time.process_time()
         try:
             if self._s.first_step_pending:
-                return self._first_step(self._limit(t_limit))
+                limit = self._limit(t_limit)
+                if 0.0 < limit - self.t and is_short(limit - self.t, self._s.proposed_step):
+                    # before the first step too; the controller's init stays pending
+                    return self._short_step(limit)
+                return self._first_step(limit)
             return self._regular_step(t_limit, rejections)
         except ModelError as exc:
             # a wrong shape mid-run: retrying cannot help, and raising would

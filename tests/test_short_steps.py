@@ -102,3 +102,22 @@ def test_a_short_step_does_not_become_the_history():
     assert itg.get_state().previous.t == previous.t
     assert itg.advance(0.2)
     assert itg.get_state().previous.t > 0.1
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_a_short_advance_before_the_first_step(scheme):
+    """advance(1e-15) right after construction: a short step, the controller's
+    first step still to come, and the run as accurate as without it (Bathe
+    under error control ended 3e-5 off instead of 5e-8 when the scheme took
+    that step)."""
+    reference = hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-11)
+    assert reference.advance(0.5)
+    scale = np.abs(reference.state.u).max()
+    itg = hfdi.Integrator(dumbbell(), scheme, rtol=1e-6)
+    direct = hfdi.Integrator(dumbbell(), scheme, rtol=1e-6)
+    assert itg.advance(1e-15)
+    assert itg.get_state().first_step_pending
+    assert itg.advance(0.5) and direct.advance(0.5)
+    error = np.abs(itg.state.u - reference.state.u).max() / scale
+    error_direct = np.abs(direct.state.u - reference.state.u).max() / scale
+    assert error <= 1.1 * error_direct + 1e-9, (error, error_direct)
