@@ -36,9 +36,11 @@ CONFIG = "hfdi_fmu.json"
 #: context (:class:`hfdi.compiled.NativeAdvance`), the addresses of the time,
 #: of the state arrays and of the inputs, the value-reference table and its
 #: length, the CPU nanoseconds of the native steps not yet counted, and the
-#: doSteps, reads and writes the native path served (for tests and diagnostics).
+#: doSteps, reads and writes the native path served (for tests and
+#: diagnostics), and whether the states may be read there (also on the
+#: Python path, from a copy the slave makes after its doStep).
 GATE_FIELDS = ("armed", "dirty", "function", "context", "time", "state", "inputs", "table",
-               "table_length", "cpu_ns", "steps", "reads", "writes")
+               "table_length", "cpu_ns", "steps", "reads", "writes", "readable")
 GATE_SIZE = 16
 
 

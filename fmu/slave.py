@@ -780,7 +780,7 @@ class HfdiSlave(Fmi2Slave):
                               f"t = {itg.t!r}")
             self._cache = None
             if ok:
-                self._arm_native()
+                self._open_gate()
                 return True
             self._rollback(snapshot)
             return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
@@ -821,50 +821,66 @@ class HfdiSlave(Fmi2Slave):
         self.log("doSteps after the first run in the native layer (the compiled driver "
                  "without Python) whenever they need nothing else", Fmi2Status.ok)
 
-    def _arm_native(self):
-        """Arm the gate after a doStep: when the integrator runs in the compiled
-        driver and the inputs are those applied, the native layer takes the
-        next doSteps (and reads the states) itself. Never raises: a native
-        path that cannot be armed leaves the doSteps to this slave."""
+    def _open_gate(self):
+        """Open the gate after a doStep of this slave. When the integrator runs
+        in the compiled driver and the inputs are those applied, arm it: the
+        native layer takes the next doSteps, reads the states and writes the
+        inputs itself. Otherwise make it readable only: the states, copied
+        here, are read there. Never raises: a gate that cannot be opened leaves
+        every call to this slave."""
         gate = self._gate
         if gate is None:
             return
         try:
             itg = self._itg
-            if itg is None or not itg.driven or self._phase != "stepping" or \
-                    self._F_input.tolist() != self._F_applied.tolist():
-                return
-            native = self._native
-            if native is None or native.integrator is not itg:
-                native = self._native = self._hfdi.compiled.NativeAdvance(itg)
-            if native.arm(max_steps_per_call=int(self._itg_key[0]["max_internal_steps"]),
-                          inputs=self._F_input):
+            if itg is None or self._phase != "stepping":
                 return
             at = self._gate_at
             table = self._gate_table
             if table is None:
                 # value reference of u[i], v[i], a[i] -> its entry in the state
-                # arrays; of F[i] -> -2 - i; of anything else -> -1
+                # arrays (rows u, v, a of N); of F[i] -> -2 - i; of anything else -> -1
                 rows = {"u": 0, "v": 1, "a": 2}
                 inputs = self._inputs
                 size = max([*self._state_outputs, *inputs], default=-1) + 1
                 table = np.full(size, -1, dtype=np.int64)
                 for vr, (key, i) in self._state_outputs.items():
-                    table[vr] = rows[key] * native.n + i
+                    table[vr] = rows[key] * self._n + i
                 for vr, i in inputs.items():
                     table[vr] = -2 - i
                 self._gate_table = table
-            gate[at["function"]] = native.function_address
-            gate[at["context"]] = native.context_address
-            gate[at["time"]] = native.time_address
-            gate[at["state"]] = native.state_address
-            gate[at["inputs"]] = self._F_input.ctypes.data
+                self._read_copy = np.empty((3, self._n))
             gate[at["table"]] = table.ctypes.data
             gate[at["table_length"]] = table.size
-            gate[at["armed"]] = 1
+            native = self._armed_native(itg)
+            if native is not None:
+                gate[at["function"]] = native.function_address
+                gate[at["context"]] = native.context_address
+                gate[at["time"]] = native.time_address
+                gate[at["state"]] = native.state_address
+                gate[at["inputs"]] = self._F_input.ctypes.data
+                gate[at["armed"]] = 1
+            else:
+                state, copy = itg.state, self._read_copy
+                copy[0], copy[1], copy[2] = state.u, state.v, state.a
+                gate[at["state"]] = copy.ctypes.data
+            gate[at["readable"]] = 1
         except Exception as exc:
             self._gate = None
             self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)
+
+    def _armed_native(self, itg):
+        """The integrator's NativeAdvance armed from its state, or ``None`` when
+        the next doStep must be this slave's."""
+        if not itg.driven or self._F_input.tolist() != self._F_applied.tolist():
+            return None
+        native = self._native
+        if native is None or native.integrator is not itg:
+            native = self._native = self._hfdi.compiled.NativeAdvance(itg)
+        if native.arm(max_steps_per_call=int(self._itg_key[0]["max_internal_steps"]),
+                      inputs=self._F_input):
+            return None
+        return native
 
     def sync_native(self):
         """Take over the doSteps the native layer took since the gate was armed."""

@@ -339,6 +339,42 @@ def test_native_path_takes_doSteps_and_reads_states_bit_for_bit(dumbbell_fmu, sc
     fast.close()
 
 
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")     # the HUGE input's overflow
+def test_states_are_read_natively_on_the_python_path_too(dumbbell_fmu):
+    """``compiled = false``: the doSteps are the slave's, but after each it
+    copies the states where the native layer reads them; the values are the
+    Python integrator's, bit for bit, also after a discard and a restore."""
+    fmu = unit(dumbbell_fmu, {"scheme": "bathe"}, "python-reads")
+    gate = _gate("python-reads")
+    held = np.zeros(N)
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), "bathe", target_iterations=3.0,
+                          compiled=False, extra_load=hfdi.HeldLoad(lambda: held),
+                          max_steps=2 ** 62)
+    refs = [fmu.vr(name) for name in STATE]
+    t, h = 0.0, 0.01
+    for k in range(30):
+        if k == 10:
+            saved = fmu.get_state()
+        if k == 20:
+            fmu.set({"F[1]": 25.0})
+            held[0] = 25.0
+            itg.load_changed()
+        assert fmu.step(t, h)
+        t += h
+        assert itg.advance(t)
+        assert fmu.fmu.getReal(refs) == np.concatenate(
+            [itg.state.u, itg.state.v, itg.state.a]).tolist(), k
+    assert gate("steps") == 0 and gate("reads") >= 29
+    before = fmu.fmu.getReal(refs)
+    fmu.set({"F[2]": HUGE})
+    assert not fmu.step(t, h)
+    assert fmu.fmu.getReal(refs) == before
+    fmu.set_state(saved)
+    fmu.free_state(saved)
+    assert fmu.fmu.getReal(refs) == fmu.get(STATE).tolist()
+    fmu.close()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["articulated", "toss_rule"])
 def test_native_path_on_other_models_under_error_control(fmus, name):

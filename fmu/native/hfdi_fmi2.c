@@ -210,11 +210,13 @@ static int python_ready(const char* resources)
  * the gate; the slave arms it again after a doStep of its own. A step the
  * function does not take (a breakpoint, a stop, the budget of internal
  * steps) changes nothing and is taken by the slave, so that every status and
- * message has one source.
+ * message has one source. On the Python path (or while the gate cannot be
+ * armed) the slave still opens it for reading: after its doStep it copies
+ * u, v, a where the gate's state address points (readable, not armed).
  * ------------------------------------------------------------------------- */
 enum { GATE_ARMED, GATE_DIRTY, GATE_FUNCTION, GATE_CONTEXT, GATE_TIME, GATE_STATE,
        GATE_INPUTS, GATE_TABLE, GATE_TABLE_LENGTH, GATE_CPU_NS, GATE_STEPS, GATE_READS,
-       GATE_WRITES, GATE_SIZE = 16 };
+       GATE_WRITES, GATE_READABLE, GATE_SIZE = 16 };
 typedef int64_t (*NativeAdvance)(int64_t* context, double t_stop);
 
 typedef struct {
@@ -349,7 +351,7 @@ static int reads_only(const char* method)
 static PyObject* invoke(Instance* inst, const char* method, PyObject* args, fmi2Status* status)
 {
     int64_t* gate = inst->gate;
-    int64_t armed = 0;
+    int64_t armed = 0, readable = 0;
     if (gate) {
         if (gate[GATE_DIRTY]) {
             /* the slave takes over the native steps before anything else */
@@ -366,13 +368,17 @@ static PyObject* invoke(Instance* inst, const char* method, PyObject* args, fmi2
             }
         }
         armed = gate[GATE_ARMED];
-        gate[GATE_ARMED] = 0;
+        readable = gate[GATE_READABLE];
+        gate[GATE_ARMED] = gate[GATE_READABLE] = 0;
     }
     PyObject* bound = p_PyObject_GetAttrString(inst->adapter, method);
     PyObject* result = bound ? p_PyObject_CallObject(bound, args) : NULL;
     if (bound) p_Py_DecRef(bound);
     if (args) p_Py_DecRef(args);
-    if (gate && result && armed && reads_only(method)) gate[GATE_ARMED] = armed;
+    if (gate && result && reads_only(method)) {
+        gate[GATE_ARMED] = armed;
+        gate[GATE_READABLE] = readable;
+    }
     if (!result) *status = report_exception(inst, method);
     drain_log(inst);
     return result;
@@ -434,7 +440,7 @@ static int native_read(Instance* inst, const fmi2ValueReference vr[], size_t nvr
                        fmi2Real out[])
 {
     int64_t* gate = inst->gate;
-    if (!gate || !gate[GATE_ARMED]) return 0;
+    if (!gate || !gate[GATE_READABLE]) return 0;
     const int64_t* table = (const int64_t*)(intptr_t)gate[GATE_TABLE];
     int64_t length = gate[GATE_TABLE_LENGTH];
     for (size_t i = 0; i < nvr; i++)
