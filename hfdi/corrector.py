@@ -12,7 +12,7 @@ from .linalg import SingularMatrixError, all_finite
 
 __all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton",
            "convergence_test", "solve_step", "StepOutcome", "CONSTANT_MEMORY",
-           "NO_MEASUREMENT", "SHORT_STEP", "is_short", "keeps_history", "short_step"]
+           "NO_MEASUREMENT", "SHORT_STEP", "is_short", "short_step"]
 
 #: A step shorter than this fraction of the step proposed is a *short step*:
 #: a step the controller did not ask for, forced by a landing point (a
@@ -29,7 +29,8 @@ __all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_fac
 #:
 #: A short step is therefore taken by Taylor's expansion with the acceleration
 #: from the equation of motion (:func:`short_step`) and does not become the
-#: history (:func:`keeps_history`). docs/algorithm.md, "Short steps".
+#: history (the step proposed after it carries over: :func:`is_short` of the
+#: accepted step against it). docs/algorithm.md, "Short steps".
 SHORT_STEP = 1e-3
 
 _isfinite = math.isfinite
@@ -40,12 +41,6 @@ def is_short(h: float, proposed: float) -> bool:
     """Whether a step of size ``h`` where ``proposed`` was proposed is a short
     step (see :data:`SHORT_STEP`)."""
     return h < SHORT_STEP * proposed
-
-
-def keeps_history(h: float, next_step: float) -> bool:
-    """Whether an accepted step of size ``h``, followed by the proposed step
-    ``next_step``, becomes the history (see :data:`SHORT_STEP`)."""
-    return h >= SHORT_STEP * next_step
 
 
 def short_step(ev: Evaluator, current: State, t_end: float, keep_force: bool) -> State:

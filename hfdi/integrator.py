@@ -26,8 +26,8 @@ from . import checks, serial
 from .compiled import InitialValues, compiled_driver, compiled_step
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
-from .corrector import (StepOutcome, is_short, keeps_history, local_error, predict,
-                        short_step, solve_step)
+from .corrector import (StepOutcome, is_short, local_error, predict, short_step,
+                        solve_step)
 from .dense import Solution, hermite_quintic
 from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
 from .linalg import all_finite
@@ -941,18 +941,24 @@ class Integrator:
             return t_limit, True
         return t + take, take != h
 
-    def _try(self, proposed: float, t_limit: float):
+    def _left_limit_at(self, t_end: float, t_limit: float):
+        """``t_end`` when a step ending there takes the load's left limit (it
+        lands on a breakpoint), else ``None`` (for ``Evaluator.left_limit_at``)."""
+        return t_end if (self.breakpoints.size and t_end == t_limit
+                         and t_end in self.breakpoints) else None
+
+    def _try(self, proposed: float, t_limit: float, landing=None):
         """One attempt of proposed size ``proposed`` towards ``t_limit``, as an
-        :class:`~hfdi.controller.Attempt` (``None`` below the resolution of time)."""
+        :class:`~hfdi.controller.Attempt` (``None`` below the resolution of time);
+        ``landing``: ``_clip(proposed, t_limit)`` when the caller has it."""
         s = self._s
         current, previous = s.current, s.previous
-        t_end, clipped = self._clip(proposed, t_limit)
+        t_end, clipped = self._clip(proposed, t_limit) if landing is None else landing
         h = t_end - current.t
         if not h > 0.0:
             return None
         ev = self.ev
-        ev.left_limit_at = t_end if (self.breakpoints.size and t_end == t_limit
-                                     and t_end in self.breakpoints) else None
+        ev.left_limit_at = self._left_limit_at(t_end, t_limit)
         try:
             if self._compiled is not None:
                 outcome = self._compiled.solve_step(current, previous, t_end, self.tol,
@@ -988,16 +994,15 @@ class Integrator:
                 outcome.newton_error + _EPS * float(np.abs(new.u).max())) / h
         return attempt
 
-    def _short_step(self, t_end: float) -> bool:
-        """A short step to ``t_end`` (:func:`hfdi.corrector.short_step`), accepted
-        as it is: its error is far below the scheme's at the proposed step, and
-        the proposed step carries over."""
+    def _short_step(self, t_end: float, t_limit: float) -> bool:
+        """A short step to ``t_end`` (towards ``t_limit``; :func:`hfdi.corrector.short_step`),
+        accepted as it is: its error is far below the scheme's at the proposed
+        step, and the proposed step carries over."""
         s = self._s
         current = s.current
         ev = self.ev
         h = t_end - current.t
-        ev.left_limit_at = t_end if (self.breakpoints.size and t_end in self.breakpoints) \
-            else None
+        ev.left_limit_at = self._left_limit_at(t_end, t_limit)
         try:
             new = short_step(ev, current, t_end, keep_force=type(self.scheme) is HFDI)
         finally:
@@ -1031,7 +1036,7 @@ class Integrator:
         for a, b in zip([old, *outcome.stages], [*outcome.stages, new]):
             work += 0.5 * float((b.u - a.u) @ (a.p + b.p))
         increment = potential - s.potential + kinetic_new - kinetic_old - work  # Eq. 40
-        if keeps_history(h, s.proposed_step):
+        if not is_short(h, s.proposed_step):       # a short step is no history
             s.previous = old
         s.current = new
         if self.fixed:
@@ -1113,7 +1118,7 @@ class Integrator:
                 limit = self._limit(t_limit)
                 if 0.0 < limit - self.t and is_short(limit - self.t, self._s.proposed_step):
                     # before the first step too; the controller's init stays pending
-                    return self._short_step(limit)
+                    return self._short_step(limit, limit)
                 return self._first_step(limit)
             return self._regular_step(t_limit, rejections)
         except ModelError as exc:
@@ -1135,10 +1140,11 @@ class Integrator:
                 return self._fail(Status.MAX_STEPS,
                                   f"max_steps = {self.max_steps} reached (attempts, rejected "
                                   f"ones included){before}")
-            t_end, clipped = self._clip(s.proposed_step, limit)
-            if 0.0 < t_end - self.t and is_short(t_end - self.t, s.proposed_step):
-                return self._short_step(t_end)
-            attempt = self._try(s.proposed_step, limit)
+            landing = self._clip(s.proposed_step, limit)
+            h = landing[0] - self.t
+            if 0.0 < h and is_short(h, s.proposed_step):
+                return self._short_step(landing[0], limit)
+            attempt = self._try(s.proposed_step, limit, landing)
             if attempt is None:
                 # the step went below the spacing of floating-point times at t
                 return self._fail(Status.STEP_BELOW_MINIMUM,

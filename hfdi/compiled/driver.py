@@ -50,14 +50,12 @@ from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 from ..corrector import is_short as _is_short
-from ..corrector import keeps_history as _keeps_history
 
 __all__ = ["drive"]
 
 _EPS = float(np.finfo(float).eps)
 
 # the Python driver's rule, compiled as it is (hfdi.compiled.cache watches corrector.py)
-keeps_history = njit(**JIT_OPTIONS)(_keeps_history)
 is_short = njit(**JIT_OPTIONS)(_is_short)
 
 # -- why drive() returned ------------------------------------------------------------
@@ -502,7 +500,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         else:
             work = 0.5 * float(np.dot(out[END_U] - current[U], current[P] + loads[1]))
         increment = potential - scalars[POTENTIAL] + kinetic_new - kinetic_old - work
-        if keeps_history(h, scalars[PROPOSED]):
+        if not is_short(h, scalars[PROPOSED]):      # a short step is no history
             previous[:, :] = current
             counters[PREVIOUS_HAS_F] = counters[CURRENT_HAS_F]
             scalars[T_PREV] = t
@@ -744,7 +742,7 @@ class CompiledDriver:
             # States own their arrays (one block each, never written again):
             # drive() writes into current and previous at the next call
             if not co[HAS_PREV]:
-                s.previous = None       # short steps after a breakpoint (keeps_history)
+                s.previous = None       # short steps after a breakpoint (no history)
             elif taken == 1 and sc[T_PREV] == cur.t:
                 s.previous = cur        # one step: the previous state is the one it started from
             else:

@@ -48,7 +48,7 @@ __all__ = ["NativeAdvance", "TAKEN", "NOT_TAKEN"]
 TAKEN, NOT_TAKEN = 1, 0
 
 # -- the context (int64): a header, then (address, shape...) of every array ------------
-(KERNELS, STEP_LIMIT, STEPS_PER_CALL_LIMIT, CALLS, _RESERVED) = range(5)
+(KERNELS, STEP_LIMIT, STEPS_PER_CALL_LIMIT, CALLS) = range(4)
 _HEADER = 8
 _SLOT = 4                     # address and up to three extents per array
 (PARAMS, LOAD_PARAMS, HELD, CONFIG, COEFFICIENTS, MD, MF, CD, CF, SETTINGS, SWITCHES, RTOL,
