@@ -799,11 +799,12 @@ class HfdiSlave(Fmi2Slave):
     # -- the native path (fmu/native/hfdi_fmi2.c: the gate and its protocol) -----------
     def attach_native_gate(self, gate, fields):
         """Take the native layer's gate (a ctypes int64 array whose entries are
-        named by ``fields``): from now on a doStep of this slave arms it when
-        the next steps can run without Python."""
+        named by ``fields``): from now on a doStep of this slave opens it
+        (:meth:`_open_gate`)."""
         self._gate = np.frombuffer(gate, dtype=np.int64)
         self._gate_at = {name: i for i, name in enumerate(fields)}
         self._gate_table = None
+        self._read_copy = np.empty((3, self._n))      # u, v, a, read on the Python path
 
     def _prepare_native(self):
         """The native path's C function for the new integrator, loaded (or
@@ -849,7 +850,6 @@ class HfdiSlave(Fmi2Slave):
                 for vr, i in inputs.items():
                     table[vr] = -2 - i
                 self._gate_table = table
-                self._read_copy = np.empty((3, self._n))
             gate[at["table"]] = table.ctypes.data
             gate[at["table_length"]] = table.size
             native = self._armed_native(itg)
