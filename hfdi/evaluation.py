@@ -6,6 +6,7 @@ the matrices once (see :mod:`hfdi.linalg`).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,6 +80,14 @@ def _first_bad(values) -> str:
         position = np.argwhere(~np.isfinite(arr))[0]
         value, index = arr[tuple(position)], [int(i) for i in position]
     return f"{float(value)!r} at {index}"
+
+
+def energy_overflows(kinetic: float, work: float, potential: float) -> bool:
+    """Whether a step's energy terms (Eqs. 40–41) are beyond floating point:
+    an infinite or NaN kinetic energy or work (both computed here from finite
+    values, so a NaN is an ``inf − inf``), or an infinite potential energy (a
+    NaN one is the model's "unknown")."""
+    return not (math.isfinite(kinetic) and math.isfinite(work)) or math.isinf(potential)
 
 
 @dataclass(frozen=True, init=False)

@@ -29,7 +29,7 @@ from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorContr
 from .corrector import (StepOutcome, is_short, local_error, predict, short_step,
                         solve_step)
 from .dense import Solution, hermite_quintic
-from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief
+from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief, energy_overflows
 from .linalg import all_finite
 from .schemes import HFDI, Scheme, get_scheme
 from .system import SecondOrderSystem
@@ -49,6 +49,11 @@ class Status(enum.IntEnum):
     ``MODEL_ERROR``: during the run the model returned a value of the wrong
     shape (or a potential energy that is not a number), a mistake that no
     step size cures; the message names the function.
+
+    ``OVERFLOW``: a converged step reached a state whose energy balance
+    (Eqs. 40–41) is beyond floating point, an infinite kinetic energy, work
+    of the load or potential energy (a load or state of the order of 1e150
+    or more); that state is not accepted.
     """
 
     SUCCESS = 0
@@ -60,6 +65,7 @@ class Status(enum.IntEnum):
     ENERGY_GROWTH = -5
     FIRST_STEP_FAILED = -6
     MODEL_ERROR = -7
+    OVERFLOW = -8
 
 
 @dataclass
@@ -1035,6 +1041,14 @@ class Integrator:
         work = 0.0
         for a, b in zip([old, *outcome.stages], [*outcome.stages, new]):
             work += 0.5 * float((b.u - a.u) @ (a.p + b.p))
+        if energy_overflows(kinetic_new, work, potential):
+            # finite values whose energies are not: accepting the state would
+            # make the energy balance (and every later step's) inf or NaN
+            return self._fail(Status.OVERFLOW,
+                              f"the step to t = {new.t:.10g} overflows: kinetic energy "
+                              f"{kinetic_new:.4g}, work of the load {work:.4g}, potential "
+                              f"energy {potential:.4g} (a load or state too large for "
+                              f"floating point)")
         increment = potential - s.potential + kinetic_new - kinetic_old - work  # Eq. 40
         if not is_short(h, s.proposed_step):       # a short step is no history
             s.previous = old

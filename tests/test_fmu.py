@@ -488,6 +488,25 @@ def test_rejected_step_is_discarded_at_the_last_communication_point(dumbbell_fmu
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.parametrize("compiled", [False, True], ids=["python", "compiled"])
+@pytest.mark.parametrize("h", [1e-15, 1e-3], ids=["short", "regular"])
+def test_a_step_whose_energy_overflows_is_discarded(dumbbell_fmu, h, compiled):
+    """F = 1e300 over a doStep of 1e-15 (a short step) or 1 ms: finite states
+    whose energy (an output) is not. Accepted, they made W and dE inf and NaN
+    (found by the robustness machine); the doStep is discarded instead."""
+    u = unit(dumbbell_fmu, {"scheme": "newmark", "compiled": compiled})
+    assert u.step(0.0, 0.01) and u.step(0.01, 0.01)      # the second one native if compiled
+    before = u.get(OBSERVED)
+    u.set({"F[1]": 1e300})
+    assert not u.step(0.02, h)
+    assert u.messages[-1][0] == "DISCARD" and "OVERFLOW" in u.messages[-1][2]
+    assert np.array_equal(u.get(OBSERVED), before)
+    u.set({"F[1]": 0.0})
+    assert u.step(0.02, 0.01) and np.all(np.isfinite(u.get(OBSERVED)))
+    u.close()
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
 def test_master_halves_and_repeats_a_discarded_step(dumbbell_fmu):
     path, unzip = dumbbell_fmu
     glitch_at, glitches = 0.1, []

@@ -758,3 +758,30 @@ def test_a_model_that_reuses_its_output_buffers_gets_the_same_answer(scheme):
         assert a.success and a.stats.steps == b.stats.steps
         np.testing.assert_array_equal(a.u, b.u)
         np.testing.assert_array_equal(a.v, b.v)
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["python", "compiled"])
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("step", [1e-15, 1e-3], ids=["short", "regular"])
+def test_a_step_whose_energy_overflows_stops_with_the_last_good_state(step, scheme, compiled):
+    """A load of 1e300 gives finite u, v, a whose kinetic energy and work are
+    inf: accepted, such a state made the energy balance (the FMU's energy
+    outputs) inf and NaN from there on. The run stops instead (OVERFLOW, or a
+    corrector that fails first on HFDI's derivative of K), at its last good
+    state, on both drivers alike."""
+    load = np.zeros(hfdi.models.dumbbell().n_dof)
+    itg = hfdi.Integrator(hfdi.models.dumbbell(), scheme, compiled=compiled,
+                          target_iterations=3, extra_load=hfdi.HeldLoad(lambda: load))
+    assert itg.advance(0.1)
+    before, energy = itg.state, itg.energy_error
+    load[1] = 1e300
+    itg.load_changed()
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert not itg.advance(0.1 + step)
+    overflows = step < 1e-3 or scheme != "hfdi"
+    assert itg.status == (S.OVERFLOW if overflows else S.STEP_BELOW_MINIMUM), itg.message
+    if overflows:
+        assert "overflows: kinetic energy inf, work of the load inf" in itg.message
+    assert itg.t == 0.1 and itg.state.t == 0.1
+    assert np.array_equal(itg.state.u, before.u) and np.array_equal(itg.state.v, before.v)
+    assert math.isfinite(itg.energy_error) and itg.energy_error == energy

@@ -50,13 +50,16 @@ from .attempt import SCHEME as A_SCHEME
 from .attempt import TOL as A_TOL
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 from ..corrector import is_short as _is_short
+from ..evaluation import energy_overflows as _energy_overflows
 
 __all__ = ["drive"]
 
 _EPS = float(np.finfo(float).eps)
 
-# the Python driver's rule, compiled as it is (hfdi.compiled.cache watches corrector.py)
+# the Python driver's rules, compiled as they are (hfdi.compiled.cache watches
+# corrector.py and evaluation.py)
 is_short = njit(**JIT_OPTIONS)(_is_short)
+energy_overflows = njit(**JIT_OPTIONS)(_energy_overflows)
 
 # -- why drive() returned ------------------------------------------------------------
 REACHED = 0          # t_stop reached
@@ -469,6 +472,18 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
                                                      converged, err, has_previous, rejections)
             accept, h_next = a_accept and b_accept, min(a_next, b_next)
             stops = a_stops or b_stops
+        potential = kinetic_old = kinetic_new = work = 0.0
+        if accept:
+            # Integrator._accept: the energy balance (Eqs. 40-41)
+            potential = potential_energy(np.ascontiguousarray(out[END_U]), params)
+            kinetic_old = 0.5 * _mass_dot(Md, Mf, m_kind, current[V])
+            kinetic_new = 0.5 * _mass_dot(Md, Mf, m_kind, out[END_V])
+            if scheme == BATHE:
+                work = 0.5 * float(np.dot(out[MID_U] - current[U], current[P] + loads[0]))
+                work += 0.5 * float(np.dot(out[END_U] - out[MID_U], loads[0] + loads[1]))
+            else:
+                work = 0.5 * float(np.dot(out[END_U] - current[U], current[P] + loads[1]))
+            stops = energy_overflows(kinetic_new, work, potential)
         if stops:
             # the run stops here: the Python driver redoes this attempt and says why
             # (from the corrector's memory as it was before it)
@@ -488,17 +503,9 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
                 counters[ERROR_TEST_FAILURES] += 1
             rejections += 1
             continue
-        # Integrator._accept: the energy balance (Eqs. 40-41) and the new state
+        # Integrator._accept: the new state
         rejections = 0
         counters[C_NPEV] += 1
-        potential = potential_energy(np.ascontiguousarray(out[END_U]), params)
-        kinetic_old = 0.5 * _mass_dot(Md, Mf, m_kind, current[V])
-        kinetic_new = 0.5 * _mass_dot(Md, Mf, m_kind, out[END_V])
-        if scheme == BATHE:
-            work = 0.5 * float(np.dot(out[MID_U] - current[U], current[P] + loads[0]))
-            work += 0.5 * float(np.dot(out[END_U] - out[MID_U], loads[0] + loads[1]))
-        else:
-            work = 0.5 * float(np.dot(out[END_U] - current[U], current[P] + loads[1]))
         increment = potential - scalars[POTENTIAL] + kinetic_new - kinetic_old - work
         if not is_short(h, scalars[PROPOSED]):      # a short step is no history
             previous[:, :] = current
