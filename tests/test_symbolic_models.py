@@ -169,6 +169,7 @@ def test_a_parameter_changed_mid_run_continues_as_a_run_started_there(scheme):
         < 1e-9 * itg.total_energy
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")   # the overflow asked for
 def test_a_changed_model_that_cannot_be_evaluated_stops_the_run():
     x = sympy.Symbol("x")
     c = sympy.Symbol("c")
