@@ -542,6 +542,10 @@ def load_nan_after(t):
     return np.array([np.nan, 0.0]) if t > 0.5 else np.zeros(2)
 
 
+def load_huge_after(t):
+    return np.array([1e300, 0.0]) if t > 0.5 else np.zeros(2)
+
+
 def singular(k=-16.0, n=1):
     """``M = I``, ``K = k I``: with Newmark's ``h = 0.5`` the tangent
     ``M/(βh²) + K = 16 I + K`` is exactly zero for ``k = −16``."""
@@ -620,6 +624,10 @@ FAULT_CASES = [
     ("load-nan", "load is NaN after t = 0.5 (fixed step)",
      lambda: hfdi.integrate(duffing(load=load_nan_after), "hfdi", 1.0, step=0.01),
      {S.NEWTON_FAILED}, ["load is not finite", "at t = 0.5"], 0.5),
+    ("load-overflow", "load of 1e300 after t = 0.5 (finite states, infinite energies)",
+     lambda: hfdi.integrate(duffing(load=load_huge_after), "newmark", 1.0,
+                            target_iterations=3.0),
+     {S.OVERFLOW}, ["overflows: kinetic energy inf, work of the load inf"], 0.5),
     ("energy-growth", "energy grows (Newmark γ < 1/2) beyond energy_limit",
      lambda: hfdi.integrate(hfdi.LinearSystem(mass=[1.0], stiffness=[[100.0]],
                                               initial_displacement=[1.0]),
