@@ -165,6 +165,7 @@ class Evaluator:
         self.extra_load = extra_load
         self.nfev = self.njev = self.ntev = self.nlu = self.npev = 0
         self._mass_factor = None
+        self._mass_floor = None
         self.mass_is_diagonal = self.mass.ndim == 1
         self.damping_is_diagonal = self.damping is None or (
             isinstance(self.damping, np.ndarray) and self.damping.ndim == 1)
@@ -179,6 +180,24 @@ class Evaluator:
         #: :mod:`hfdi.compiled.band` with them: the schemes' sparse tangents
         #: go into band storage in compiled code.
         self.bands = None
+
+    def mass_floor(self) -> float:
+        """A lower bound of the smallest eigenvalue of ``M`` (> 0; 0 where only a
+        bound that is not positive is known), computed once: the smallest entry
+        of a diagonal ``M``, the smallest eigenvalue of a dense one, Gershgorin's
+        bound of a sparse one."""
+        if self._mass_floor is None:
+            m = self.mass
+            if self.mass_is_diagonal:
+                floor = float(m.min())
+            elif isinstance(m, np.ndarray):
+                floor = float(np.linalg.eigvalsh(m)[0])
+            else:
+                diagonal = np.asarray(m.diagonal()).ravel()
+                off = np.asarray(abs(m).sum(axis=1)).ravel() - np.abs(diagonal)
+                floor = float((diagonal - off).min())
+            self._mass_floor = max(floor, 0.0)
+        return self._mass_floor
 
     def use_kernels(self, kernels) -> None:
         """Call ``kernels.force``, ``.stiffness`` and ``.stiffness_derivative``

@@ -26,8 +26,8 @@ from . import checks, serial
 from .compiled import InitialValues, compiled_driver, compiled_step
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
-from .corrector import (StepOutcome, is_short, local_error, predict, short_step,
-                        solve_step)
+from .corrector import (SHORT_STEP_RATE, StepOutcome, fastest_rate, is_short, local_error,
+                        predict, short_step, solve_step)
 from .dense import Solution, hermite_quintic
 from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief, energy_overflows
 from .linalg import all_finite
@@ -1008,6 +1008,8 @@ class Integrator:
         current = s.current
         ev = self.ev
         h = t_end - current.t
+        if h * fastest_rate(ev, current.u) > SHORT_STEP_RATE:
+            return self._short_step_of_the_scheme(t_end, t_limit)
         ev.left_limit_at = self._left_limit_at(t_end, t_limit)
         try:
             new = short_step(ev, current, t_end, keep_force=type(self.scheme) is HFDI)
@@ -1021,6 +1023,22 @@ class Integrator:
         attempt = Attempt(h, s.proposed_step, True, True, 0)
         attempt.outcome = StepOutcome(new, [0])
         return self._accept(attempt)
+
+    def _short_step_of_the_scheme(self, t_end: float, t_limit: float) -> bool:
+        """A short step past a stiff component (see :data:`hfdi.corrector.SHORT_STEP_RATE`),
+        taken by the scheme and accepted as the Taylor step is: the proposed
+        step carries over and the step does not become the history."""
+        s = self._s
+        st = s.statistics
+        attempt = self._try(s.proposed_step, t_limit, (t_end, True))
+        st.steps += 1
+        st.newton_iterations += attempt.iterations
+        if attempt.converged:
+            return self._accept(attempt)
+        st.rejected += 1
+        return self._fail(Status.NEWTON_FAILED,
+                          f"the short step of {attempt.h:.3g} to t = {t_end:.10g} failed: "
+                          f"{attempt.message}")
 
     def _accept(self, attempt) -> bool:
         s = self._s

@@ -121,3 +121,80 @@ def test_a_short_advance_before_the_first_step(scheme):
     error = np.abs(itg.state.u - reference.state.u).max() / scale
     error_direct = np.abs(direct.state.u - reference.state.u).max() / scale
     assert error <= 1.1 * error_direct + 1e-9, (error, error_direct)
+
+
+# -- past a stiff component (hfdi.corrector.SHORT_STEP_RATE) --------------------------
+K_STIFF = np.array([[1.0 + 1e10, -1e10], [-1e10, 1e10]])    # ω ≈ 1 and ≈ 1.4e5
+
+
+def _two_masses(stiff_amplitude):
+    """A soft spring to the ground and a very stiff one between two unit masses,
+    the stiff mode excited with ``stiff_amplitude``."""
+    return hfdi.LinearSystem(mass=[1.0, 1.0], stiffness=K_STIFF,
+                             initial_displacement=[1.0, 1.0 + stiff_amplitude])
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_a_short_step_past_a_stiff_mode_leaves_it_alone(scheme):
+    """Proposed steps of 0.1–1 s step over a mode of ω = 1.4e5 (unresolved; Newmark
+    keeps its amplitude, Bathe and HFDI damp it). A short step of 5e-4 of the
+    proposed one has ω h = 7–65: Taylor's expansion grew the mode 1,500 times
+    and broke Newmark's energy balance (6e-2 of energy error, against 2e-14);
+    the scheme takes such a step instead."""
+    amplitude = 1e-10
+    runs = [hfdi.Integrator(_two_masses(amplitude), scheme, target_iterations=3)
+            for _ in range(2)]
+    plain, interrupted = runs
+    assert plain.advance(1.0) and interrupted.advance(1.0)
+    h = 5e-4 * interrupted.proposed_step
+    assert h * 1.4e5 > 1.0                     # beyond Taylor's reach
+    assert interrupted.advance(1.0 + h)
+    assert interrupted.get_state().previous.t < 1.0       # not the history
+    assert plain.advance(3.0) and interrupted.advance(3.0)
+
+    def stiff(itg):
+        return abs(itg.state.u[1] - itg.state.u[0])
+    assert stiff(interrupted) <= 1.1 * max(stiff(plain), 1e-12 * amplitude) + 1e-13
+    # Newmark conserves the energy of a linear system; Bathe's and HFDI's
+    # dissipation depends on the steps taken, which the short step shifts
+    assert abs(interrupted.energy_error - plain.energy_error) <= \
+        0.5 * abs(plain.energy_error) + 1e-8 * plain.total_energy
+    assert np.abs(interrupted.state.u - plain.state.u).max() <= 1e-5
+
+
+def test_the_fastest_rate_bounds_the_linearised_motion():
+    """fastest_rate ≥ the largest |λ| of the first-order system's matrix, for dense,
+    diagonal and sparse M and C; inf where M's bound is not positive."""
+    import scipy.sparse as sp
+    from hfdi.corrector import fastest_rate
+    from hfdi.evaluation import Evaluator
+    rng = np.random.default_rng(5)
+    n = 6
+    A = rng.standard_normal((n, n))
+    M = A @ A.T + n * np.eye(n)
+    B = rng.standard_normal((n, n))
+    K = B @ B.T * 50.0
+    C = 0.3 * (M + 0.01 * K)
+    for mass in (M, np.diag(np.diag(M)), sp.csr_matrix(M)):
+        for damping in (None, C, np.diag(C).copy()):
+            system = hfdi.LinearSystem(mass=mass, stiffness=K, damping=damping)
+            ev = Evaluator(system)
+            Md = np.diag(mass) if isinstance(mass, np.ndarray) and mass.ndim == 1 else (
+                mass.toarray() if sp.issparse(mass) else mass)
+            Cd = np.zeros((n, n)) if damping is None else (
+                np.diag(damping) if damping.ndim == 1 else damping)
+            first_order = np.block([[np.zeros((n, n)), np.eye(n)],
+                                    [-np.linalg.solve(Md, K), -np.linalg.solve(Md, Cd)]])
+            largest = np.abs(np.linalg.eigvals(first_order)).max()
+            rate = fastest_rate(ev, np.zeros(n))
+            assert largest <= rate < 100 * largest or rate == np.inf
+    # a large sparse M (kept sparse) is bounded by Gershgorin: here by 1 − 1.2 < 0,
+    # no bound (its smallest eigenvalue is 1 − 0.6·√2 > 0)
+    n = 130
+    lumpy = sp.lil_matrix(sp.identity(n))
+    lumpy[0, 1] = lumpy[1, 0] = lumpy[0, 2] = lumpy[2, 0] = 0.6
+    ev = Evaluator(hfdi.LinearSystem(mass=lumpy.tocsr(), stiffness=sp.identity(n, format="csr")))
+    assert ev.mass_floor() == 0.0 and fastest_rate(ev, np.zeros(n)) == np.inf
+    lumpy[0, 1] = lumpy[1, 0] = lumpy[0, 2] = lumpy[2, 0] = 0.25
+    ev = Evaluator(hfdi.LinearSystem(mass=lumpy.tocsr(), stiffness=sp.identity(n, format="csr")))
+    assert ev.mass_floor() == 0.5 and fastest_rate(ev, np.zeros(n)) == np.sqrt(1.0 / 0.5)
