@@ -805,6 +805,10 @@ class HfdiSlave(Fmi2Slave):
         self._gate_at = {name: i for i, name in enumerate(fields)}
         self._gate_table = None
         self._read_copy = np.empty((3, self._n))      # u, v, a, read on the Python path
+        # addresses taken once: ndarray.ctypes costs 1.5 µs a call, and the
+        # arrays stay where they are while this slave holds them
+        self._read_copy_address = self._read_copy.ctypes.data
+        self._gate_table_address = 0
 
     def _prepare_native(self):
         """The native path's C function for the new integrator, loaded (or
@@ -850,7 +854,8 @@ class HfdiSlave(Fmi2Slave):
                 for vr, i in inputs.items():
                     table[vr] = -2 - i
                 self._gate_table = table
-            gate[at["table"]] = table.ctypes.data
+                self._gate_table_address = table.ctypes.data
+            gate[at["table"]] = self._gate_table_address
             gate[at["table_length"]] = table.size
             native = self._armed_native(itg)
             if native is not None:
@@ -863,7 +868,7 @@ class HfdiSlave(Fmi2Slave):
             else:
                 state, copy = itg.state, self._read_copy
                 copy[0], copy[1], copy[2] = state.u, state.v, state.a
-                gate[at["state"]] = copy.ctypes.data
+                gate[at["state"]] = self._read_copy_address
             gate[at["readable"]] = 1
         except Exception as exc:
             self._gate = None
