@@ -235,3 +235,46 @@ def test_inputs_not_applied_natively_are_handed_to_python():
     assert bare.advance(0.01)
     with pytest.raises(ValueError, match="HeldLoad"):
         NativeAdvance(bare).arm(inputs=np.zeros(4))
+
+
+def test_arm_points_the_context_at_the_arrays_of_this_arm():
+    """arm() writes an array's address only when it is another object than at
+    the last arm: a new ``inputs`` array is the one the calls read, the old one
+    is not, and a held load changed between arms is the one held."""
+    applied = np.zeros(4)
+    itg = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True,
+                          extra_load=hfdi.HeldLoad(lambda: applied))
+    assert itg.advance(0.01)
+    native = NativeAdvance(itg)
+    function = _FUNCTION(native.function_address)
+    first, second = np.zeros(4), np.zeros(4)
+    assert native.arm(inputs=first) == "" and native.arm(inputs=second) == ""
+    first[1] = 5.0                                  # no longer the context's
+    assert function(native.context_address, 0.011) == TAKEN
+    native.sync()
+    assert native.held.tolist() == [0.0] * 4
+    second[1] = 5.0
+    assert function(native.context_address, 0.012) == TAKEN
+    native.sync()
+    assert native.held.tolist() == [0.0, 5.0, 0.0, 0.0]
+    # the host applies what the calls held, changes it from Python, and arms again
+    applied[:] = [0.0, 5.0, 0.0, 0.0]
+    applied[2] = -3.0
+    itg.load_changed()
+    assert itg.advance(0.013)
+    inputs = applied.copy()
+    assert native.arm(inputs=inputs) == ""
+    assert native.held.tolist() == [0.0, 5.0, -3.0, 0.0]
+    assert function(native.context_address, 0.014) == TAKEN
+    native.sync()
+    reference_load = np.zeros(4)
+    reference = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True,
+                                extra_load=hfdi.HeldLoad(lambda: reference_load))
+    for t, load in ((0.01, None), (0.011, None), (0.012, [0.0, 5.0, 0.0, 0.0]),
+                    (0.013, [0.0, 5.0, -3.0, 0.0]), (0.014, None)):
+        if load is not None:
+            reference_load[:] = load
+            reference.load_changed()
+        assert reference.advance(t)
+    assert np.array_equal(itg.state.u, reference.state.u)
+    assert np.array_equal(itg.state.v, reference.state.v)
