@@ -12,7 +12,8 @@ from .linalg import SingularMatrixError, all_finite
 
 __all__ = ["predict", "predict_from_rates", "local_error", "velocity_history_factor", "newton",
            "convergence_test", "solve_step", "StepOutcome", "CONSTANT_MEMORY",
-           "NO_MEASUREMENT", "SHORT_STEP", "is_short", "short_step"]
+           "NO_MEASUREMENT", "SHORT_STEP", "SHORT_STEP_RATE", "is_short", "fastest_rate",
+           "short_step"]
 
 #: A step shorter than this fraction of the step proposed is a *short step*:
 #: a step the controller did not ask for, forced by a landing point (a

@@ -270,10 +270,10 @@ class NativeAdvance:
         self._held = np.zeros(0)
         self._bounds = np.array([math.inf])
         self._context = np.zeros(_HEADER + _SLOT * _ARRAYS, np.int64)
-        self._keep = []             # the arrays the context points into
-        # the arrays whose addresses and shapes the context holds: an array
-        # already there is not written again (ndarray.ctypes costs 1.5 µs and
-        # makes garbage; arm() cost 75 µs with 22 of them)
+        self._keep = None           # the kernel set the context points into
+        # the arrays whose addresses and shapes the context holds, kept alive
+        # here: an array already there is not written again (ndarray.ctypes
+        # costs 1.5 µs and makes garbage; arm() cost 75 µs with 22 of them)
         self._in_context = [None] * _ARRAYS
         self._accepted_at_arm = 0
         self._armed = False
@@ -370,8 +370,8 @@ class NativeAdvance:
             context[at] = array.ctypes.data
             context[at + 1:at + 1 + array.ndim] = array.shape
             in_context[which] = array
-        # the kernel set and every array stay alive with this object
-        self._keep = [step.kernel_set, arrays]
+        # the kernel set stays alive with this object (the arrays in _in_context)
+        self._keep = step.kernel_set
         self._accepted_at_arm = int(counters[ACCEPTED])
         self._armed = True
         return ""
