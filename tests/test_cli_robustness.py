@@ -577,6 +577,49 @@ def test_an_interrupt_inside_an_import_is_an_interrupt(monkeypatch, capsys, tmp_
         assert "Traceback" not in "\n".join(err)
 
 
+def _swallowed_ctrl_c():
+    """A real SIGINT to this process while a C extension initialises, dropped by
+    an optional import's ``except ImportError`` as libraries write them."""
+    try:
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt as interrupt:
+            raise ImportError("initialization failed") from interrupt
+    except ImportError:
+        pass
+
+
+def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path):
+    """A Ctrl-C that a library swallows: ``all`` stops before its next output
+    and exits 130 with its line; the next command in the process runs as usual
+    and SIGINT is Python's own handler again."""
+    import validation.cli
+    import validation.report
+
+    written = tmp_path / "after the interrupt"
+
+    def run_all(out, problems, schemes, targets, t_end, long_t_end, ratios, force,
+                progress, runner):
+        _swallowed_ctrl_c()
+        progress.say("table dumbbell")
+        written.write_text("an output after Ctrl-C")
+
+    monkeypatch.setattr(validation.report, "run_all", run_all)
+    status = validation.cli.main(["all", "--out", str(tmp_path / "out"), "--problems", "dumbbell"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 130, err
+    assert not written.exists()
+    assert "hfdi-validate: interrupted" in err[-1] and "Traceback" not in "\n".join(err)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+    # a command that goes on to its end after a swallowed Ctrl-C exits 130 too
+    monkeypatch.setattr(validation.cli, "_models", lambda args: _swallowed_ctrl_c())
+    assert validation.cli.main(["models"]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert validation.cli.main(["models"]) == 0
+
+
 @pytest.mark.parametrize("during", ["import", "run"])
 @pytest.mark.parametrize("fault", ["plain", "inside a C extension"])
 def test_hfdi_fmu_says_interrupted_whenever_ctrl_c_comes(monkeypatch, capsys, during, fault):

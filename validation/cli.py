@@ -97,6 +97,7 @@ def _table(args):
     several = len(problems) > 1
 
     def progress(record):
+        opt.raise_if_interrupted()
         where = f"{record.problem:11s} " if several else ""
         setting = " ".join(([f"N̄={record.target:g}"] if record.target is not None else [])
                            + ([f"rtol={record.rtol:.0e}"] if record.rtol is not None else []))
@@ -104,6 +105,7 @@ def _table(args):
               f"{record.status}", file=sys.stderr, flush=True)
 
     def say(text):
+        opt.raise_if_interrupted()
         print(f"  {text}", file=sys.stderr, flush=True)
 
     with opt.runner_from_args(args) as runner:
@@ -171,7 +173,7 @@ def _figures(args):
     for option, t_end in (("--t-end", args.t_end), ("--long-t-end", args.long_t_end)):
         check_runs([args.problem], args.schemes, args.targets, t_end, option=option)
     out = out_dir(args.out)
-    progress = Progress()
+    progress = Progress(checkpoint=opt.raise_if_interrupted)
     ctx = ProblemRuns(args.problem, args.schemes, args.targets, args.t_end, args.long_t_end,
                       progress=progress)
     written = write_figures(ctx, out)
@@ -184,7 +186,7 @@ def _stability(args):
     from .stability import DEFAULT_RATIOS, write_stability
     out = out_dir(args.out)
     ratios = args.ratios or list(DEFAULT_RATIOS)
-    done = write_stability(out, ratios, progress=Progress())
+    done = write_stability(out, ratios, progress=Progress(checkpoint=opt.raise_if_interrupted))
     print("Spectral radius ρ, period elongation PE and amplitude decay AD (Eqs. 29-33)\n")
     print(done["table"])
     print()
@@ -202,7 +204,7 @@ def _all(args):
     with opt.runner_from_args(args) as runner:
         out = out_dir(args.out)
         _remove_stale_temporaries(out, [FIGURE_DIR])
-        progress = Progress()
+        progress = Progress(checkpoint=opt.raise_if_interrupted)
         try:
             report = run_all(out, args.problems, args.schemes, args.targets, args.t_end,
                              args.long_t_end, args.ratios or list(DEFAULT_RATIOS), args.force,
@@ -217,13 +219,18 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return _run(args)
+        with opt.watching_interrupts():
+            status = _run(args)
     except BaseException as exc:
         if not opt.caused_by_interrupt(exc):
             raise
+        status = None
+    if status is None or opt.interrupted():
+        # also when a library swallowed the KeyboardInterrupt and the command went on
         print("hfdi-validate: interrupted; outputs written so far are kept (a rerun of "
               "'all' resumes)", file=sys.stderr)
         return 130
+    return status
 
 
 def _run(args) -> int:

@@ -7,8 +7,11 @@ the checks made after parsing raise :class:`UsageError`, reported the same way.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import tempfile
+import threading
 from pathlib import Path
 
 import hfdi
@@ -18,7 +21,8 @@ from .experiments import SCHEME_ORDER, experiment, names
 __all__ = ["Parser", "UsageError", "schemes", "targets", "rtols", "positive", "ratios",
            "problems", "positive_integer", "numbers", "output_file", "out_dir",
            "check_problem", "check_runs", "add_parallel_options", "runner_from_args",
-           "LONGEST_RUN", "caused_by_interrupt"]
+           "LONGEST_RUN", "caused_by_interrupt", "watching_interrupts", "interrupted",
+           "raise_if_interrupted"]
 
 
 class UsageError(Exception):
@@ -40,6 +44,53 @@ def caused_by_interrupt(exc: BaseException) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+#: Set by the SIGINT handler of :func:`watching_interrupts`.
+_interrupt_seen = False
+
+
+def _on_sigint(signum, frame):
+    global _interrupt_seen
+    _interrupt_seen = True
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def watching_interrupts():
+    """Remember every Ctrl-C within, so that one a library swallows still ends the command.
+
+    A ``KeyboardInterrupt`` raised while a C extension is imported comes out
+    as an ``ImportError``, and an optional import guarded by ``except
+    ImportError`` (matplotlib's, say) drops it: the command would go on and
+    exit 0. Within this block SIGINT raises ``KeyboardInterrupt`` as Python's
+    own handler does and is recorded; :func:`raise_if_interrupted` raises it
+    again at the next output, and :func:`interrupted` tells ``main`` to exit
+    130. A SIGINT that is ignored (a background job of a non-interactive
+    shell) stays ignored; outside the main thread nothing is installed.
+    """
+    global _interrupt_seen
+    _interrupt_seen = False
+    install = (threading.current_thread() is threading.main_thread()
+               and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    if install:
+        signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        yield
+    finally:
+        if install:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def interrupted() -> bool:
+    """Whether a Ctrl-C came within the last :func:`watching_interrupts` block."""
+    return _interrupt_seen
+
+
+def raise_if_interrupted() -> None:
+    """Raise ``KeyboardInterrupt`` if a Ctrl-C came and was swallowed."""
+    if _interrupt_seen:
+        raise KeyboardInterrupt
 
 
 class Parser(argparse.ArgumentParser):

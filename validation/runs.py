@@ -258,12 +258,17 @@ class Progress:
         (so that a test's capture sees it).
     enabled : bool
         ``False`` silences every line.
+    checkpoint : callable, optional
+        Called before each line, that is between two outputs; the command
+        lines pass one that raises ``KeyboardInterrupt`` again after a Ctrl-C
+        that a library swallowed.
     """
 
-    def __init__(self, stream=None, enabled=True):
+    def __init__(self, stream=None, enabled=True, checkpoint=None):
         self.start = time.perf_counter()
         self.stream = stream
         self.enabled = enabled
+        self.checkpoint = checkpoint
 
     @property
     def elapsed(self) -> float:
@@ -272,6 +277,8 @@ class Progress:
 
     def say(self, text: str) -> None:
         """Write one line."""
+        if self.checkpoint is not None:
+            self.checkpoint()
         if self.enabled:
             print(f"[{self.elapsed:7.1f} s] {text}", file=self.stream or sys.stderr, flush=True)
 
