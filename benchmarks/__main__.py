@@ -1,7 +1,7 @@
 """``python -m benchmarks COMMAND [...]``: see :mod:`benchmarks`."""
 import sys
 
-from validation.options import UsageError, caused_by_interrupt
+from validation.options import UsageError, caused_by_interrupt, interrupted, watching_interrupts
 
 COMMANDS = ("precision", "scale", "profile", "cosim")
 USAGE = f"usage: python -m benchmarks {{{','.join(COMMANDS)}}} [-h] [...]"
@@ -22,14 +22,10 @@ def main(argv=None) -> int:
               f"{', '.join(COMMANDS)}", file=sys.stderr)
         return 2
     try:
-        if command == "precision":
-            from validation.options import Parser
-            from .precision import add_parser, run_command
-            parser = Parser(prog="python -m benchmarks")
-            add_parser(parser.add_subparsers(dest="command", required=True))
-            return run_command(parser.parse_args(argv))
-        module = __import__(f"benchmarks.{command}", fromlist=["main"])
-        return module.main(rest)
+        with watching_interrupts():
+            status = _run(command, argv, rest)
+        # a Ctrl-C that a library swallowed: the command went on, but was interrupted
+        return _interrupted(command) if interrupted() else status
     except (UsageError, OSError, ValueError) as exc:
         if caused_by_interrupt(exc):
             return _interrupted(command)
@@ -40,6 +36,17 @@ def main(argv=None) -> int:
         if not caused_by_interrupt(exc):
             raise
         return _interrupted(command)
+
+
+def _run(command, argv, rest) -> int:
+    if command == "precision":
+        from validation.options import Parser
+        from .precision import add_parser, run_command
+        parser = Parser(prog="python -m benchmarks")
+        add_parser(parser.add_subparsers(dest="command", required=True))
+        return run_command(parser.parse_args(argv))
+    module = __import__(f"benchmarks.{command}", fromlist=["main"])
+    return module.main(rest)
 
 
 def _interrupted(command) -> int:

@@ -591,8 +591,9 @@ def _swallowed_ctrl_c():
 
 def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path):
     """A Ctrl-C that a library swallows: ``all`` stops before its next output
-    and exits 130 with its line; the next command in the process runs as usual
-    and SIGINT is Python's own handler again."""
+    and exits 130 with its line, as does ``python -m benchmarks``; the next
+    command in the process runs as usual and SIGINT is Python's own handler
+    again."""
     import validation.cli
     import validation.report
 
@@ -615,9 +616,20 @@ def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path
     # a command that goes on to its end after a swallowed Ctrl-C exits 130 too
     monkeypatch.setattr(validation.cli, "_models", lambda args: _swallowed_ctrl_c())
     assert validation.cli.main(["models"]) == 130
+    import benchmarks.__main__ as bench_main
+    import benchmarks.profile
+
+    def profile(argv):
+        _swallowed_ctrl_c()
+        return 0
+
+    monkeypatch.setattr(benchmarks.profile, "main", profile)
+    assert bench_main.main(["profile"]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == \
+        "python -m benchmarks profile: interrupted"
     monkeypatch.undo()
-    capsys.readouterr()
     assert validation.cli.main(["models"]) == 0
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 @pytest.mark.parametrize("during", ["import", "run"])
