@@ -38,11 +38,11 @@ from ..schemes import HFDI, Bathe, Newmark
 from .lapack import all_finite as _all_finite
 from .lapack import gesv, getrf, getrs, getrs_columns, work_arrays
 from .loads import hat_load
-from .signatures import (FORCE_TYPE, INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, LOAD_TYPE, MATRIX,
-                         POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE, STIFFNESS_TYPE,
-                         VECTOR)
+from .signatures import (FORCE_TYPE, INDEX_VECTOR, INT32_MATRIX, JIT_OPTIONS, KERNEL_SET,
+                         LOAD_TYPE, MATRIX, POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE,
+                         STIFFNESS_TYPE, TENSOR, VECTOR)
 
-__all__ = ["CompiledStep", "attempt", "attempt_with", "kernel_set"]
+__all__ = ["CompiledStep", "attempt", "attempt_with", "kernel_set", "workspace"]
 
 # -- codes shared with the Python side -------------------------------------------
 # status of an attempt
@@ -69,20 +69,17 @@ ITERATIONS_0, ITERATIONS_1, STAGES_COUNTED, NFEV, NJEV, NTEV, NLU, FAILED_STAGE 
 END_U, END_V, END_A, END_F, MID_U, MID_V, MID_A = range(7)
 # kinds of M and C
 NONE, DIAGONAL, DENSE = 0, 1, 2
+# rows of the work space's vectors and matrices (:func:`workspace`)
+W_U, W_U2, W_BDIAG, W_Q0, W_F0, W_GN, W_G, W_VD, W_WORK, W_RES, W_DU, W_KV, W_TMP, W_RHS, \
+    W_SHIFT = range(15)
+X_S, X_SB, X_TANGENT, X_LU, X_B, X_B_LU, X_WORK, X_PROD = range(8)
+_WORK_VECTORS, _WORK_MATRICES = 15, 8
 
 # the Python path's test itself, compiled (hfdi.compiled.cache watches its source too)
 _convergence_test = njit(**JIT_OPTIONS)(convergence_test)
 
 
 # -- small dense linear algebra ----------------------------------------------------
-
-@njit(**JIT_OPTIONS)
-def _times(diagonal, full, kind, x):
-    """``A x`` for ``A`` of the given kind (zero for NONE), as a new vector."""
-    y = np.zeros(x.shape[0])
-    _times_into(diagonal, full, kind, x, y)
-    return y
-
 
 @njit(inline="always", **JIT_OPTIONS)
 def _times_into(diagonal, full, kind, x, out):
@@ -101,40 +98,51 @@ def _times_into(diagonal, full, kind, x, out):
 
 @njit(**JIT_OPTIONS)
 def _dense_times_into(A, x, out):
-    """``out = A x`` by BLAS (as the Python path's ``A @ x``)."""
-    out[:] = np.dot(A, x)
+    """``out = A x`` by BLAS (as the Python path's ``A @ x``), into ``out``."""
+    np.dot(A, x, out)
 
 
 @njit(**JIT_OPTIONS)
 def _add_dense(out, c, full, kind):
     """``out += c A`` for a dense ``A`` (the dense terms of hfdi.linalg.combine)."""
     if kind == DENSE and c != 0.0:
-        out += c * full
+        for i in range(out.shape[0]):
+            for j in range(out.shape[1]):
+                out[i, j] += c * full[i, j]
 
 
 @njit(**JIT_OPTIONS)
 def _add_diagonal(d, c, diagonal, kind):
     """``d += c diag(A)`` for a diagonal ``A`` (combine's diagonal terms)."""
     if kind == DIAGONAL and c != 0.0:
-        d += c * diagonal
+        for i in range(d.shape[0]):
+            d[i] += c * diagonal[i]
 
 
 @njit(**JIT_OPTIONS)
-def _solve(A, b):
-    """``(x, ok)`` with ``A x = b`` (:func:`~hfdi.compiled.lapack.gesv`)."""
-    lu, pivots, ints = work_arrays(A.shape[0])
-    x = b.copy()
-    return x, gesv(A, x, lu, pivots, ints)
+def workspace(n):
+    """The work arrays of :func:`attempt`, made once by its caller:
+    ``(vectors (15, N), matrices (8, N, N), pivots (2, N) int32, ints (2, 4)
+    int32)``, rows named ``W_*`` and ``X_*``; two sets of LAPACK's pivots and
+    integers (:func:`~hfdi.compiled.lapack.work_arrays`), the tangent's and
+    HFDI's ``B``'s. An allocation costs about 50 ns, and an attempt made
+    some forty of them. Every entry is written before it is read: empty, not
+    zeroed (a megabyte at N = 127, and the driver makes them at every call)."""
+    ints = np.empty((2, 4), np.int32)
+    for k in range(2):
+        ints[k] = work_arrays(0)[2]
+    return (np.empty((_WORK_VECTORS, n)), np.empty((_WORK_MATRICES, n, n)),
+            np.empty((2, n), np.int32), ints)
 
 
 # -- predictor and corrector --------------------------------------------------------
 
 @njit(**JIT_OPTIONS)
-def _predict(u, v, a, has_previous, H, u_previous, v_previous, s):
-    """:func:`hfdi.corrector.predict` (Eqs. 36–37): linear without history,
-    else the quartic through the two last states."""
+def _predict(u, v, a, has_previous, H, u_previous, v_previous, s, out):
+    """:func:`hfdi.corrector.predict` (Eqs. 36–37) into ``out``, which it
+    returns: linear without history, else the quartic through the two last
+    states."""
     n = u.shape[0]
-    out = np.empty(n)
     if not has_previous:
         for i in range(n):
             out[i] = u[i] + s * v[i]
@@ -178,23 +186,30 @@ def _newton_update(u, tangent, residual, tol, floor, previous, constant, guard, 
 
 @njit(**JIT_OPTIONS)
 def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0,
-                   p, u, tol, floor, max_iterations, constant, guard, estimated, counters):
+                   p, u, tol, floor, max_iterations, constant, guard, estimated, counters,
+                   vectors, matrices, all_pivots, all_ints):
     """Newton on ``ca M u + cv C u + f(u) = p − M a0 − C v0`` (``_InertiaStage``)
     from the guess ``u``, corrected in place: ``(status, k, error, constant, guard)``,
     ``k = −1`` when a model value failed (the stage's corrections are then not
-    counted, as on the Python path)."""
+    counted, as on the Python path). The rest of the arguments: :func:`workspace`."""
     n = u.shape[0]
-    rhs = p - _times(Md, Mf, m_kind, a0)
+    rhs, work, residual, du = vectors[W_RHS], vectors[W_WORK], vectors[W_RES], vectors[W_DU]
+    _times_into(Md, Mf, m_kind, a0, work)
+    for i in range(n):
+        rhs[i] = p[i] - work[i]
     if c_kind != NONE:
-        rhs = rhs - _times(Cd, Cf, c_kind, v0)
-    shift = np.zeros(n)
+        _times_into(Cd, Cf, c_kind, v0, work)
+        for i in range(n):
+            rhs[i] = rhs[i] - work[i]
+    shift = vectors[W_SHIFT]
+    for i in range(n):
+        shift[i] = 0.0
     _add_diagonal(shift, ca, Md, m_kind)
     _add_diagonal(shift, cv, Cd, c_kind)
     dense_mass = m_kind == DENSE and ca != 0.0
     dense_damping = c_kind == DENSE and cv != 0.0
-    work, residual, du = np.empty(n), np.empty(n), np.empty(n)
-    tangent = np.empty((n, n))
-    lu, pivots, ints = work_arrays(n)
+    tangent, lu = matrices[X_TANGENT], matrices[X_LU]
+    pivots, ints = all_pivots[0], all_ints[0]
     previous = math.inf
     for k in range(1, max_iterations + 1):
         counters[NFEV] += 1
@@ -262,13 +277,14 @@ def _inertia_end(out, u, ca, cv, a0, v0):
 
 
 @njit(inline="always", **JIT_OPTIONS)
-def _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints, out):
-    """``out = v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + c g`` (``B`` diagonal when
-    its factors ``B_lu`` are empty)."""
+def _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, dense_b, B_lu, b_pivots,
+                        b_ints, out):
+    """``out = v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + c g`` (``B`` diagonal
+    unless ``dense_b``, then ``B_lu`` holds its factors)."""
     _times_into(Md, Mf, m_kind, u, out)
     for i in range(u.shape[0]):
         out[i] = out[i] + q0[i] + c * g[i]
-    if B_lu.shape[0] == 0:
+    if not dense_b:
         for i in range(u.shape[0]):
             out[i] /= b_diagonal[i]
     else:
@@ -278,26 +294,31 @@ def _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots,
 @njit(**JIT_OPTIONS)
 def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_kind, u_n, v_n,
                 f_n, p_n, p, pt, h, u, tol, floor, max_iterations, constant, guard, estimated,
-                counters, out):
+                counters, out, vectors, matrices, all_pivots, all_ints):
     """Newton on the HFDI residual ``F(u)`` of Eq. 21 with its exact tangent
     ``S B⁻¹ S + C + 2h/3 K − h²/6 T(u)[v_D]`` (``_HFDIStage``) from the guess
     ``u``, corrected in place, then the end state into ``out``:
-    ``(status, k, error, constant, guard)``."""
+    ``(status, k, error, constant, guard)``. The last four: :func:`workspace`."""
     n = u.shape[0]
     c = h * h / 6.0
     c2 = 2.0 * h / 3.0
-    g_n = p_n - f_n
+    g_n, tmp = vectors[W_GN], vectors[W_TMP]
+    for i in range(n):
+        g_n[i] = p_n[i] - f_n[i]
     # B = 2h/3 M + h²/6 C: diagonal, or dense and factorised once
-    b_diagonal = np.zeros(n)
+    b_diagonal = vectors[W_BDIAG]
+    for i in range(n):
+        b_diagonal[i] = 0.0
     dense_b = m_kind == DENSE or c_kind == DENSE
-    # assigned once: an array variable assigned in two branches costs reference
-    # counting at every pass of the loops after it
-    B_lu, b_pivots, b_ints = work_arrays(n if dense_b else 0)
+    B_lu, b_pivots, b_ints = matrices[X_B_LU], all_pivots[1], all_ints[1]
     if dense_b:
-        B = np.zeros((n, n))
+        B = matrices[X_B]
+        B[:, :] = 0.0
         _add_dense(B, c2, Mf, m_kind)
         _add_dense(B, c, Cf, c_kind)
-        d = np.zeros(n)
+        d = tmp
+        for i in range(n):
+            d[i] = 0.0
         _add_diagonal(d, c2, Md, m_kind)
         _add_diagonal(d, c, Cd, c_kind)
         for i in range(n):
@@ -311,13 +332,23 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         for i in range(n):
             if not (b_diagonal[i] != 0.0 and math.isfinite(b_diagonal[i])):
                 return STEP_MATRIX_SINGULAR, 0, math.inf, constant, guard
-    q0 = -_times(Md, Mf, m_kind, u_n + (h / 3.0) * v_n)
-    F0 = -_times(Md, Mf, m_kind, v_n) - _times(Cd, Cf, c_kind, u_n) - (h / 3.0) * g_n
+    # q0 = −M (u_n + h/3 v_n), F0 = −M v_n − C u_n − h/3 g_n
+    q0, F0 = vectors[W_Q0], vectors[W_F0]
+    for i in range(n):
+        tmp[i] = u_n[i] + (h / 3.0) * v_n[i]
+    _times_into(Md, Mf, m_kind, tmp, q0)
+    for i in range(n):
+        q0[i] = -q0[i]
+    _times_into(Md, Mf, m_kind, v_n, F0)
+    _times_into(Cd, Cf, c_kind, u_n, tmp)
+    for i in range(n):
+        F0[i] = -F0[i] - tmp[i] - (h / 3.0) * g_n[i]
     dense_mass, dense_damping = m_kind == DENSE, c_kind == DENSE
-    g, vD, work, residual, du = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    S, SB, tangent = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    work_matrix = np.empty((n, n) if dense_b else (0, 0))
-    lu, pivots, ints = work_arrays(n)
+    g, vD, work = vectors[W_G], vectors[W_VD], vectors[W_WORK]
+    residual, du, Kv = vectors[W_RES], vectors[W_DU], vectors[W_KV]
+    S, SB, tangent = matrices[X_S], matrices[X_SB], matrices[X_TANGENT]
+    work_matrix, product, lu = matrices[X_WORK], matrices[X_PROD], matrices[X_LU]
+    pivots, ints = all_pivots[0], all_ints[0]
     previous = math.inf
     converged = False
     k_done = max_iterations
@@ -333,10 +364,10 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         K = stiffness(u, params)
         if not _all_finite(K):
             return STIFFNESS_NOT_FINITE, -1, math.inf, constant, guard
-        _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints,
-                            vD)
+        _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, dense_b, B_lu, b_pivots,
+                            b_ints, vD)
         # residual = M v_D − c2 g + c (p' − K v_D) + F0 (+ C u)
-        Kv = np.dot(K, vD)
+        np.dot(K, vD, Kv)
         for i in range(n):
             residual[i] = c * (pt[i] - Kv[i])
         _times_into(Md, Mf, m_kind, vD, work)
@@ -362,14 +393,17 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
             if c_kind == DIAGONAL:
                 tangent[i, i] += Cd[i]
         # + S B⁻¹ S
-        if B_lu.shape[0] == 0:
+        if not dense_b:
             for i in range(n):
                 for j in range(n):
                     SB[i, j] = S[i, j] / b_diagonal[i]
         else:
             SB[:, :] = S
             getrs_columns(B_lu, b_pivots, b_ints, SB, work_matrix)
-        tangent += S @ SB
+        np.dot(S, SB, product)
+        for i in range(n):
+            for j in range(n):
+                tangent[i, j] += product[i, j]
         if not _all_finite(residual):
             return RESIDUAL_NOT_FINITE, k - 1, math.inf, constant, guard
         status, done, error, previous, constant, guard = _newton_update(
@@ -393,16 +427,19 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
         return FORCE_NOT_FINITE, k_done, error, constant, guard
     for i in range(n):
         g[i] = p[i] - f[i]
-    v = np.empty(n)
-    _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, B_lu, b_pivots, b_ints, v)
-    rest = p - f - _times(Cd, Cf, c_kind, v)
+    v, a = out[END_V], out[END_A]
+    _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, dense_b, B_lu, b_pivots,
+                        b_ints, v)
+    # a = M⁻¹ (p − f − C v)
+    _times_into(Cd, Cf, c_kind, v, work)
+    for i in range(n):
+        a[i] = p[i] - f[i] - work[i]
     if m_kind == DENSE:
-        a = _solve(Mf, rest)[0]
+        gesv(Mf, a, lu, pivots, ints)
     else:
-        a = rest / Md
+        for i in range(n):
+            a[i] = a[i] / Md[i]
     out[END_U] = u
-    out[END_V] = v
-    out[END_A] = a
     out[END_F] = f
     if not _end_finite(out):
         return END_NOT_FINITE, k_done, error, constant, guard
@@ -413,12 +450,14 @@ _SIGNATURE = types.Tuple((types.int64, MATRIX, INDEX_VECTOR, types.float64))(
     FORCE_TYPE, STIFFNESS_TYPE, STIFFNESS_DERIVATIVE_TYPE, VECTOR,   # kernels, params
     INDEX_VECTOR, VECTOR,                                           # config, coefficients
     VECTOR, MATRIX, VECTOR, MATRIX,                                 # M (diag, dense), C
-    MATRIX, MATRIX, MATRIX)                                         # start, previous, loads
+    MATRIX, MATRIX, MATRIX,                                         # start, previous, loads
+    MATRIX, INDEX_VECTOR,                                           # out, info
+    MATRIX, TENSOR, INT32_MATRIX, INT32_MATRIX)                     # workspace()
 
 
 @njit(_SIGNATURE, **JIT_OPTIONS)
 def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, Cd, Cf,
-            start, previous, loads):
+            start, previous, loads, out, info, vectors, matrices, pivots, ints):
     """One attempt at the step ``t_start → t_end``, every stage, predictor then Newton.
 
     Parameters
@@ -444,6 +483,10 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
         ``u, v`` at ``t_previous`` (the predictor's history).
     loads : ndarray (3, N)
         ``p`` at Bathe's mid-step time, ``p(t_end)`` and HFDI's ``p'(t_end)``.
+    out : ndarray (7, N)
+    info : ndarray (8,) int64
+        Written over (see below) and returned.
+    vectors, matrices, pivots, ints : the work arrays of :func:`workspace`
 
     Returns
     -------
@@ -456,9 +499,8 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     newton_error : float
         The largest estimate over the stages of the corrector's remaining error.
     """
-    n = start.shape[1]
-    out = np.zeros((7, n))
-    info = np.zeros(8, np.int64)
+    out[:, :] = 0.0
+    info[:] = 0
     scheme = config[SCHEME]
     has_previous = config[HAS_PREVIOUS] != 0
     max_iterations = config[MAX_ITERATIONS]
@@ -479,11 +521,12 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
             f_n = force(np.ascontiguousarray(u_n), params)
             if not _all_finite(f_n):
                 return FORCE_NOT_FINITE, out, info, math.inf
-        guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+        guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h,
+                         vectors[W_U])
         status, k, error, constant, guard = _hfdi_stage(
             force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_kind, u_n, v_n, f_n,
             start[4], loads[1], loads[2], h, guess, tol, floor, max_iterations, constant, guard,
-            estimated, info, out)
+            estimated, info, out, vectors, matrices, pivots, ints)
         if k >= 0:
             info[ITERATIONS_0] = k
             info[STAGES_COUNTED] = 1
@@ -493,10 +536,12 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     if scheme == NEWMARK:
         ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, h, coefficients[GAMMA],
                                                coefficients[BETA])
-        u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+        u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h,
+                     vectors[W_U])
         status, k, error, constant, guard = _inertia_stage(
             force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0, loads[1],
-            u, tol, floor, max_iterations, constant, guard, estimated, info)
+            u, tol, floor, max_iterations, constant, guard, estimated, info, vectors, matrices,
+            pivots, ints)
         if k >= 0:
             info[ITERATIONS_0] = k
             info[STAGES_COUNTED] = 1
@@ -510,10 +555,11 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     # Bathe: the trapezoidal rule over γ h, then the three-point backward formula
     g = coefficients[GAMMA]
     ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25)
-    u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h)
+    u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h, vectors[W_U])
     status, k, error, constant, guard = _inertia_stage(
         force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0, loads[0], u,
-        tol, floor, max_iterations, constant, guard, estimated, info)
+        tol, floor, max_iterations, constant, guard, estimated, info, vectors, matrices, pivots,
+        ints)
     if k >= 0:
         info[ITERATIONS_0] = k
         info[STAGES_COUNTED] = 1
@@ -534,10 +580,12 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     v0 = c1 * u_n + c2 * mid_u
     a0 = c1 * v_n + c2 * mid_v + c3 * v0
     info[FAILED_STAGE] = 1
-    u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h)
+    u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h,
+                 vectors[W_U2])
     status, k, error, constant, guard = _inertia_stage(
         force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, c3 * c3, c3, a0, v0, loads[1],
-        u, tol, floor, max_iterations, constant, guard, estimated, info)
+        u, tol, floor, max_iterations, constant, guard, estimated, info, vectors, matrices,
+        pivots, ints)
     if k >= 0:
         info[ITERATIONS_1] = k
         info[STAGES_COUNTED] = 2
@@ -592,13 +640,18 @@ def kernel_set(force, stiffness, stiffness_derivative, potential_energy, load, l
 
 @njit(types.Tuple((types.int64, MATRIX, INDEX_VECTOR, types.float64))(
     KERNEL_SET, VECTOR, INDEX_VECTOR, VECTOR, VECTOR, MATRIX, VECTOR, MATRIX, MATRIX, MATRIX,
-    MATRIX), **JIT_OPTIONS)
-def attempt_with(kernels, params, config, coefficients, Md, Mf, Cd, Cf, start, previous, loads):
+    MATRIX, MATRIX, TENSOR, INT32_MATRIX, INT32_MATRIX), **JIT_OPTIONS)
+def attempt_with(kernels, params, config, coefficients, Md, Mf, Cd, Cf, start, previous, loads,
+                 vectors, matrices, pivots, ints):
     """:func:`attempt` with the model's kernels in one
     :class:`~hfdi.compiled.signatures.KernelSet`: one argument for numba to
-    unbox at a call from Python instead of three first-class functions."""
+    unbox at a call from Python instead of three first-class functions. Its
+    ``out`` and ``info`` are new arrays (the end state's arrays become the
+    caller's), the work arrays the caller's :func:`workspace`."""
+    n = start.shape[1]
     return attempt(kernels.force, kernels.stiffness, kernels.stiffness_derivative, params,
-                   config, coefficients, Md, Mf, Cd, Cf, start, previous, loads)
+                   config, coefficients, Md, Mf, Cd, Cf, start, previous, loads,
+                   np.zeros((7, n)), np.zeros(8, np.int64), vectors, matrices, pivots, ints)
 
 
 class CompiledStep:
@@ -644,6 +697,7 @@ class CompiledStep:
             raise TypeError(f"the compiled step knows Newmark, Bathe and HFDI, got {scheme!r}")
         self._previous = np.zeros((2, n))
         self._zero = np.zeros(n)
+        self._workspace = workspace(n)
         # a model whose data change after the kernels were made (EnergyModel's
         # set_parameters) hands its current params to every call
         self._current_params = getattr(ev.system, "compiled_params", None)
@@ -698,7 +752,7 @@ class CompiledStep:
                                start.f if start.f is not None else self._zero, start.p])
         status, out, info, newton_error = attempt_with(
             self.kernel_set, self.params(), config, coefficients, self.Md, self.Mf, self.Cd,
-            self.Cf, start_rows, history, loads)
+            self.Cf, start_rows, history, loads, *self._workspace)
         ev.nfev += int(info[NFEV])
         ev.njev += int(info[NJEV])
         ev.ntev += int(info[NTEV])

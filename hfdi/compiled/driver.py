@@ -35,7 +35,8 @@ from numba import njit, types
 
 from ..evaluation import State
 from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
-                      NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt)
+                      NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt,
+                      workspace)
 from .lapack import all_finite
 from .attempt import HAS_PREVIOUS as A_HAS_PREVIOUS
 from .attempt import HAS_START_FORCE as A_HAS_START_FORCE
@@ -166,21 +167,32 @@ def _pairwise_sum(a):
 
 
 @njit(**JIT_OPTIONS)
-def _mass_dot(Md, Mf, m_kind, v):
-    """``v · (M v)`` (the kinetic energy's quadratic form)."""
+def _mass_dot(Md, Mf, m_kind, v, work):
+    """``v · (M v)`` (the kinetic energy's quadratic form); ``work`` (N,) holds ``M v``."""
     if m_kind == 2:
-        return float(np.dot(v, np.dot(Mf, v)))
-    return float(np.dot(v, Md * v))
+        np.dot(Mf, v, work)
+    else:
+        for i in range(v.shape[0]):
+            work[i] = Md[i] * v[i]
+    return float(np.dot(v, work))
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _difference_and_sum(a, b, c, d, difference, total):
+    """``difference = a − b`` and ``total = c + d`` (the factors of a step's work)."""
+    for i in range(a.shape[0]):
+        difference[i] = a[i] - b[i]
+        total[i] = c[i] + d[i]
 
 
 # -- the error estimate (hfdi.corrector.local_error) -----------------------------------
 
 @njit(**JIT_OPTIONS)
-def _local_error(current, previous, t_current, t_previous, has_previous, new, h, order):
+def _local_error(current, previous, t_current, t_previous, has_previous, new, h, order, e):
     """:func:`hfdi.corrector.local_error` (with :func:`~hfdi.corrector.predict_from_rates`
-    and :func:`~hfdi.corrector.velocity_history_factor`): ``(2N,)``, ``u``'s then ``v``'s."""
+    and :func:`~hfdi.corrector.velocity_history_factor`) into ``e`` (2N,), ``u``'s
+    then ``v``'s, which it returns."""
     n = current.shape[1]
-    e = np.empty(2 * n)
     if not has_previous:
         for i in range(n):
             Q = current[U, i] + h * current[V, i] + (0.5 * h * h) * current[A, i]
@@ -207,10 +219,10 @@ def _local_error(current, previous, t_current, t_previous, has_previous, new, h,
 
 
 @njit(**JIT_OPTIONS)
-def _error_norm(error, current, new, rtol, atol, noise):
-    """:meth:`hfdi.controller.ErrorControl.error_norm`: the weighted RMS norm."""
+def _error_norm(error, current, new, rtol, atol, noise, ratio):
+    """:meth:`hfdi.controller.ErrorControl.error_norm`: the weighted RMS norm
+    (``ratio`` (2N,) a work array)."""
     n = current.shape[1]
-    ratio = np.empty(2 * n)
     for i in range(2 * n):
         row = U if i < n else V
         j = i if i < n else i - n
@@ -382,6 +394,12 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
     capacity = switches[CALL_STEPS]
     loads = np.zeros((3, n))
     history = np.empty((2, n))
+    # the work arrays of every attempt and of the error estimate and the
+    # energy balance, made once per call (an allocation costs about 50 ns)
+    out, info = np.zeros((7, n)), np.zeros(8, np.int64)
+    vectors, matrices, pivots, ints = workspace(n)
+    error, ratio = np.empty(2 * n), np.empty(2 * n)
+    difference, load_sum = np.empty(n), np.empty(n)
     taken = 0
     rejections = 0
     if held.shape[0] and not all_finite(held):
@@ -441,7 +459,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         constant, guard = coefficients[A_NEWTON_CONSTANT], coefficients[A_NEWTON_GUARD]
         status, out, info, newton_error = attempt(
             force, stiffness, derivative, params, config, coefficients, Md, Mf, Cd, Cf,
-            current, history, loads)
+            current, history, loads, out, info, vectors, matrices, pivots, ints)
         converged = status == OK
         iterations = 0
         for i in range(info[STAGES_COUNTED]):
@@ -450,12 +468,12 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         err = math.inf
         if uses_error and converged:
             error = _local_error(current, previous, t, scalars[T_PREV], has_previous, out, h,
-                                 switches[ORDER])
+                                 switches[ORDER], error)
             largest = 0.0
             for i in range(n):
                 largest = max(largest, abs(out[END_U, i]))
             noise = settings[VELOCITY_GAIN] * (newton_error + _EPS * largest) / h
-            err = _error_norm(error, current, out, rtol, atol, noise)
+            err = _error_norm(error, current, out, rtol, atol, noise, ratio)
         if kind == FIXED:
             accept, h_next, stops = converged, settings[FIXED_STEP], not converged
         elif kind == ITERATION:
@@ -476,13 +494,19 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         if accept:
             # Integrator._accept: the energy balance (Eqs. 40-41)
             potential = potential_energy(np.ascontiguousarray(out[END_U]), params)
-            kinetic_old = 0.5 * _mass_dot(Md, Mf, m_kind, current[V])
-            kinetic_new = 0.5 * _mass_dot(Md, Mf, m_kind, out[END_V])
+            kinetic_old = 0.5 * _mass_dot(Md, Mf, m_kind, current[V], difference)
+            kinetic_new = 0.5 * _mass_dot(Md, Mf, m_kind, out[END_V], difference)
             if scheme == BATHE:
-                work = 0.5 * float(np.dot(out[MID_U] - current[U], current[P] + loads[0]))
-                work += 0.5 * float(np.dot(out[END_U] - out[MID_U], loads[0] + loads[1]))
+                _difference_and_sum(out[MID_U], current[U], current[P], loads[0], difference,
+                                    load_sum)
+                work = 0.5 * float(np.dot(difference, load_sum))
+                _difference_and_sum(out[END_U], out[MID_U], loads[0], loads[1], difference,
+                                    load_sum)
+                work += 0.5 * float(np.dot(difference, load_sum))
             else:
-                work = 0.5 * float(np.dot(out[END_U] - current[U], current[P] + loads[1]))
+                _difference_and_sum(out[END_U], current[U], current[P], loads[1], difference,
+                                    load_sum)
+                work = 0.5 * float(np.dot(difference, load_sum))
             stops = energy_overflows(kinetic_new, work, potential)
         if stops:
             # the run stops here: the Python driver redoes this attempt and says why

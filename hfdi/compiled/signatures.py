@@ -36,7 +36,7 @@ from .cache import drop_stale_cache
 # before numba loads anything from it (see hfdi.compiled.cache).
 drop_stale_cache()
 
-__all__ = ["VECTOR", "MATRIX", "INDEX_VECTOR", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
+__all__ = ["VECTOR", "MATRIX", "TENSOR", "INDEX_VECTOR", "INT32_MATRIX", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
            "POTENTIAL_ENERGY", "LOAD", "SPARSE_STIFFNESS", "SPARSE_STIFFNESS_DERIVATIVE",
            "FORCE_TYPE", "STIFFNESS_TYPE",
            "STIFFNESS_DERIVATIVE_TYPE", "POTENTIAL_ENERGY_TYPE", "LOAD_TYPE", "JIT_OPTIONS",
@@ -44,7 +44,9 @@ __all__ = ["VECTOR", "MATRIX", "INDEX_VECTOR", "FORCE", "STIFFNESS", "STIFFNESS_
 
 VECTOR = types.float64[::1]
 MATRIX = types.float64[:, ::1]
+TENSOR = types.float64[:, :, ::1]
 INDEX_VECTOR = types.int64[::1]
+INT32_MATRIX = types.int32[:, ::1]
 
 #: ``f(u, params)``
 FORCE = VECTOR(VECTOR, VECTOR)
