@@ -28,6 +28,7 @@ must reach, and keeps the statistics; the rules are here. Four controllers:
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -459,7 +460,7 @@ class ErrorControl(Controller):
                               f"{': ' + message if message else ''}")
 
     def __repr__(self):
-        return f"ErrorControl(rtol={self.rtol}, atol={self.atol})"
+        return f"ErrorControl(rtol={_exact(self.rtol)}, atol={_exact(self.atol)})"
 
 
 class Combined(Controller):
@@ -501,6 +502,22 @@ class Combined(Controller):
 
     def __repr__(self):
         return f"Combined({self.iteration!r}, {self.error!r})"
+
+
+def _exact(value) -> str:
+    """A tolerance as text that tells any two different values apart (an
+    integrator refuses the state of another controller by this text): a
+    float's repr, the entries of a short array, else the array's size, range
+    and a digest of its bytes. numpy's own text keeps 8 digits and elides
+    arrays of over 1,000 entries."""
+    if np.ndim(value) == 0:
+        return repr(float(value))
+    values = np.ascontiguousarray(value, dtype=float)
+    if values.size <= 6:
+        return "[" + ", ".join(repr(x) for x in values.tolist()) + "]"
+    digest = hashlib.sha256(values.tobytes()).hexdigest()[:16]
+    return (f"<{values.size} values in [{float(values.min())!r}, {float(values.max())!r}], "
+            f"sha256 {digest}>")
 
 
 def _tolerance(name, value, low, high):

@@ -16,6 +16,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import hfdi
+from hfdi.controller import ErrorControl
 from hfdi.corrector import local_error, predict
 
 import exact_problems
@@ -274,6 +275,22 @@ def test_set_state_refuses_foreign_or_broken_states():
     fixed = hfdi.Integrator(model, "hfdi", step=0.01)
     with pytest.raises(ValueError, match="state was saved by an integrator with controller"):
         fixed.set_state(good)
+    # tolerances that differ in the last digit are another controller too
+    # (numpy's text of them, which told controllers apart, kept 8 digits)
+    for atol, other_atol in [(1e-9, 1e-9 * (1 + 1e-12)),
+                             (np.full(2, 1e-9), np.full(2, 1e-9 * (1 + 1e-12)))]:
+        saved = hfdi.Integrator(model, "hfdi", rtol=1e-6, atol=atol)
+        saved.advance(0.1)
+        hfdi.Integrator(model, "hfdi", rtol=1e-6, atol=np.copy(atol)).set_state(
+            saved.get_state())
+        changed = hfdi.Integrator(model, "hfdi", rtol=1e-6, atol=other_atol)
+        with pytest.raises(ValueError, match="state was saved by an integrator with controller"):
+            changed.set_state(saved.get_state())
+    # and one entry of many (numpy elides arrays of over 1,000 entries)
+    many = np.full(1200, 1e-9)
+    one_changed = np.where(np.arange(1200) == 700, 2e-9, 1e-9)
+    assert repr(ErrorControl(1e-6, many)) == repr(ErrorControl(1e-6, many.copy()))
+    assert repr(ErrorControl(1e-6, many)) != repr(ErrorControl(1e-6, one_changed))
     broken = itg.get_state()
     broken.current.u[0] = math.nan
     with pytest.raises(ValueError, match=r"state.current.u must be a finite float array"):
