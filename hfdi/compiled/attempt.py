@@ -72,9 +72,9 @@ END_U, END_V, END_A, END_F, MID_U, MID_V, MID_A = range(7)
 NONE, DIAGONAL, DENSE = 0, 1, 2
 # rows of the work space's vectors and matrices (:func:`workspace`)
 W_U, W_U2, W_BDIAG, W_Q0, W_F0, W_GN, W_G, W_VD, W_WORK, W_RES, W_DU, W_KV, W_TMP, W_RHS, \
-    W_SHIFT = range(15)
+    W_SHIFT, W_A0, W_V0 = range(17)
 X_S, X_SB, X_TANGENT, X_LU, X_B, X_B_LU, X_WORK, X_PROD = range(8)
-_WORK_VECTORS, _WORK_MATRICES = 15, 8
+_WORK_VECTORS, _WORK_MATRICES = 17, 8
 
 # the Python path's test itself, compiled (hfdi.compiled.cache watches its source too)
 _convergence_test = njit(**JIT_OPTIONS)(convergence_test)
@@ -123,7 +123,7 @@ def _add_diagonal(d, c, diagonal, kind):
 @njit(**JIT_OPTIONS)
 def workspace(n):
     """The work arrays of :func:`attempt`, made once by its caller:
-    ``(vectors (15, N), matrices (8, N, N), pivots (2, N) int32, ints (2, 4)
+    ``(vectors (17, N), matrices (8, N, N), pivots (2, N) int32, ints (2, 4)
     int32)``, rows named ``W_*`` and ``X_*``; two sets of LAPACK's pivots and
     integers (:func:`~hfdi.compiled.lapack.work_arrays`), the tangent's and
     HFDI's ``B``'s. An allocation costs about 50 ns, and an attempt made
@@ -253,12 +253,18 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
 
 
 @njit(**JIT_OPTIONS)
-def _newmark_coefficients(u, v, a, h, gamma, beta):
-    """``ca, cv, a0, v0`` of Newmark's relations (3)–(4) over ``h``."""
+def _newmark_coefficients(u, v, a, h, gamma, beta, a0, v0):
+    """``ca, cv, a0, v0`` of Newmark's relations (3)–(4) over ``h``, the
+    vectors into ``a0`` and ``v0``."""
     ca = 1.0 / (beta * h * h)
     cv = gamma / (beta * h)
-    a0 = -ca * u - v / (beta * h) - (0.5 / beta - 1.0) * a
-    v0 = -cv * u + (1.0 - gamma / beta) * v + h * (1.0 - 0.5 * gamma / beta) * a
+    bh = beta * h
+    ka = 0.5 / beta - 1.0
+    kv = 1.0 - gamma / beta
+    kva = h * (1.0 - 0.5 * gamma / beta)
+    for i in range(u.shape[0]):
+        a0[i] = (-ca) * u[i] - v[i] / bh - ka * a[i]
+        v0[i] = (-cv) * u[i] + kv * v[i] + kva * a[i]
     return ca, cv, a0, v0
 
 
@@ -272,8 +278,9 @@ def _inertia_end(out, u, ca, cv, a0, v0):
     """The end state of an inertia stage, ``v = cv u + v0``, ``a = ca u + a0``,
     into ``out``: ``OK`` or ``END_NOT_FINITE``."""
     out[END_U] = u
-    out[END_V] = cv * u + v0
-    out[END_A] = ca * u + a0
+    for i in range(u.shape[0]):
+        out[END_V, i] = cv * u[i] + v0[i]
+        out[END_A, i] = ca * u[i] + a0[i]
     return OK if _end_finite(out) else END_NOT_FINITE
 
 
@@ -500,6 +507,7 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     newton_error : float
         The largest estimate over the stages of the corrector's remaining error.
     """
+    n = start.shape[1]
     out[:, :] = 0.0
     info[:] = 0
     scheme = config[SCHEME]
@@ -536,7 +544,7 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
         return status, out, info, error
     if scheme == NEWMARK:
         ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, h, coefficients[GAMMA],
-                                               coefficients[BETA])
+                                               coefficients[BETA], vectors[W_A0], vectors[W_V0])
         u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h,
                      vectors[W_U])
         status, k, error, constant, guard = _inertia_stage(
@@ -555,7 +563,8 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
         return status, out, info, error
     # Bathe: the trapezoidal rule over γ h, then the three-point backward formula
     g = coefficients[GAMMA]
-    ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25)
+    ca, cv, a0, v0 = _newmark_coefficients(u_n, v_n, a_n, g * h, 0.5, 0.25, vectors[W_A0],
+                                           vectors[W_V0])
     u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], g * h, vectors[W_U])
     status, k, error, constant, guard = _inertia_stage(
         force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca, cv, a0, v0, loads[0], u,
@@ -567,19 +576,20 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     if status != OK:
         return status, out, info, math.inf
     newton_error = error
-    mid_u = u
-    mid_v = cv * u + v0
-    mid_a = ca * u + a0
-    out[MID_U] = mid_u
-    out[MID_V] = mid_v
-    out[MID_A] = mid_a
+    mid_u, mid_v, mid_a = out[MID_U], out[MID_V], out[MID_A]
+    for i in range(n):
+        mid_u[i] = u[i]
+        mid_v[i] = cv * u[i] + v0[i]
+        mid_a[i] = ca * u[i] + a0[i]
     if not (_all_finite(mid_u) and _all_finite(mid_v) and _all_finite(mid_a)):
         return END_NOT_FINITE, out, info, math.inf
     c1 = (1.0 - g) / (g * h)
     c2 = -1.0 / ((1.0 - g) * g * h)
     c3 = (2.0 - g) / ((1.0 - g) * h)
-    v0 = c1 * u_n + c2 * mid_u
-    a0 = c1 * v_n + c2 * mid_v + c3 * v0
+    # the second sub-step's v0 and a0, over the first's (no longer needed)
+    for i in range(n):
+        v0[i] = c1 * u_n[i] + c2 * mid_u[i]
+        a0[i] = c1 * v_n[i] + c2 * mid_v[i] + c3 * v0[i]
     info[FAILED_STAGE] = 1
     u = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h,
                  vectors[W_U2])
