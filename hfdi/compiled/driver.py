@@ -439,15 +439,18 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         if scheme == BATHE:
             loads[0] = load(t + coefficients[A_GAMMA] * h, load_params)
             if held.shape[0]:
-                loads[0] = loads[0] + held
+                for i in range(n):
+                    loads[0, i] = loads[0, i] + held[i]
         loads[1] = load(t_end, load_params)
         if held.shape[0]:
-            loads[1] = loads[1] + held
+            for i in range(n):
+                loads[1, i] = loads[1, i] + held[i]
         if scheme == HFDI_SCHEME:
             if switches[EXACT_RATE]:
                 loads[2] = load_rate(t_end, load_params)
             else:
-                loads[2] = (loads[1] - current[P]) / h
+                for i in range(n):
+                    loads[2, i] = (loads[1, i] - current[P, i]) / h
         has_previous = counters[HAS_PREV] != 0
         config[A_HAS_PREVIOUS] = 1 if has_previous else 0
         config[A_HAS_START_FORCE] = counters[CURRENT_HAS_F]
