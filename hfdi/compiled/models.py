@@ -42,6 +42,20 @@ def _relative(u, i, j, dim, out):
 
 
 @njit(**JIT_OPTIONS)
+def _relative3(u, i, j):
+    """``(r, d)`` of the pair (i, j) in three dimensions as :func:`_relative`
+    forms them, ``d`` a tuple: no scratch array to allocate at every call."""
+    d0 = u[3 * j] - u[3 * i]
+    d1 = u[3 * j + 1] - u[3 * i + 1]
+    d2 = u[3 * j + 2] - u[3 * i + 2]
+    r2 = 0.0
+    r2 += d0 * d0
+    r2 += d1 * d1
+    r2 += d2 * d2
+    return math.sqrt(r2), (d0, d1, d2)
+
+
+@njit(**JIT_OPTIONS)
 def _scatter_vector(f, i, j, dim, q):
     for k in range(dim):
         f[j * dim + k] += q[k]
@@ -206,10 +220,9 @@ _TET_J = (1, 2, 3, 2, 3, 3)
 @njit(FORCE, **JIT_OPTIONS)
 def tetrahedra_force(u, params):
     f = np.zeros(12)
-    d = np.empty(3)
     for p in range(6):
         i, j = _TET_I[p], _TET_J[p]
-        r = _relative(u, i, j, 3, d)
+        r, d = _relative3(u, i, j)
         q = params[p] / r
         _pair_force_add(f, i, j, 3, d, r, params[6 + p] * (r - q / r))
     return f
@@ -218,10 +231,9 @@ def tetrahedra_force(u, params):
 @njit(STIFFNESS, **JIT_OPTIONS)
 def tetrahedra_stiffness(u, params):
     K = np.zeros((12, 12))
-    d = np.empty(3)
     for p in range(6):
         i, j = _TET_I[p], _TET_J[p]
-        r = _relative(u, i, j, 3, d)
+        r, d = _relative3(u, i, j)
         q = params[p] / r
         k3 = params[6 + p]
         _pair_stiffness_add(K, i, j, 3, d, r, k3 * (r - q / r), k3 * (1.0 + 2.0 * q / (r * r)))
@@ -231,12 +243,10 @@ def tetrahedra_stiffness(u, params):
 @njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
 def tetrahedra_stiffness_derivative(u, w, params):
     T = np.zeros((12, 12))
-    d = np.empty(3)
-    wd = np.empty(3)
     for p in range(6):
         i, j = _TET_I[p], _TET_J[p]
-        r = _relative(u, i, j, 3, d)
-        _relative(w, i, j, 3, wd)
+        r, d = _relative3(u, i, j)
+        wd = _relative3(w, i, j)[1]
         q = params[p] / r
         k3 = params[6 + p]
         _pair_derivative_add(T, i, j, 3, d, r, wd, k3 * (r - q / r),
@@ -246,10 +256,9 @@ def tetrahedra_stiffness_derivative(u, w, params):
 
 @njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
 def tetrahedra_potential_energy(u, params):
-    d = np.empty(3)
     V = 0.0
     for p in range(6):
-        r = _relative(u, _TET_I[p], _TET_J[p], 3, d)
+        r = _relative3(u, _TET_I[p], _TET_J[p])[0]
         k, r0 = params[18 + p], params[24 + p]
         q = r0 ** 3 / r
         V += k / 6.0 * (r ** 2 + 2.0 * q - 3.0 * r0 ** 2)
