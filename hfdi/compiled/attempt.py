@@ -658,11 +658,12 @@ def attempt_with(kernels, params, config, coefficients, Md, Mf, Cd, Cf, start, p
     :class:`~hfdi.compiled.signatures.KernelSet`: one argument for numba to
     unbox at a call from Python instead of three first-class functions. Its
     ``out`` and ``info`` are new arrays (the end state's arrays become the
-    caller's), the work arrays the caller's :func:`workspace`."""
+    caller's; :func:`attempt` zeroes them), the work arrays the caller's
+    :func:`workspace`."""
     n = start.shape[1]
     return attempt(kernels.force, kernels.stiffness, kernels.stiffness_derivative, params,
                    config, coefficients, Md, Mf, Cd, Cf, start, previous, loads,
-                   np.zeros((7, n)), np.zeros(8, np.int64), vectors, matrices, pivots, ints)
+                   np.empty((7, n)), np.empty(8, np.int64), vectors, matrices, pivots, ints)
 
 
 @functools.lru_cache(maxsize=32)

@@ -396,7 +396,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
     history = np.empty((2, n))
     # the work arrays of every attempt and of the error estimate and the
     # energy balance, made once per call (an allocation costs about 50 ns)
-    out, info = np.zeros((7, n)), np.zeros(8, np.int64)
+    out, info = np.empty((7, n)), np.empty(8, np.int64)     # attempt() zeroes them
     vectors, matrices, pivots, ints = workspace(n)
     error, ratio = np.empty(2 * n), np.empty(2 * n)
     difference, load_sum = np.empty(n), np.empty(n)
@@ -497,6 +497,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         if accept:
             # Integrator._accept: the energy balance (Eqs. 40-41)
             potential = potential_energy(np.ascontiguousarray(out[END_U]), params)
+            # difference holds M v here, then u's increment below
             kinetic_old = 0.5 * _mass_dot(Md, Mf, m_kind, current[V], difference)
             kinetic_new = 0.5 * _mass_dot(Md, Mf, m_kind, out[END_V], difference)
             if scheme == BATHE:

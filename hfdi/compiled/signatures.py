@@ -36,9 +36,9 @@ from .cache import drop_stale_cache
 # before numba loads anything from it (see hfdi.compiled.cache).
 drop_stale_cache()
 
-__all__ = ["VECTOR", "MATRIX", "TENSOR", "INDEX_VECTOR", "INT32_MATRIX", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE",
-           "POTENTIAL_ENERGY", "LOAD", "SPARSE_STIFFNESS", "SPARSE_STIFFNESS_DERIVATIVE",
-           "FORCE_TYPE", "STIFFNESS_TYPE",
+__all__ = ["VECTOR", "MATRIX", "TENSOR", "INDEX_VECTOR", "INT32_MATRIX", "FORCE", "STIFFNESS",
+           "STIFFNESS_DERIVATIVE", "POTENTIAL_ENERGY", "LOAD", "SPARSE_STIFFNESS",
+           "SPARSE_STIFFNESS_DERIVATIVE", "FORCE_TYPE", "STIFFNESS_TYPE",
            "STIFFNESS_DERIVATIVE_TYPE", "POTENTIAL_ENERGY_TYPE", "LOAD_TYPE", "JIT_OPTIONS",
            "KernelSet", "KERNEL_SET"]
 
