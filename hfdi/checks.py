@@ -24,7 +24,8 @@ def real(name: str, value, *, low=None, high=None, low_closed=False, high_closed
     if high is not None:
         parts.append(f"{'<=' if high_closed else '<'} {high:g}")
     allowed = "a finite number" + (" " + " and ".join(parts) if parts else "")
-    if isinstance(value, bool):
+    # a bool or a string is a mistake even where float() would take it
+    if isinstance(value, (bool, np.bool_, str, bytes)):
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
     try:
         number = float(value)
@@ -50,10 +51,12 @@ def non_negative(name: str, value) -> float:
     return real(name, value, low=0.0, low_closed=True)
 
 
-def integer(name: str, value, minimum: int) -> int:
-    """An integer ``>= minimum`` (bools are refused)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+def integer(name: str, value, minimum: int, maximum: int | None = None) -> int:
+    """An integer ``>= minimum`` (and ``<= maximum`` if given; bools are refused)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum \
+            or (maximum is not None and value > maximum):
+        allowed = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+        raise ValueError(f"{name} must be an integer {allowed}, got {value!r}")
     return int(value)
 
 

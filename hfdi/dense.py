@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import checks
+
 __all__ = ["hermite_quintic", "Solution"]
 
 
@@ -112,7 +114,15 @@ class Solution:
             For a time outside the run or not finite.
         """
         scalar = np.ndim(t) == 0
-        times = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        if checks.complex_values(t) or isinstance(t, (str, bytes)):
+            raise ValueError(f"t must be real times in the run's interval, got {t!r:.80}")
+        if np.ndim(t) > 1:
+            raise ValueError(f"t must be a time or a 1-D array of times, got shape {np.shape(t)}")
+        try:
+            times = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        except (TypeError, ValueError):
+            raise ValueError(f"t must be real times in the run's interval, got "
+                             f"{t!r:.80}") from None
         t0, t1 = self.t_span
         if not np.all(np.isfinite(times)) or times.size and (times.min() < t0 or
                                                              times.max() > t1):

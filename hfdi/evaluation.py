@@ -7,6 +7,7 @@ the matrices once (see :mod:`hfdi.linalg`).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,6 +89,15 @@ def energy_overflows(kinetic: float, work: float, potential: float) -> bool:
     values, so a NaN is an ``inf − inf``), or an infinite potential energy (a
     NaN one is the model's "unknown")."""
     return not (math.isfinite(kinetic) and math.isfinite(work)) or math.isinf(potential)
+
+
+def potential_lost(potential: float, initial_potential: float) -> bool:
+    """Whether the model's potential energy is NaN (its "unknown") at the end
+    of a step while it was known at the start of the run: a model knows its
+    ``V`` everywhere or nowhere, so this is a fault of the model at that
+    state, and the energy balance (and ``energy_limit``) would be NaN from
+    there on."""
+    return math.isnan(potential) and not math.isnan(initial_potential)
 
 
 @dataclass(frozen=True, init=False)
@@ -307,14 +317,20 @@ class Evaluator:
         return self._vector(self.system.load_rate(t), "load_rate", _at_t, t)
 
     def potential_energy(self, u):
-        """``V(u)`` as a float; NaN (the model's "unknown") passes unchecked."""
+        """``V(u)`` as a float; NaN (the model's "unknown") passes unchecked.
+        A real number or an array of one is expected: ``None``, a bool or a
+        string is refused (numpy would read ``None`` as NaN and ``"1.0"`` as
+        1)."""
         self.npev += 1
         value = self.system.potential_energy(u)
         _refuse_complex(value, "potential_energy")
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            arr = None
+        if isinstance(value, float):                  # float and numpy's float64
+            return float(value)
+        arr = None
+        if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+            arr = np.asarray(float(value))
+        elif isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
+            arr = value.astype(float)
         if arr is None or arr.size != 1:
             shape = "" if arr is None else f" of shape {arr.shape}"
             raise ModelError(f"potential_energy returned {type(value).__name__}{shape}, "

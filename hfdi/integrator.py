@@ -29,10 +29,11 @@ from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorContr
 from .corrector import (SHORT_STEP_RATE, StepOutcome, fastest_rate, is_short, local_error,
                         predict, short_step, solve_step)
 from .dense import Solution, hermite_quintic
-from .evaluation import Evaluator, ModelError, NonFiniteError, State, brief, energy_overflows
+from .evaluation import (Evaluator, ModelError, NonFiniteError, State, brief, energy_overflows,
+                         potential_lost)
 from .linalg import all_finite
 from .schemes import HFDI, Scheme, get_scheme
-from .system import SecondOrderSystem
+from .system import SecondOrderSystem, load_rate_error
 
 __all__ = ["Integrator", "IntegratorState", "Result", "Statistics", "Status", "integrate"]
 
@@ -161,6 +162,8 @@ class IntegratorState:
     newton_guard: float
     controller: str
     n_dof: int
+    #: ``repr`` of the scheme (with its parameters) that made the state.
+    scheme: str = ""
 
     def copy(self, copy_arrays: bool = True) -> IntegratorState:
         """A deep copy, field by field: a co-simulation step saves one before
@@ -246,14 +249,14 @@ class IntegratorState:
 
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
-STATE_FORMAT = "hfdi-integrator-state/2"
+STATE_FORMAT = "hfdi-integrator-state/3"
 _STATE_ARRAYS = ("u", "v", "a", "f", "p")
 _STATE_SCALARS = {"proposed_step": float, "first_step_pending": bool, "status": int,
                   "message": str, "potential": float, "initial_potential": float,
                   "work": float, "energy_error": float, "energy_scale": float,
                   "last_step": float, "last_iterations": int, "last_energy_increment": float,
                   "grid_origin": float, "grid_steps": int, "newton_constant": float,
-                  "newton_guard": float, "controller": str, "n_dof": int}
+                  "newton_guard": float, "controller": str, "n_dof": int, "scheme": str}
 _STATISTICS_FIELDS = tuple(f.name for f in dataclasses.fields(Statistics))
 
 
@@ -389,7 +392,9 @@ class Integrator:
     check_stiffness : bool
         Check ``K(u0)`` against a finite difference of ``f`` (one extra
         force evaluation) and refuse a model whose ``K`` is not ``∂f/∂u``
-        (default). Turn off only for a force with a kink at ``u0``.
+        (default); for HFDI with the model's ``load_rate``, check ``p'(t0)``
+        against forward differences of ``p`` too (16 load evaluations).
+        Turn off only for a force with a kink at ``u0``.
     compiled : {None, True, False}
         Take the steps in compiled code (:mod:`hfdi.compiled`, numba; see
         docs/compiled.md). ``None`` (default, auto): compiled when the model
@@ -401,9 +406,15 @@ class Integrator:
         stages, Newton) is one compiled call; with a compiled load too (the
         paper's models), :meth:`advance` runs whole sequences of steps in
         the compiled driver (:attr:`driven`), 18–35× faster per Newton
-        iteration than the Python path. Both paths take the same steps and
-        Newton counts; states agree to rounding (bit for bit where the
-        kernels compute ``f``, ``K`` and ``T`` as the Python model does).
+        iteration than the Python path. Where the kernels compute ``f``,
+        ``K`` and ``T`` as the Python model does (the paper's models), both
+        paths take the same steps and Newton counts and agree bit for bit.
+        Where they round differently (the kernels that
+        :class:`~hfdi.models.symbolic.EnergyModel` generates), the states
+        agree to rounding, but under error control the local error
+        estimate, a difference of nearly equal states, carries that
+        rounding into the step sizes: they differ by about 1e-6 relative,
+        and a run may take a step more or fewer.
         Compiling costs about 30 s once per installation.
 
     Raises
@@ -484,9 +495,25 @@ class Integrator:
                            _initial_vector(name, given, n, source))
         u0, v0 = initial
         first_step = _optional_positive("first_step", first_step)
+        if first_step is not None:
+            if self.fixed:
+                raise ValueError(f"first_step applies to the adaptive modes; with step= "
+                                 f"every step is step, got first_step={first_step!r}")
+            if first_step < self.min_step:
+                raise ValueError(f"first_step must be >= min_step = {self.min_step!r}, got "
+                                 f"{first_step!r}")
+            if max_step is not None and first_step > self.max_step:
+                raise ValueError(f"first_step must be <= max_step = {self.max_step!r}, got "
+                                 f"{first_step!r}")
 
         start = time.process_time()
         current, K0, T0, potential = self._initial_state(u0, v0)
+        if self.energy_limit is not None and math.isnan(potential):
+            raise ValueError(
+                f"energy_limit needs the model's potential energy (the energy balance, "
+                f"Eq. 40), but model {getattr(system, 'name', type(system).__name__)!r} "
+                f"returns NaN (unknown) from potential_energy at u0; give the model "
+                f"potential_energy or leave energy_limit=None")
         self._compiled = compiled_step(ev, self.scheme, compiled, initial=InitialValues(
             current.t, current.u, current.v, current.f, K0, T0, potential))
         self._driver = None if self._compiled is None else compiled_driver(self)
@@ -502,7 +529,8 @@ class Integrator:
             energy_error=0.0,
             energy_scale=ev.kinetic_energy(current.v), last_step=math.nan,
             last_iterations=0, last_energy_increment=0.0, grid_origin=self.t0, grid_steps=0,
-            newton_constant=math.inf, newton_guard=math.inf, controller=repr(c), n_dof=n)
+            newton_constant=math.inf, newton_guard=math.inf, controller=repr(c), n_dof=n,
+            scheme=repr(self.scheme))
         self._arrival = current
         self._cpu(start)
 
@@ -536,6 +564,7 @@ class Integrator:
         if atol is not None and rtol is None and target is not None:
             raise ValueError("atol needs error control: give rtol too (with target_iterations "
                              "for the combined mode)")
+        given_max = max_step
         max_step = _optional_positive("max_step", max_step) \
             or (span if span is not None else math.inf)
         default_min = min_step is None
@@ -548,8 +577,19 @@ class Integrator:
                       first_step_trials=first_step_trials)
         if step is not None:
             h = checks.positive("step", step)
+            # in the fixed-step mode every step is h: a bound it breaks is a contradiction
+            if not default_min and h < min_step:
+                raise ValueError(f"step = {step!r} is below min_step = {min_step!r}; in the "
+                                 f"fixed-step mode every step is step (allowed: step >= "
+                                 f"min_step, or leave min_step out)")
+            if given_max is not None and h > max_step:
+                raise ValueError(f"step = {step!r} exceeds max_step = {max_step!r}; in the "
+                                 f"fixed-step mode every step is step (allowed: step <= "
+                                 f"max_step, or leave max_step out)")
             if span is not None and span / h > self.max_steps * (1.0 + 1e-9):
-                raise ValueError(f"step = {step!r} needs {math.ceil(span / h)} steps from t0 = "
+                needs = span / h            # inf for a step near the smallest float
+                count = math.ceil(needs) if math.isfinite(needs) else "more than 1e308"
+                raise ValueError(f"step = {step!r} needs {count} steps from t0 = "
                                  f"{self.t0:g} to t_bound = {self.t_bound:g}, more than "
                                  f"max_steps = {self.max_steps}; allowed: step >= "
                                  f"{span / self.max_steps:.6g}")
@@ -703,17 +743,30 @@ class Integrator:
         TypeError
             If ``saved`` is not an :class:`IntegratorState`.
         ValueError
-            If it belongs to a model of another size or to an integrator of
-            another mode (controller), or holds non-finite values; the
-            integrator is then left as it was.
+            If it belongs to a model of another size, to another model (its
+            kept force ``f(u)`` is not this model's there), to an integrator
+            of another scheme or mode (controller), or holds values out of
+            their range (non-finite arrays, an unknown status, times out of
+            order, negative counters); the integrator is then left as it was.
+            Bytes from :meth:`IntegratorState.from_bytes` are data: this is
+            where their values are checked.
         """
         if not isinstance(saved, IntegratorState):
             raise TypeError(f"state must be an IntegratorState, got {type(saved).__name__}")
-        self._check_state(saved)
+        refresh = self._check_state(saved)
+        before, version = self._s, self._model_version
         self._s = saved.copy()
         st = self._s.statistics
         ev = self.ev
+        counts = (ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu)
         ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu = st.nfev, st.njev, st.ntev, st.npev, st.nlu
+        if refresh:
+            try:
+                self.model_changed()
+            except ModelError:
+                self._s, self._model_version = before, version
+                ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu = counts
+                raise
 
     def _check_state(self, saved: IntegratorState):
         n = self.ev.n
@@ -723,6 +776,15 @@ class Integrator:
         if saved.controller != repr(self.controller):
             raise ValueError(f"state was saved by an integrator with controller "
                              f"{saved.controller}; this one has {self.controller!r}")
+        if saved.scheme != repr(self.scheme):
+            raise ValueError(f"state was saved by an integrator with scheme "
+                             f"{saved.scheme or 'unknown'}; this one has {self.scheme!r}")
+        if saved.status not in {int(s) for s in Status}:
+            raise ValueError(f"state.status must be one of {sorted(int(s) for s in Status)}, "
+                             f"got {saved.status!r}")
+        if saved.status < 0 and not saved.message:
+            raise ValueError(f"state.status {Status(saved.status).name} (a failure) needs its "
+                             f"message, got an empty one")
         for label, st in (("current", saved.current), ("previous", saved.previous)):
             if st is None and label == "previous":
                 continue
@@ -741,6 +803,37 @@ class Integrator:
         if self.t_bound is not None and saved.current.t > self.t_bound:
             raise ValueError(f"state.current.t = {saved.current.t!r} is beyond t_bound = "
                              f"{self.t_bound!r}")
+        if saved.current.t < self.t0:
+            raise ValueError(f"state.current.t = {saved.current.t!r} is before this "
+                             f"integrator's t0 = {self.t0!r}")
+        if saved.previous is not None and not saved.previous.t < saved.current.t:
+            raise ValueError(f"state.previous.t = {saved.previous.t!r} must be before "
+                             f"state.current.t = {saved.current.t!r}")
+        st = saved.statistics
+        if not isinstance(st, Statistics):
+            raise ValueError(f"state.statistics must be a Statistics, got "
+                             f"{type(st).__name__}")
+        for name in _STATISTICS_FIELDS:
+            value = getattr(st, name)
+            if not (isinstance(value, (int, float)) and value >= 0
+                    if name not in ("t_start", "t_reached") else math.isfinite(value)):
+                raise ValueError(f"state.statistics.{name} must be a finite count >= 0, got "
+                                 f"{value!r}")
+        if saved.grid_steps < 0:
+            raise ValueError(f"state.grid_steps must be >= 0, got {saved.grid_steps!r}")
+        for name in ("work", "energy_error", "energy_scale", "grid_origin"):
+            if not math.isfinite(getattr(saved, name)):
+                raise ValueError(f"state.{name} must be finite, got {getattr(saved, name)!r}")
+        if saved.energy_scale < 0:
+            raise ValueError(f"state.energy_scale must be >= 0, got {saved.energy_scale!r}")
+        for name in ("potential", "initial_potential"):
+            if math.isinf(getattr(saved, name)):     # NaN is the model's "unknown"
+                raise ValueError(f"state.{name} must be finite or NaN (unknown), got "
+                                 f"{getattr(saved, name)!r}")
+        kinetic = self.ev.kinetic_energy(saved.current.v)
+        if not math.isfinite(kinetic):
+            raise ValueError(f"state.current.v has a kinetic energy beyond floating point "
+                             f"({kinetic!r}); no run reaches such a state (Status.OVERFLOW)")
         if not (math.isfinite(saved.proposed_step) and saved.proposed_step > 0):
             raise ValueError(f"state.proposed_step must be finite and > 0, got "
                              f"{saved.proposed_step!r}")
@@ -748,6 +841,47 @@ class Integrator:
             if not getattr(saved, name) >= 0:
                 raise ValueError(f"state.{name} must be >= 0 (inf: none measured), got "
                                  f"{getattr(saved, name)!r}")
+        return self._check_state_model(saved.current)
+
+    def _check_state_model(self, current: State) -> bool:
+        """The kept force ``f_n`` of a state against this model's ``f(u_n)``.
+
+        The schemes read ``f_n`` and ``a_n`` from the state instead of
+        evaluating them: a state of another model of the same size would go
+        on with that model's force (an error of 3e-5 against 5e-7 measured).
+        ``f`` is a pure function of ``u``, so one evaluation tells the models
+        apart; the margin (1e-9 of the largest of ``f``, ``p`` and ``M a``)
+        lets the compiled and Python kernels' roundings pass. For a model
+        that counts the changes of its parameters (``parameter_version``, as
+        :class:`~hfdi.models.symbolic.EnergyModel`) a mismatch is a state saved under
+        other parameters: ``True`` is returned, and :meth:`set_state` then
+        recomputes ``f``, ``a`` and ``V`` as :meth:`model_changed` does.
+        """
+        if current.f is None:
+            # Newmark and Bathe keep no f_n (they would need one more force
+            # evaluation per step); their states are not told apart by model
+            return False
+        ev = self.ev
+        saved_counts = (ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu)
+        try:
+            f = ev.force(current.u)
+        except Exception as exc:
+            raise ValueError(f"state.current: this model's internal_force fails at its u "
+                             f"({type(exc).__name__}: {exc}); the state is of another "
+                             f"model") from None
+        finally:
+            ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu = saved_counts
+        scale = max(float(np.abs(current.f).max()), float(np.abs(current.p).max()),
+                    float(np.abs(ev.mass_times(current.a)).max()))
+        mismatch = float(np.abs(f - current.f).max())
+        if mismatch <= 1e-9 * scale:
+            return False
+        if self._model_version is not None:
+            return True
+        raise ValueError(f"state.current.f differs from this model's internal_force at "
+                             f"state.current.u by {mismatch:.3g} (scale {scale:.3g}): the state "
+                             f"was saved from another model, or from this one with other "
+                             f"parameters")
 
     def load_changed(self) -> None:
         """Tell the integrator that the load jumps at the current time.
@@ -859,7 +993,12 @@ class Integrator:
             if self.scheme.load_rate == "exact" or (self.scheme.load_rate == "auto"
                                                      and ev.has_load_rate):
                 call("load_rate", ev.load_rate, t0)
+                if self.check_stiffness:
+                    self._check_load_rate(call, name)
         potential = call("potential_energy", ev.potential_energy, u0)
+        if math.isinf(potential):
+            raise ModelError(f"model {name!r}: potential_energy is {potential} {where}; the "
+                             f"energy balance (Eq. 40) cannot start there")
         a = ev.acceleration(t0, u0, v0, f, p)
         if not np.all(np.isfinite(a)):
             raise ModelError(f"model {name!r}: the initial acceleration "
@@ -867,32 +1006,71 @@ class Integrator:
         return State(t0, u0.copy(), v0.copy(), a, f, p), K, T, potential
 
     def _check_stiffness(self, u0, f, K, call, name):
-        """``K(u0)`` against a forward difference of ``f`` along one direction.
+        """``K(u0)`` against a central difference of ``f`` along one direction.
 
         HFDI uses ``K`` in its step equation (``g_t = p' − K v``), so a wrong
         ``K`` gives wrong answers there, not only a slow Newton; in every
-        scheme it is a mistake in the model. One extra force evaluation. The
-        difference is exact to about ``√ε`` relative (1e-7 measured on every
-        model here); a mismatch above 0.1 % of ``‖K w‖`` (plus the rounding
-        of the difference) is refused.
+        scheme it is a mistake in the model. Two extra force evaluations.
+        Each degree of freedom is perturbed relative to its own size
+        (``√ε·max(|u0_i|, 1e-3·U)``, ``U = max(max|u0|, u_scale)``): with one
+        step for all, a degree of freedom 1e5 times smaller than the largest
+        (a rotation beside translations in mm) was perturbed by a large part
+        of itself and a correct ``K`` refused. The central difference is
+        exact to ``O(δ²)``; a mismatch above 0.1 % of ``‖K d‖`` (plus the
+        rounding of the difference) is refused.
         """
         ev = self.ev
         w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
-        delta = _SQRT_EPS * max(float(np.abs(u0).max()), self.floor)
-        f1 = call("internal_force", ev.force, u0 + delta * w)
-        difference = (f1 - f) / delta
-        Kw = np.asarray(K @ w).ravel()
-        mismatch = float(np.abs(difference - Kw).max())
-        size = max(float(np.abs(Kw).max()), float(np.abs(difference).max()))
-        rounding = 1e3 * _EPS * (float(np.abs(f).max()) + float(np.abs(f1).max())) / delta
-        if mismatch > 1e-3 * size + rounding:
+        size_u = max(float(np.abs(u0).max()), self.floor)
+        d = _SQRT_EPS * np.maximum(np.abs(u0), 1e-3 * size_u) * w
+        d = (u0 + d) - u0                                  # the step as represented
+        f1 = call("internal_force", ev.force, u0 + d)
+        f2 = call("internal_force", ev.force, u0 - d)
+        difference = 0.5 * (f1 - f2)
+        Kd = np.asarray(K @ d).ravel()
+        # row by row, against the size of the row's terms Σ_j |K_ij d_j|: a
+        # small degree of freedom's row is judged on its own scale (a row
+        # that is zero at u0 against 1e-8 of the largest: its difference is
+        # the O(d²) of the nonlinearity)
+        terms = np.asarray(abs(K) @ np.abs(d)).ravel()
+        excess = np.abs(difference - Kd) - 1e-3 * terms - 1e-8 * float(terms.max()) \
+            - 1e3 * _EPS * (np.abs(f1) + np.abs(f2))
+        worst = int(np.argmax(excess / np.maximum(terms, 1e-300)))
+        if excess[worst] > 0:
+            mismatch = float(abs(difference[worst] - Kd[worst]))
+            size = max(float(terms[worst]), 1e-300)
+            largest = float(np.abs(d).max())
             raise ModelError(
-                f"model {name!r}: stiffness does not match internal_force at u0: K(u0)·w and "
-                f"the difference (f(u0 + δw) − f(u0))/δ (δ = {delta:.3g}) differ by "
-                f"{mismatch:.3g}, {mismatch / size:.2%} of their size. K must be ∂f/∂u: "
+                f"model {name!r}: stiffness does not match internal_force at u0: K(u0)·d and "
+                f"the difference (f(u0 + d) − f(u0 − d))/2 (|d| ≤ {largest:.3g}) differ in "
+                f"row {worst} by {mismatch:.3g}, {mismatch / size:.2%} of the size of its "
+                f"terms. K must be ∂f/∂u: "
                 f"HFDI uses it in its step equation, where a wrong K gives a wrong answer "
                 f"(check the model with hfdi.check_derivatives; pass check_stiffness=False "
                 f"only if f has a kink at u0)")
+
+    def _check_load_rate(self, call, name):
+        """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`).
+
+        HFDI puts ``p'`` into its step equation (``g_t = p' − K v``), so a
+        wrong rate gives a wrong answer that no tolerance shows: a rate 5 times
+        too large was off by 800 times the tolerance at rtol 1e-6. The
+        differences are taken at steps of ``10^-2 … 10^-9`` times the run's
+        span (1 where it is not known) and the best agreement counts, so a
+        correct rate of a load of any time scale passes; a mismatch above
+        0.1 % is refused, as for ``K``.
+        """
+        ev, t0 = self.ev, self.t0
+        scale = self.t_bound - t0 if self.t_bound is not None else 1.0
+        mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale))
+        if mismatch > 1e-3:
+            raise ModelError(
+                f"model {name!r}: load_rate does not match load at t0 = {t0:g}: p'(t0) and "
+                f"forward differences of p differ by {mismatch:.3g} of their size at the "
+                f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-9:.3g}. HFDI uses p' in "
+                f"its step equation, where a wrong rate gives a wrong answer (check the model with "
+                f"hfdi.check_derivatives; check_stiffness=False skips the checks of K and "
+                f"p')")
 
     def _default_first_step(self, K) -> float:
         """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""
@@ -1052,6 +1230,12 @@ class Integrator:
             return self._fail(Status.MODEL_ERROR,
                               f"potential_energy failed at the end of the step to t = "
                               f"{new.t:.10g}: {type(exc).__name__}: {exc}")
+        if potential_lost(potential, s.initial_potential):
+            return self._fail(Status.MODEL_ERROR,
+                              f"potential_energy is NaN (unknown) at the end of the step to "
+                              f"t = {new.t:.10g}, but was {s.initial_potential:.10g} at the "
+                              f"start: a model gives V everywhere or nowhere (NaN); the "
+                              f"energy balance would be NaN from here on")
         kinetic_old, kinetic_new = ev.kinetic_energy(old.v), ev.kinetic_energy(new.v)
         # Eq. 41, the trapezoidal rule over the points where the scheme samples
         # the load: the step's ends, and Bathe's mid-step, whose load the
@@ -1138,6 +1322,7 @@ class Integrator:
         already (in the compiled driver, which hands such a step over)."""
         if self.failed or self.finished:
             return False
+        t_limit = _time_value("t_limit", t_limit)
         if not t_limit > self.t:
             raise ValueError(f"t_limit must be > t = {self.t}, got {t_limit!r}")
         if not self._follow_model():
@@ -1240,7 +1425,8 @@ class Integrator:
             ``True`` when ``t_stop`` was reached; ``False`` when a guard
             stopped the run (see :attr:`status`, :attr:`message`).
         """
-        t_stop = float(t_stop)
+        t_stop = _time_value("t_stop", t_stop)
+        checks.callable_or_none("callback", callback, "callback(integrator)")
         if not math.isfinite(t_stop) or t_stop < self.t:
             raise ValueError(f"t_stop must be finite and >= t = {self.t}, got {t_stop!r}")
         if self.t_bound is not None and t_stop > self.t_bound:
@@ -1432,13 +1618,32 @@ class _Rows:
         return {key: arr[:self.size].copy() for key, arr in self.data.items()}
 
 
+def _time_value(name, value) -> float:
+    """A time given to ``step`` or ``advance`` as a float (``inf`` allowed:
+    the callers say what range they take); a ``ValueError`` naming it for
+    anything that is not one real number."""
+    if isinstance(value, (bool, np.bool_, str, bytes)) or checks.complex_values(value) \
+            or np.ndim(value) != 0:
+        raise ValueError(f"{name} must be a real number (a time), got {value!r:.80}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number (a time), got {value!r:.80}") from None
+
+
 def _times(name, value, t0, t_end):
     """``value`` as a finite, strictly increasing float array inside ``[t0, t_end]``."""
+    if checks.complex_values(value) or isinstance(value, (str, bytes)):
+        raise ValueError(f"{name} must be an array of real times in [t0, t_end], "
+                         f"got {value!r:.80}")
     try:
-        times = np.asarray(value, dtype=float).ravel()
+        times = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be an array of times in [t0, t_end], "
                          f"got {value!r}") from None
+    if times.ndim > 1:
+        raise ValueError(f"{name} must be a 1-D array of times, got shape {times.shape}")
+    times = times.ravel()
     if not np.all(np.isfinite(times)):
         i = int(np.flatnonzero(~np.isfinite(times))[0])
         raise ValueError(f"{name} must be finite, got {name}[{i}] = {float(times[i])!r}")
@@ -1516,6 +1721,8 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     """
     t0 = checks.real("t0", t0)
     try:
+        if isinstance(t_end, (str, bytes, bool, np.bool_)) or np.ndim(t_end) != 0:
+            raise TypeError
         t_end = float(t_end)
     except (TypeError, ValueError):
         raise ValueError(f"t_end must be a number > t0 = {t0}, got {t_end!r}") from None
@@ -1528,6 +1735,8 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         if t_eval.size > max_steps:
             raise ValueError(f"t_eval has {t_eval.size} points, more than max_steps = "
                              f"{max_steps}; give fewer output times or raise max_steps")
+    if not isinstance(save_steps, (bool, np.bool_)):
+        raise ValueError(f"save_steps must be True or False, got {save_steps!r}")
     if progress is not None and not callable(progress):
         raise ValueError(f"progress must be callable as progress(t, statistics), got "
                          f"{progress!r}")

@@ -27,6 +27,7 @@ __all__ = [
     "LinearSystem",
     "DerivativeCheck",
     "check_derivatives",
+    "load_rate_error",
 ]
 
 
@@ -232,10 +233,18 @@ class LinearSystem(SecondOrderSystem):
         self.mass = checks.square_matrix("LinearSystem mass", mass)
         self.n_dof = n = self.mass.shape[0]
         k = _matching_matrix("LinearSystem stiffness", stiffness, n)
+        # A diagonal K is dense below the integrator's dense threshold, sparse
+        # above it: as a dense (N, N) array it would cost N² memory and dense
+        # solves (a 2,000-DOF diagonal took 2,600 times as long).
+        from .evaluation import DENSE_BELOW
+        if k.ndim == 1 and n >= DENSE_BELOW:
+            k = sp.diags(k, format="csr")
         if sp.issparse(k):
             self._K = sp.csr_matrix(k, dtype=float)
+            self._T = sp.csr_matrix((n, n))
         else:
             self._K = np.diag(k) if k.ndim == 1 else k
+            self._T = np.zeros((n, n))
         self.damping = None if damping is None else \
             _matching_matrix("LinearSystem damping", damping, n)
         self._p = checks.callable_or_none("LinearSystem load", load, "p(t) -> (N,)")
@@ -255,8 +264,7 @@ class LinearSystem(SecondOrderSystem):
         return self._K
 
     def stiffness_derivative(self, u, w):
-        return sp.csr_matrix((self.n_dof, self.n_dof)) if sp.issparse(self._K) \
-            else np.zeros((self.n_dof, self.n_dof))
+        return self._T
 
     def load(self, t):
         return np.zeros(self.n_dof) if self._p is None else np.asarray(self._p(t), float)
@@ -312,16 +320,23 @@ def _matching_matrix(name, value, n):
 class DerivativeCheck:
     """Worst relative errors of a model's derivatives against finite differences.
 
+    An error is ``inf`` where the model's value (or the finite difference
+    made of its values) is not finite at a state checked: such a model fails
+    :meth:`ok` whatever the tolerance.
+
     Attributes
     ----------
     force : float
-        ``max ‖f − ∇V‖ / ‖f‖`` (NaN when the model has no potential energy).
+        ``max |D_d V − f·d| / ‖f‖`` (NaN when the model has no potential energy).
     stiffness : float
-        ``max ‖K w − D_w f‖ / ‖K w‖`` over random directions ``w``.
+        ``max ‖K d − D_d f‖ / ‖K d‖`` over random unit directions ``d``.
     stiffness_derivative : float
         ``max ‖T[w] z − D_z(K w)‖ / ‖T[w] z‖``.
     samples : int
-        Number of random states tried.
+        Number of states tried.
+    load_rate : float
+        ``max ‖p'(t) − D_t p‖ / ‖p'(t)‖`` over the times checked (NaN when
+        the model has no ``load_rate``).
     """
 
     force: float
@@ -329,13 +344,17 @@ class DerivativeCheck:
     stiffness_derivative: float
     samples: int
     details: list = field(default_factory=list, repr=False)
+    load_rate: float = np.nan
 
     @property
     def worst(self) -> float:
-        return float(np.nanmax([self.force, self.stiffness, self.stiffness_derivative]))
+        """The largest error checked (NaN entries, "not provided", are left out)."""
+        values = [e for e in (self.force, self.stiffness, self.stiffness_derivative,
+                              self.load_rate) if not np.isnan(e)]
+        return float(max(values)) if values else np.nan
 
     def ok(self, rtol: float = 1e-6) -> bool:
-        return self.worst <= rtol
+        return bool(self.worst <= rtol)
 
 
 def _richardson(fun, x, d, eps):
@@ -346,71 +365,155 @@ def _richardson(fun, x, d, eps):
 
 
 def _dense(a):
-    return a.toarray() if sp.issparse(a) else np.asarray(a)
+    return a.toarray() if sp.issparse(a) else np.asarray(a, dtype=float)
 
 
 def _rel(err, ref):
+    """``‖err‖ / ‖ref‖`` (``‖err‖`` where ``ref`` is 0); ``inf`` where either is
+    not finite."""
+    err, ref = np.asarray(err, dtype=float), np.asarray(ref, dtype=float)
+    if not (np.all(np.isfinite(err)) and np.all(np.isfinite(ref))):
+        return np.inf
     ref_norm = np.linalg.norm(ref)
     return float(np.linalg.norm(err) / ref_norm) if ref_norm > 0 else float(np.linalg.norm(err))
 
 
+def load_rate_error(load, load_rate, t, time_scale) -> float:
+    """How far ``load_rate(t)`` is from the right derivative of ``load`` at ``t``.
+
+    Forward differences (the right limit: a run leaves ``t`` forwards, and a
+    load may have a kink there), Richardson-extrapolated, at steps
+    ``time_scale·10^-k`` for ``k = 2 … 9``; the smallest relative mismatch
+    ``‖p'(t) − D_t p‖ / max(‖p'(t)‖, ‖D_t p‖)``, less the rounding of the
+    difference, is returned. Taking the best step makes a correct rate pass
+    whatever the load's own time scale (a fast load needs a short step, a
+    noisy one a long step); a wrong one fails at every step. ``inf`` where
+    the values are not finite.
+    """
+    rate = np.asarray(load_rate(t), dtype=float)
+    p0 = np.asarray(load(t), dtype=float)
+    if not (np.all(np.isfinite(rate)) and np.all(np.isfinite(p0))):
+        return np.inf
+    best = np.inf
+    for k in range(2, 10):
+        delta = time_scale * 10.0 ** -k
+        t1, t2 = t + delta, t + 2 * delta
+        if not t1 > t:
+            break
+        p1 = np.asarray(load(t1), dtype=float)
+        p2 = np.asarray(load(t2), dtype=float)
+        if not (np.all(np.isfinite(p1)) and np.all(np.isfinite(p2))):
+            continue
+        # 2 D(δ) − D(2δ) with D(h) = (p(t + h) − p(t))/h = p' + h p''/2 + …:
+        # error −δ² p'''/3; the steps as represented (t + δ rounds)
+        difference = 2.0 * (p1 - p0) / (t1 - t) - (p2 - p0) / (t2 - t)
+        size = max(float(np.abs(rate).max()), float(np.abs(difference).max()))
+        rounding = 1e2 * np.finfo(float).eps * float(
+            np.abs(p0).max() + np.abs(p1).max() + np.abs(p2).max()) / (t1 - t)
+        mismatch = max(float(np.abs(rate - difference).max()) - rounding, 0.0)
+        best = min(best, mismatch / size if size > 0 else mismatch)
+    return best
+
+
 def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 5,
-                      spread: float = 0.05, eps: float = 1e-4, seed: int = 0):
-    """Check ``f``, ``K`` and ``T`` of a model against finite differences.
+                      spread: float = 0.05, eps: float = 1e-4, seed: int = 0, times=None):
+    """Check ``f``, ``K``, ``T`` (and ``V``, ``p'`` where given) of a model
+    against finite differences.
 
     Directional derivatives are taken by central differences with Richardson
-    extrapolation along random unit directions scaled by ``u_scale``.
+    extrapolation along random unit directions scaled by ``u_scale``; the
+    load rate by forward differences (:func:`load_rate_error`).
 
     Parameters
     ----------
     system : SecondOrderSystem
     states : array_like (n, N), optional
-        States to check at. Default: ``samples`` random perturbations of the
-        initial displacement of relative size ``spread``.
+        States to check at (finite). Default: ``samples`` random perturbations
+        of the initial displacement of relative size ``spread``.
     samples : int
+        Number of random states (1 … 1,000,000) when ``states`` is not given.
     spread : float
+        Size of the random perturbations relative to ``u_scale``, in (0, 100].
     eps : float
-        Finite-difference step, relative to ``system.u_scale``.
+        Finite-difference step relative to ``system.u_scale``, in (0, 0.1].
     seed : int
+    times : array_like (m,), optional
+        Times at which ``load_rate`` is checked against ``load``. Default:
+        0, 0.25, 0.5, 0.75 and 1. Ignored for a model without ``load_rate``.
 
     Returns
     -------
     DerivativeCheck
+        An entry is ``inf`` where a value is not finite.
     """
+    if not isinstance(system, SecondOrderSystem):
+        raise TypeError(f"system must be a hfdi.SecondOrderSystem, got {type(system).__name__}")
+    n = int(system.n_dof)
     rng = np.random.default_rng(seed)
-    n = system.n_dof
     scale = float(getattr(system, "u_scale", 1.0) or 1.0)
+    spread = checks.real("spread", spread, low=0.0, high=100.0, high_closed=True)
+    eps = checks.real("eps", eps, low=0.0, high=0.1, high_closed=True)
     if states is None:
-        base = np.asarray(system.initial_displacement, float)
+        samples = checks.integer("samples", samples, 1)
+        if samples > 1_000_000:
+            raise ValueError(f"samples must be an integer in [1, 1000000], got {samples!r}")
+        base = checks.finite_array("system.initial_displacement",
+                                   getattr(system, "initial_displacement", None)
+                                   if getattr(system, "initial_displacement", None) is not None
+                                   else np.zeros(n), (n,))
         states = base + spread * scale * rng.standard_normal((samples, n))
-    states = np.atleast_2d(np.asarray(states, float))
+    else:
+        try:
+            states = np.atleast_2d(np.asarray(states, dtype=float))
+        except (TypeError, ValueError):
+            raise ValueError(f"states must be an array of shape (n, {n}) of numbers, got "
+                             f"{states!r:.80}") from None
+        if states.ndim != 2 or states.shape[1] != n or states.shape[0] < 1:
+            raise ValueError(f"states must have shape (n, {n}) with n >= 1, got shape "
+                             f"{np.shape(states)}")
+        if not np.all(np.isfinite(states)):
+            raise ValueError("states must be finite")
     h = eps * scale
     worst_f = worst_k = worst_t = 0.0
     has_potential = True
     details = []
-    for u in states:
-        d = rng.standard_normal(n)
-        d /= np.linalg.norm(d)
-        w = rng.standard_normal(n)
-        z = rng.standard_normal(n)
-        f = np.asarray(system.internal_force(u))
-        # f against the gradient of V, along d
-        dv = _richardson(lambda x: np.array(system.potential_energy(x)), u, d, h)
-        if np.isnan(dv).any():
-            has_potential = False
-            e_f = np.nan
-        else:
-            e_f = abs(float(dv) - float(f @ d)) / max(np.linalg.norm(f), 1e-300)
-        K = _dense(system.stiffness(u))
-        e_k = _rel(K @ d - _richardson(system.internal_force, u, d, h), K @ d)
-        Tw = _dense(system.stiffness_derivative(u, w))
-        e_t = _rel(Tw @ z - _richardson(lambda x: _dense(system.stiffness(x)) @ w, u, z, h),
-                   Tw @ z)
-        details.append((e_f, e_k, e_t))
-        if has_potential:
-            worst_f = max(worst_f, e_f)
-        worst_k = max(worst_k, e_k)
-        worst_t = max(worst_t, e_t)
+    with np.errstate(all="ignore"):
+        for u in states:
+            d = rng.standard_normal(n)
+            d /= np.linalg.norm(d)
+            w = rng.standard_normal(n)
+            z = rng.standard_normal(n)
+            f = np.asarray(system.internal_force(u), dtype=float)
+            # f against the gradient of V, along d
+            potential = np.asarray(system.potential_energy(u), dtype=float)
+            if np.isnan(potential).any():
+                has_potential = False
+                e_f = np.nan
+            else:
+                dv = _richardson(lambda x: np.asarray(system.potential_energy(x), dtype=float),
+                                 u, d, h)
+                e_f = _rel(float(dv) - float(f @ d), max(np.linalg.norm(f), 1e-300)) \
+                    if np.all(np.isfinite(f)) else np.inf
+            K = _dense(system.stiffness(u))
+            e_k = _rel(K @ d - _richardson(system.internal_force, u, d, h), K @ d)
+            Tw = _dense(system.stiffness_derivative(u, w))
+            e_t = _rel(Tw @ z - _richardson(lambda x: _dense(system.stiffness(x)) @ w, u, z, h),
+                       Tw @ z)
+            details.append((e_f, e_k, e_t))
+            if has_potential:
+                worst_f = max(worst_f, e_f)
+            worst_k = max(worst_k, e_k)
+            worst_t = max(worst_t, e_t)
+        worst_p = np.nan
+        if getattr(system, "load_rate", None) is not None:
+            times = np.linspace(0.0, 1.0, 5) if times is None else \
+                np.atleast_1d(np.asarray(times, dtype=float))
+            if times.ndim != 1 or times.size < 1 or not np.all(np.isfinite(times)):
+                raise ValueError(f"times must be a 1-D array of finite times, got {times!r:.80}")
+            span = float(np.ptp(times)) if times.size > 1 else 0.0
+            time_scale = max(span, float(np.abs(times).max()), 1.0)
+            worst_p = max(load_rate_error(system.load, system.load_rate, float(t), time_scale)
+                          for t in times)
     return DerivativeCheck(force=worst_f if has_potential else np.nan,
                            stiffness=worst_k, stiffness_derivative=worst_t,
-                           samples=len(states), details=details)
+                           samples=len(states), details=details, load_rate=worst_p)

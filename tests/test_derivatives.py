@@ -1,5 +1,6 @@
 """Finite-difference checks of f, K and T (and that the check can fail)."""
 import numpy as np
+import pytest
 
 import hfdi
 from problems import coupled_duffing, dumbbell_states
@@ -71,3 +72,62 @@ def test_reference_problems_derivatives():
                   exact_problems.damped_chain()[0]):
         check = hfdi.check_derivatives(model, samples=10, spread=0.1)
         assert check.ok(1e-7), (model.name, check)
+
+
+def _with(**overrides):
+    good = coupled_duffing()
+    args = dict(mass=good.mass, internal_force=good.internal_force, stiffness=good.stiffness,
+                stiffness_derivative=good.stiffness_derivative,
+                potential_energy=good.potential_energy,
+                initial_displacement=good.initial_displacement)
+    args.update(overrides)
+    return hfdi.System(**args)
+
+
+def test_check_fails_a_model_whose_values_are_not_finite():
+    """A NaN error must not pass as a perfect score (max(0, nan) is 0)."""
+    n = coupled_duffing().n_dof
+    nan_vector, nan_matrix = (lambda *a: np.full(n, np.nan)), (lambda *a: np.full((n, n), np.nan))
+    for overrides, entry in (({"stiffness": nan_matrix}, "stiffness"),
+                             ({"internal_force": nan_vector}, "stiffness"),
+                             ({"stiffness_derivative": nan_matrix}, "stiffness_derivative"),
+                             ({"potential_energy": lambda u: np.inf}, "force")):
+        check = hfdi.check_derivatives(_with(**overrides), samples=3, spread=1.0)
+        assert getattr(check, entry) == np.inf, (overrides, check)
+        assert not check.ok(1.0), (overrides, check)
+
+
+def test_check_refuses_bad_arguments():
+    model = coupled_duffing()
+    n = model.n_dof
+    for kwargs, name in (({"states": np.zeros((3, n + 1))}, "states"),
+                         ({"states": np.zeros((0, n))}, "states"),
+                         ({"states": [[np.nan] * n]}, "states"),
+                         ({"states": "abc"}, "states"),
+                         ({"samples": 0}, "samples"), ({"samples": 2.5}, "samples"),
+                         ({"spread": -1.0}, "spread"), ({"spread": 1e200}, "spread"),
+                         ({"eps": 0.0}, "eps"), ({"eps": np.nan}, "eps")):
+        with pytest.raises(ValueError, match=name):
+            hfdi.check_derivatives(model, **kwargs)
+    with pytest.raises(TypeError, match="system"):
+        hfdi.check_derivatives(object())
+
+
+def test_check_measures_the_load_rate():
+    """p' against differences of p: a correct rate passes whatever the load's
+    time scale (a slow one, one with ω = 1e5, a ramp whose kink is at t = 0),
+    a wrong one fails."""
+    def model(load, rate):
+        return _with(load=load, load_rate=rate)
+
+    e0 = np.array([1.0, 0.0])
+    for omega in (0.3, 5.0, 1e5):
+        good = model(lambda t, w=omega: np.sin(w * t) * e0,
+                     lambda t, w=omega: w * np.cos(w * t) * e0)
+        assert hfdi.check_derivatives(good, samples=1).load_rate < 1e-6, omega
+        wrong = model(lambda t, w=omega: np.sin(w * t) * e0,
+                      lambda t, w=omega: 1.05 * w * np.cos(w * t) * e0)
+        assert hfdi.check_derivatives(wrong, samples=1).load_rate > 0.04, omega
+    ramp = model(lambda t: max(t, 0.0) * e0, lambda t: (1.0 if t >= 0 else 0.0) * e0)
+    assert hfdi.check_derivatives(ramp, samples=1, times=[0.0, 2.0]).load_rate < 1e-6
+    assert np.isnan(hfdi.check_derivatives(coupled_duffing(), samples=1).load_rate)

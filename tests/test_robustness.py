@@ -7,6 +7,7 @@ The cases are tables (``INPUT_CASES``, ``FAULT_CASES``) so that the same cases
 fill the tables of ``docs/robustness.md``: ``python tests/test_robustness.py
 --write`` runs them all and writes the messages they actually get there.
 """
+import dataclasses
 import math
 import pathlib
 import sys
@@ -57,9 +58,14 @@ def run(system, scheme="newmark", t_end=1.0, **kwargs):
     return hfdi.integrate(system, scheme, t_end, **kwargs)
 
 
-def advanced(t):
+def _swapped_times():
+    state = advanced(0.5).get_state()
+    return dataclasses.replace(state, current=state.previous, previous=state.current)
+
+
+def advanced(t, scheme="newmark"):
     """A fixed-step integrator of the Duffing oscillator advanced to ``t``."""
-    itg = hfdi.Integrator(DUFFING, "newmark", step=0.1)
+    itg = hfdi.Integrator(DUFFING, scheme, step=0.1)
     assert itg.advance(t)
     return itg
 
@@ -105,6 +111,79 @@ INPUT_CASES = [
     ("v0-inf", "integrate", "v0 not finite",
      lambda: run(DUMBBELL, v0=[0.0, 0.0, -np.inf, 0.0]), ValueError,
      ["v0 must be finite", "entry 2 is -inf"]),
+    ("step-denormal", "integrate", "step = 5e-324 (the smallest float)",
+     lambda: run(DUMBBELL, step=5e-324), ValueError,
+     ["step = 5e-324 needs more than 1e308 steps", "max_steps = 1000000"]),
+    ("step-above-max_step", "integrate", "step larger than max_step",
+     lambda: run(DUMBBELL, step=0.1, max_step=0.01), ValueError,
+     ["step = 0.1 exceeds max_step = 0.01", "fixed-step mode"]),
+    ("step-below-min_step", "integrate", "step smaller than min_step",
+     lambda: run(DUMBBELL, t_end=2.0, step=0.1, min_step=0.2, max_step=1.0), ValueError,
+     ["step = 0.1 is below min_step = 0.2"]),
+    ("first_step-with-step", "integrate", "first_step in the fixed-step mode",
+     lambda: run(DUMBBELL, step=0.1, first_step=0.1), ValueError,
+     ["first_step applies to the adaptive modes", "got first_step=0.1"]),
+    ("first_step-below-min_step", "integrate", "first_step smaller than min_step",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, rtol=1e-6, first_step=1e-6, min_step=1e-3),
+     ValueError, ["first_step must be >= min_step = 0.001", "got 1e-06"]),
+    ("first_step-above-max_step", "integrate", "first_step larger than max_step",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, rtol=1e-6, first_step=0.1, max_step=0.01),
+     ValueError, ["first_step must be <= max_step = 0.01", "got 0.1"]),
+    ("target-text", "integrate", "target_iterations as text",
+     lambda: run(DUMBBELL, target_iterations="3"), ValueError,
+     ["target_iterations", "finite number in [1, 100]", "got '3'"]),
+    ("save_steps-text", "integrate", "save_steps not a bool",
+     lambda: run(DUMBBELL, save_steps="no"), ValueError,
+     ["save_steps must be True or False", "'no'"]),
+    ("t_eval-2d", "integrate", "t_eval of two dimensions",
+     lambda: run(DUMBBELL, t_eval=[[0.1, 0.2], [0.3, 0.4]]), ValueError,
+     ["t_eval must be a 1-D array of times", "shape (2, 2)"]),
+    ("advance-array", "Integrator.advance", "t_stop an array",
+     lambda: advanced(0.1).advance(np.array([1.0])), ValueError,
+     ["t_stop must be a real number (a time)", "array([1.])"]),
+    ("advance-callback", "Integrator.advance", "callback not callable",
+     lambda: advanced(0.1).advance(1.0, callback=5), ValueError,
+     ["callback must be a callable callback(integrator)", "got 5"]),
+    ("sol-complex", "Solution", "a complex time",
+     lambda: run(DUMBBELL, t_end=0.2).sol(0.1 + 0j), ValueError,
+     ["t must be real times in the run's interval", "(0.1+0j)"]),
+    ("load-rate-wrong", "Integrator", "HFDI with a load_rate 5 times the load's derivative",
+     lambda: hfdi.Integrator(duffing(load=lambda t: np.array([np.sin(5 * t), 0.0]),
+                                     load_rate=lambda t: np.array([25 * np.cos(5 * t), 0.0])),
+                             "hfdi", rtol=1e-6), hfdi.ModelError,
+     ["load_rate does not match load at t0 = 0", "differ by 0.8 of their size",
+      "hfdi.check_derivatives"]),
+    ("potential-none", "Integrator", "potential_energy returns None",
+     lambda: hfdi.Integrator(duffing(potential_energy=lambda u: None), "hfdi", rtol=1e-6),
+     hfdi.ModelError, ["potential_energy returned NoneType, expected a float"]),
+    ("potential-inf", "Integrator", "potential_energy infinite at u0",
+     lambda: hfdi.Integrator(duffing(potential_energy=lambda u: np.inf), "hfdi", rtol=1e-6),
+     hfdi.ModelError, ["potential_energy is inf at the initial state"]),
+    ("energy_limit-no-potential", "Integrator", "energy_limit for a model without V",
+     lambda: hfdi.Integrator(duffing(potential_energy=None), "hfdi", rtol=1e-6,
+                             energy_limit=0.1), ValueError,
+     ["energy_limit needs the model's potential energy", "returns NaN (unknown)"]),
+    ("state-other-model", "Integrator.set_state", "a state of another model of the same size",
+     lambda: hfdi.Integrator(duffing(internal_force=lambda u: 2 * DUFFING.internal_force(u),
+                                     stiffness=lambda u: 2 * DUFFING.stiffness(u),
+                                     stiffness_derivative=lambda u, w: 2 * DUFFING.
+                                     stiffness_derivative(u, w)),
+                             "hfdi", step=0.1).set_state(advanced(0.5, "hfdi").get_state()),
+     ValueError, ["state.current.f differs from this model's internal_force",
+                  "saved from another model"]),
+    ("state-other-scheme", "Integrator.set_state", "a state of another scheme",
+     lambda: hfdi.Integrator(DUFFING, "bathe", step=0.1).set_state(advanced(0.5).get_state()),
+     ValueError, ["state was saved by an integrator with scheme Newmark", "this one has Bathe"]),
+    ("state-status", "Integrator.set_state", "a state whose status is not a Status",
+     lambda: hfdi.Integrator(DUFFING, "newmark", step=0.1).set_state(
+         dataclasses.replace(advanced(0.5).get_state(), status=999)),
+     ValueError, ["state.status must be one of", "got 999"]),
+    ("state-times", "Integrator.set_state", "a state whose previous time is after its current",
+     lambda: hfdi.Integrator(DUFFING, "newmark", step=0.1).set_state(_swapped_times()),
+     ValueError, ["state.previous.t = 0.5 must be before state.current.t = 0.4"]),
+    ("spectral-ratio-tiny", "spectral_properties", "Δt/T = 1e-10 (rounding beats the measures)",
+     lambda: hfdi.spectral.spectral_properties("hfdi", [1e-10]), ValueError,
+     ["ratios (Δt/T) must be real numbers in [0.001, 1e+06]", "got 1e-10"]),
     ("t0-nan", "integrate", "t0 not finite",
      lambda: run(DUMBBELL, t0=math.nan), ValueError, ["t0", "finite number", "nan"]),
     ("t_end-equal", "integrate", "t_end = t0",
@@ -299,7 +378,8 @@ INPUT_CASES = [
      ["HFDI(load_rate='exact')", "no load_rate", "HFDI(load_rate='auto')"]),
     ("K-wrong", "Integrator", "stiffness twice ∂f/∂u (f right)",
      lambda: hfdi.Integrator(duffing(stiffness=lambda u: 2.0 * DUFFING.stiffness(u)), "hfdi"),
-     hfdi.ModelError, ["stiffness does not match internal_force at u0", "50.00% of their size",
+     hfdi.ModelError, ["stiffness does not match internal_force at u0",
+                       "50.00% of the size of its terms",
                        "check_stiffness=False"]),
     ("K-wrong-sign", "Integrator", "stiffness of the wrong sign (Newmark too)",
      lambda: hfdi.Integrator(duffing(stiffness=lambda u: -DUFFING.stiffness(u)), "newmark",
@@ -396,10 +476,13 @@ INPUT_CASES = [
      ["toss rule length", "> 0", "0.0"]),
     ("toss-n_elements", "toss_rule", "n_elements = 0",
      lambda: hfdi.models.get("toss_rule", n_elements=0), ValueError,
-     ["toss rule n_elements", "integer >= 1", "got 0"]),
+     ["toss rule n_elements", "integer in [1, 1000000]", "got 0"]),
     ("toss-n_elements-float", "toss_rule", "n_elements = 2.5",
      lambda: hfdi.models.get("toss_rule", n_elements=2.5), ValueError,
-     ["toss rule n_elements", "integer >= 1", "got 2.5"]),
+     ["toss rule n_elements", "integer in [1, 1000000]", "got 2.5"]),
+    ("toss-n_elements-huge", "toss_rule", "n_elements = 10⁹ (would exhaust the memory)",
+     lambda: hfdi.models.get("toss_rule", n_elements=10**9), ValueError,
+     ["toss rule n_elements", "integer in [1, 1000000]", "got 1000000000"]),
     ("toss-nu", "toss_rule", "Poisson's ratio 0.5",
      lambda: hfdi.models.get("toss_rule", nu=0.5), ValueError,
      ["toss rule nu", "> -1 and < 0.5", "0.5"]),
@@ -526,6 +609,11 @@ def nan_stiffness_beyond_zero(u):
     return np.full((2, 2), np.nan) if u[0] < 0 else DUFFING.stiffness(u)
 
 
+def energy_unknown_beyond_zero(u):
+    """NaN (the "unknown") once the first mass swings through zero."""
+    return np.nan if u[0] < 0 else DUFFING.potential_energy(u)
+
+
 def energy_raises_beyond_zero(u):
     if u[0] < 0:
         raise ValueError("V is tabulated for u1 >= 0 only")
@@ -611,6 +699,11 @@ FAULT_CASES = [
                             target_iterations=3.0),
      {S.MODEL_ERROR}, ["potential_energy failed at the end of the step to t = ",
                        "ValueError: V is tabulated for u1 >= 0 only"], 1.4),
+    ("V-nan", "potential_energy NaN (unknown) beyond some state, known before",
+     lambda: hfdi.integrate(duffing(potential_energy=energy_unknown_beyond_zero), "hfdi", 5.0,
+                            rtol=1e-6),
+     {S.MODEL_ERROR}, ["potential_energy is NaN (unknown) at the end of the step to t = ",
+                       "a model gives V everywhere or nowhere"], 1.4),
     ("singular-newmark", "exactly singular tangent (Newmark, fixed step)",
      lambda: hfdi.integrate(singular(), "newmark", 1.0, step=0.5),
      {S.NEWTON_FAILED}, ["fixed step 0.5", "tangent is singular"], 0.0),
@@ -798,3 +891,41 @@ def test_a_step_whose_energy_overflows_stops_with_the_last_good_state(step, sche
     assert itg.t == 0.1 and itg.state.t == 0.1
     assert np.array_equal(itg.state.u, before.u) and np.array_equal(itg.state.v, before.v)
     assert math.isfinite(itg.energy_error) and itg.energy_error == energy
+
+
+def test_a_diagonal_stiffness_stays_sparse_above_the_dense_threshold():
+    """LinearSystem takes a 1-D stiffness as a diagonal: above the dense
+    threshold it must stay sparse (as a dense (N, N) array it cost N² memory
+    and dense solves), and give the answer of the same K given sparse."""
+    n = hfdi.evaluation.DENSE_BELOW + 72
+    k = np.linspace(1.0, 100.0, n)
+    diagonal = hfdi.LinearSystem(np.ones(n), k, initial_displacement=np.ones(n))
+    assert sparse.issparse(diagonal.stiffness(np.ones(n)))
+    assert sparse.issparse(diagonal.stiffness_derivative(np.ones(n), np.ones(n)))
+    given = hfdi.LinearSystem(np.ones(n), sparse.diags(k, format="csr"),
+                              initial_displacement=np.ones(n))
+    a, b = (hfdi.integrate(s, "hfdi", 1.0, rtol=1e-6) for s in (diagonal, given))
+    assert a.success and a.stats.steps == b.stats.steps
+    np.testing.assert_array_equal(a.u[-1], b.u[-1])
+    np.testing.assert_allclose(a.u[-1], np.cos(np.sqrt(k)), atol=1e-3)
+    small = hfdi.LinearSystem(np.ones(3), [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(small.stiffness(np.ones(3)), np.diag([1.0, 2.0, 3.0]))
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e-6, 1e-9])
+def test_the_stiffness_check_takes_degrees_of_freedom_of_any_size(scale):
+    """A correct K of a model whose second DOF is in units ``scale`` times
+    smaller (u2 = scale·x) passes the check at u0, whatever the scale, and a
+    K wrong in that small DOF alone is still refused."""
+    def model(k2_factor=1.0):
+        s2 = scale ** 2
+        return hfdi.System(
+            mass=[1.0, 1.0],
+            internal_force=lambda u: np.array([u[0] + u[0] ** 3, 4 * u[1] + 4 * u[1] ** 3 / s2]),
+            stiffness=lambda u: np.diag([1 + 3 * u[0] ** 2,
+                                         k2_factor * (4 + 12 * u[1] ** 2 / s2)]),
+            stiffness_derivative=lambda u, w: np.diag([6 * u[0] * w[0], 24 * u[1] * w[1] / s2]),
+            initial_displacement=[1.0, scale])
+    hfdi.Integrator(model(), "hfdi", rtol=1e-6, atol=[1e-9, 1e-9 * scale])
+    with pytest.raises(hfdi.ModelError, match="stiffness does not match internal_force"):
+        hfdi.Integrator(model(1.01), "hfdi", rtol=1e-6, atol=[1e-9, 1e-9 * scale])

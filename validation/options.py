@@ -160,14 +160,16 @@ def positive(text) -> float:
 
 
 def ratios(text) -> list:
-    """Positive finite ratios Δt/T, comma-separated."""
+    """Ratios Δt/T in ``hfdi.spectral.RATIO_RANGE``, comma-separated."""
+    low, high = hfdi.spectral.RATIO_RANGE
     try:
         values = [float(s) for s in text.split(",") if s.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"ratios must be numbers, got {text!r}") from None
-    if not values or any(not (0 < v < float("inf")) for v in values):
-        raise argparse.ArgumentTypeError(f"ratios Δt/T must be positive finite numbers, "
-                                         f"got {text!r}")
+    if not values or any(not (low <= v <= high) for v in values):
+        raise argparse.ArgumentTypeError(f"ratios Δt/T must be numbers in [{low:g}, {high:g}] "
+                                         f"(below, rounding outweighs the period "
+                                         f"elongation), got {text!r}")
     return values
 
 

@@ -52,6 +52,7 @@ from .attempt import TOL as A_TOL
 from .signatures import INDEX_VECTOR, JIT_OPTIONS, KERNEL_SET, MATRIX, VECTOR
 from ..corrector import is_short as _is_short
 from ..evaluation import energy_overflows as _energy_overflows
+from ..evaluation import potential_lost as _potential_lost
 
 __all__ = ["drive"]
 
@@ -61,6 +62,7 @@ _EPS = float(np.finfo(float).eps)
 # corrector.py and evaluation.py)
 is_short = njit(**JIT_OPTIONS)(_is_short)
 energy_overflows = njit(**JIT_OPTIONS)(_energy_overflows)
+potential_lost = njit(**JIT_OPTIONS)(_potential_lost)
 
 # -- why drive() returned ------------------------------------------------------------
 REACHED = 0          # t_stop reached
@@ -511,7 +513,8 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
                 _difference_and_sum(out[END_U], current[U], current[P], loads[1], difference,
                                     load_sum)
                 work = 0.5 * float(np.dot(difference, load_sum))
-            stops = energy_overflows(kinetic_new, work, potential)
+            stops = energy_overflows(kinetic_new, work, potential) or potential_lost(
+                potential, scalars[INITIAL_POTENTIAL])
         if stops:
             # the run stops here: the Python driver redoes this attempt and says why
             # (from the corrector's memory as it was before it)

@@ -49,7 +49,12 @@ from .. import checks
 from ..system import SecondOrderSystem
 from .loads import hat, hat_breakpoints
 
-__all__ = ["TossRule", "toss_rule"]
+__all__ = ["TossRule", "toss_rule", "MAX_ELEMENTS"]
+
+#: The most elements a toss rule may have: 3,000,003 DOFs, about 7 GB in a run
+#: (2.4 kB per DOF measured, docs/performance.md). More is refused up front
+#: rather than left to exhaust the memory of the machine.
+MAX_ELEMENTS = 1_000_000
 
 
 # The constant part B of the map from the element DOFs
@@ -91,7 +96,7 @@ class TossRule(SecondOrderSystem):
     Parameters
     ----------
     n_elements : int
-        Number of elements ``N_el`` (paper: 6), ≥ 1.
+        Number of elements ``N_el`` (paper: 6), 1 … :data:`MAX_ELEMENTS`.
     length : float
         Length of the rule in m (chosen: 0.5).
     width, thickness : float
@@ -161,7 +166,8 @@ class TossRule(SecondOrderSystem):
     def __init__(self, n_elements=6, length=0.5, width=0.030, thickness=0.002, E=210e9,
                  nu=0.3, shear_factor=5.0 / 6.0, rho=7850.0, force_amplitude=200.0,
                  moment_amplitude=10.0, load_time=0.005):
-        self.n_elements = n_el = checks.integer("toss rule n_elements", n_elements, 1)
+        self.n_elements = n_el = checks.integer("toss rule n_elements", n_elements, 1,
+                                                MAX_ELEMENTS)
         self.length = checks.positive("toss rule length", length)
         self.width = checks.positive("toss rule width", width)
         self.thickness = checks.positive("toss rule thickness", thickness)
