@@ -147,6 +147,9 @@ class Adapter:
     def do_step(self, current_time, step_size) -> bool:
         return bool(self.slave.do_step(current_time, step_size))
 
+    def time(self) -> float:
+        return self.slave.time()
+
     # -- values -------------------------------------------------------------------
     def get_real(self, refs):
         return list(map(float, self.slave.get_real(refs)))

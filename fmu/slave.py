@@ -1034,29 +1034,33 @@ class HfdiSlave(Fmi2Slave):
         except Exception as exc:
             self._reject(f"fmi2GetString({self._names(vrs)}): {exc!r}")
 
-    def set_real(self, vrs, values):
+    def _set(self, setter, function, vrs, values):
+        # every reference is checked before any value is set: a call that
+        # fails must leave the FMU as it was (FMI: fmi2Error changes nothing)
         try:
-            super().set_real(vrs, values)
+            unknown = [vr for vr in vrs if vr not in self.vars]
+            if unknown:
+                raise KeyError(unknown[0])
+            setter(vrs, values)
         except Exception as exc:
-            self._reject(f"fmi2SetReal({self._names(vrs)}): {exc!r}")
+            self._reject(f"{function}({self._names(vrs)}): {exc!r}")
+
+    def set_real(self, vrs, values):
+        self._set(super().set_real, "fmi2SetReal", vrs, values)
 
     def set_integer(self, vrs, values):
-        try:
-            super().set_integer(vrs, values)
-        except Exception as exc:
-            self._reject(f"fmi2SetInteger({self._names(vrs)}): {exc!r}")
+        self._set(super().set_integer, "fmi2SetInteger", vrs, values)
 
     def set_boolean(self, vrs, values):
-        try:
-            super().set_boolean(vrs, values)
-        except Exception as exc:
-            self._reject(f"fmi2SetBoolean({self._names(vrs)}): {exc!r}")
+        self._set(super().set_boolean, "fmi2SetBoolean", vrs, values)
 
     def set_string(self, vrs, values):
-        try:
-            super().set_string(vrs, values)
-        except Exception as exc:
-            self._reject(f"fmi2SetString({self._names(vrs)}): {exc!r}")
+        self._set(super().set_string, "fmi2SetString", vrs, values)
+
+    def time(self) -> float:
+        """The FMU's time: that of its integrator's state, the start time before
+        initialization (``fmi2LastSuccessfulTime``)."""
+        return float(self._itg.t) if self._itg is not None else float(self._start_time)
 
     # -- FMU state ------------------------------------------------------------------------
     def _get_fmu_state(self):
@@ -1095,6 +1099,12 @@ class HfdiSlave(Fmi2Slave):
                                for t in (start_time, stop_time)):
                 raise FmuError("the state is malformed")
             saved = state["integrator"]
+            # an initialized FMU has its integrator, one not yet initialized none:
+            # a state that says otherwise (a damaged one) would leave the FMU
+            # stepping without an integrator, or initializing with one
+            if (phase == "stepping") != (saved is not None) and phase != "terminated":
+                raise FmuError(f"the state is malformed: it is {_PHASES.get(phase, phase)} "
+                               f"{'without' if saved is None else 'with'} an integrator")
             if isinstance(saved, bytes):
                 saved = self._hfdi.IntegratorState.from_bytes(saved)
             itg = key = None

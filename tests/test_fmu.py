@@ -710,3 +710,100 @@ def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus, tmp_path):
         assert (tmp_path / "cache" / "fmu") in where.parents
     assert runs[0][1] == [0, 1]                    # compiled in the first process
     assert runs[1][1] == [1, 0]                    # loaded in the second
+
+
+def test_last_successful_time_is_the_time_the_fmu_is_at(dumbbell_fmu):
+    """fmi2LastSuccessfulTime: the start time before any step, and after a
+    doStep discarded because of the master's time the FMU's own time, not
+    the master's communication point."""
+    path, unzip = dumbbell_fmu
+    u = Unit(path, "late", unzip_dir=unzip)
+    u.initialize({}, start_time=2.0)
+    assert u.last_successful_time() == 2.0
+    assert u.step(2.0, 0.1)
+    here = u.last_successful_time()
+    assert here == 2.0 + 0.1
+    for t in (7.0, math.nan):
+        assert not u.step(t, 0.1)
+        assert u.last_successful_time() == here
+    u.close()
+
+
+def test_a_refused_set_changes_nothing(dumbbell_fmu):
+    """fmi2SetReal with one unknown reference among known ones: fmi2Error and
+    no value set (the next doStep must not feel the input)."""
+    u, clean = unit(dumbbell_fmu), unit(dumbbell_fmu, name="clean")
+    with pytest.raises(FMICallException):
+        u.fmu.setReal([u.variables["F[1]"].valueReference, 9999], [5.0, 1.0])
+    assert u.get(["F[1]"])[0] == 0.0
+    for v in (u, clean):
+        assert v.step(0.0, 0.01)
+    np.testing.assert_array_equal(u.get(STATE), clean.get(STATE))
+    u.close()
+    clean.close()
+
+
+def test_a_state_that_says_initialized_without_its_integrator_is_refused(dumbbell_fmu):
+    """A damaged state whose integrator part is missing (one bit in the zip
+    directory hides it) must not leave the FMU stepping without one."""
+    from fmu.slave import _MAGIC
+    u = unit(dumbbell_fmu)
+    assert u.step(0.0, 0.01)
+    state = u.get_state()
+    data = u.serialize(state)
+    header, arrays = hfdi.serial.unpack(data[len(_MAGIC):])
+    assert header["phase"] == "stepping"
+    del arrays["integrator"]
+    damaged = _MAGIC + hfdi.serial.pack(header, arrays)
+    before = u.get(OBSERVED)
+    try:
+        restored = u.deserialize(damaged)
+    except FMICallException:
+        restored = None
+    if restored is not None:
+        with pytest.raises(FMICallException):
+            u.set_state(restored)
+    np.testing.assert_array_equal(u.get(OBSERVED), before)
+    assert u.step(0.01, 0.01)                   # still stepping from where it was
+    u.close()
+
+
+_FREED_STATE_SCRIPT = r"""
+import sys
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import fmi2FMUstate
+from fmu.master import Unit
+u = Unit(sys.argv[1], "freed", unzip_dir=sys.argv[2])
+u.initialize({}, start_time=0.0)
+assert u.step(0.0, 0.01)
+state = u.get_state()
+kept = fmi2FMUstate(state.value)           # the master's copy of the pointer
+u.free_state(state)
+calls = {"set": lambda: u.set_state(kept), "serialize": lambda: u.serialize(kept),
+         "free again": lambda: u.free_state(fmi2FMUstate(kept.value))}
+for name, call in calls.items():
+    try:
+        call()
+        print(name, "accepted")
+    except FMICallException as exc:
+        print(name, "refused", exc.status)
+assert u.step(0.01, 0.01)
+print("still stepping")
+"""
+
+
+def test_a_freed_state_is_refused_not_a_crash(dumbbell_fmu):
+    """Using an FMU state after fmi2FreeFMUstate is the master's mistake; the
+    FMU answers fmi2Error and keeps working instead of touching freed memory
+    (a crash of the host before). Run in a subprocess: a crash there is a
+    return code here."""
+    import subprocess
+    path, unzip = dumbbell_fmu
+    done = subprocess.run([sys.executable, "-c", _FREED_STATE_SCRIPT, str(path), str(unzip)],
+                          capture_output=True, text=True, timeout=300,
+                          cwd=str(Path(__file__).parent.parent))
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    lines = done.stdout.split("\n")
+    for name in ("set", "serialize", "free again"):
+        assert f"{name} refused 3" in lines, done.stdout       # fmi2Error
+    assert "still stepping" in lines

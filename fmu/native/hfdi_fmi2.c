@@ -339,7 +339,7 @@ static void drain_log(Instance* inst)
 static int reads_only(const char* method)
 {
     static const char* readers[] = {"get_real", "get_integer", "get_boolean", "get_string",
-                                    "get_state", "serialize", NULL};
+                                    "get_state", "serialize", "time", NULL};
     for (int i = 0; readers[i]; i++)
         if (strcmp(method, readers[i]) == 0) return 1;
     return 0;
@@ -798,8 +798,71 @@ FMI2_Export fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference 
 FMI2_Export fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) { return set_values(c, STRING, vr, nvr, value); }
 
 /* ---------------------------------------------------------------------------
- * FMU states: a new reference to the Python object the slave returns
+ * FMU states: a new reference to the Python object the slave returns.
+ *
+ * Every state handed out is recorded (process-wide: a state may be restored
+ * into another instance of this FMU) until fmi2FreeFMUstate; a pointer that
+ * is not a live state -- freed, or never one -- is refused before it is
+ * touched, so a master's use of a freed state gets fmi2Error, not the
+ * host's crash. The list is only read or changed with the GIL held.
  * ------------------------------------------------------------------------- */
+static void** live_states = NULL;
+static size_t n_live = 0, live_capacity = 0;
+
+static int state_is_live(const void* state)
+{
+    for (size_t i = 0; i < n_live; i++)
+        if (live_states[i] == state) return 1;
+    return 0;
+}
+
+static int track_state(void* state)
+{
+    if (n_live == live_capacity) {
+        size_t capacity = live_capacity ? 2 * live_capacity : 16;
+        void** grown = (void**)realloc(live_states, capacity * sizeof(void*));
+        if (!grown) return 0;
+        live_states = grown;
+        live_capacity = capacity;
+    }
+    live_states[n_live++] = state;
+    return 1;
+}
+
+static int untrack_state(const void* state)
+{
+    for (size_t i = 0; i < n_live; i++)
+        if (live_states[i] == state) {
+            live_states[i] = live_states[--n_live];
+            return 1;
+        }
+    return 0;
+}
+
+/* Hand `fresh` (a new reference) to the master in *state, replacing a live
+ * state given there (FMI 2.0: an existing state is overwritten). */
+static fmi2Status give_state(Instance* inst, const char* function, PyObject* fresh,
+                             fmi2FMUstate* state)
+{
+    if (!track_state(fresh)) {
+        p_Py_DecRef(fresh);
+        logf_(inst, fmi2Error, "%s: out of memory", function);
+        return fmi2Error;
+    }
+    if (*state && untrack_state(*state)) p_Py_DecRef((PyObject*)*state);
+    *state = fresh;
+    return fmi2OK;
+}
+
+static int live_or_log(Instance* inst, const char* function, fmi2FMUstate state)
+{
+    if (state && state_is_live(state)) return 1;
+    logf_(inst, fmi2Error, "%s: the state is %s", function,
+          state ? "not a live FMU state (freed, or never made by fmi2GetFMUstate or "
+                  "fmi2DeSerializeFMUstate)" : "NULL");
+    return 0;
+}
+
 FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* state)
 {
     INSTANCE_OR_ERROR(c)
@@ -807,10 +870,7 @@ FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* state)
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     PyObject* saved = invoke(inst, "get_state", NULL, &status);
-    if (saved) {
-        if (*state) p_Py_DecRef((PyObject*)*state);   /* FMI 2.0: overwrite a given state */
-        *state = saved;
-    }
+    if (saved) status = give_state(inst, "fmi2GetFMUstate", saved, state);
     p_PyGILState_Release(gil);
     return status;
 }
@@ -818,11 +878,11 @@ FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* state)
 FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
 {
     INSTANCE_OR_ERROR(c)
-    if (!state) {
-        logf_(inst, fmi2Error, "fmi2SetFMUstate: the state is NULL");
+    PyGILState gil = p_PyGILState_Ensure();
+    if (!live_or_log(inst, "fmi2SetFMUstate", state)) {
+        p_PyGILState_Release(gil);
         return fmi2Error;
     }
-    PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     p_Py_IncRef((PyObject*)state);
     PyObject* args = p_PyTuple_New(1);
@@ -838,10 +898,16 @@ FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* state)
     INSTANCE_OR_ERROR(c)
     if (!state || !*state) return fmi2OK;
     PyGILState gil = p_PyGILState_Ensure();
-    p_Py_DecRef((PyObject*)*state);
+    fmi2Status status = fmi2OK;
+    if (untrack_state(*state)) p_Py_DecRef((PyObject*)*state);
+    else {
+        logf_(inst, fmi2Error, "fmi2FreeFMUstate: the state is not a live FMU state (freed "
+              "already, or never made by fmi2GetFMUstate or fmi2DeSerializeFMUstate)");
+        status = fmi2Error;
+    }
     *state = NULL;
     p_PyGILState_Release(gil);
-    return fmi2OK;
+    return status;
 }
 
 static PyObject* serialized(Instance* inst, fmi2FMUstate state, fmi2Status* status)
@@ -855,8 +921,12 @@ static PyObject* serialized(Instance* inst, fmi2FMUstate state, fmi2Status* stat
 FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t* size)
 {
     INSTANCE_OR_ERROR(c)
-    if (!state || !size) return fmi2Error;
+    if (!size) return fmi2Error;
     PyGILState gil = p_PyGILState_Ensure();
+    if (!live_or_log(inst, "fmi2SerializedFMUstateSize", state)) {
+        p_PyGILState_Release(gil);
+        return fmi2Error;
+    }
     fmi2Status status = fmi2OK;
     PyObject* bytes = serialized(inst, state, &status);
     char* data;
@@ -871,8 +941,12 @@ FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate 
 FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte out[], size_t size)
 {
     INSTANCE_OR_ERROR(c)
-    if (!state || !out) return fmi2Error;
+    if (!out) return fmi2Error;
     PyGILState gil = p_PyGILState_Ensure();
+    if (!live_or_log(inst, "fmi2SerializeFMUstate", state)) {
+        p_PyGILState_Release(gil);
+        return fmi2Error;
+    }
     fmi2Status status = fmi2OK;
     PyObject* bytes = serialized(inst, state, &status);
     char* data;
@@ -903,10 +977,7 @@ FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte d
     PyObject* args = p_PyTuple_New(1);
     p_PyTuple_SetItem(args, 0, p_PyBytes_FromStringAndSize(data ? data : "", (Py_ssize_t_)size));
     PyObject* restored = invoke(inst, "deserialize", args, &status);
-    if (restored) {
-        if (*state) p_Py_DecRef((PyObject*)*state);
-        *state = restored;
-    }
+    if (restored) status = give_state(inst, "fmi2DeSerializeFMUstate", restored, state);
     p_PyGILState_Release(gil);
     return status;
 }
@@ -981,8 +1052,20 @@ FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s
     Instance* inst = (Instance*)c;
     if (!inst || !value) return fmi2Error;
     if (s != fmi2LastSuccessfulTime) return no_status(c, "fmi2GetRealStatus");
+    /* the time of the FMU's last good state, asked of the slave: after a
+       discarded doStep it is where the FMU stayed, which need not be the
+       master's communication point (a doStep from a time the FMU is not at) */
+    PyGILState gil = p_PyGILState_Ensure();
+    fmi2Status status = fmi2OK;
+    PyObject* t = invoke(inst, "time", NULL, &status);
+    if (t) {
+        double now = p_PyFloat_AsDouble(t);
+        p_Py_DecRef(t);
+        if (now == now) inst->last_successful_time = now;
+    }
+    p_PyGILState_Release(gil);
     *value = inst->last_successful_time;
-    return fmi2OK;
+    return status;
 }
 
 FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer* value)
