@@ -114,7 +114,8 @@ class Solution:
             For a time outside the run or not finite.
         """
         scalar = np.ndim(t) == 0
-        if checks.complex_values(t) or isinstance(t, (str, bytes)):
+        if checks.complex_values(t) or isinstance(t, (str, bytes, bool)) \
+                or np.asarray(t).dtype.kind == "b":
             raise ValueError(f"t must be real times in the run's interval, got {t!r:.80}")
         if np.ndim(t) > 1:
             raise ValueError(f"t must be a time or a 1-D array of times, got shape {np.shape(t)}")

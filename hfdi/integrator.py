@@ -164,6 +164,9 @@ class IntegratorState:
     n_dof: int
     #: ``repr`` of the scheme (with its parameters) that made the state.
     scheme: str = ""
+    #: The model's ``parameter_version`` the state was computed with (-1: a
+    #: model that does not count parameter changes).
+    model_version: int = -1
 
     def copy(self, copy_arrays: bool = True) -> IntegratorState:
         """A deep copy, field by field: a co-simulation step saves one before
@@ -256,7 +259,8 @@ _STATE_SCALARS = {"proposed_step": float, "first_step_pending": bool, "status": 
                   "work": float, "energy_error": float, "energy_scale": float,
                   "last_step": float, "last_iterations": int, "last_energy_increment": float,
                   "grid_origin": float, "grid_steps": int, "newton_constant": float,
-                  "newton_guard": float, "controller": str, "n_dof": int, "scheme": str}
+                  "newton_guard": float, "controller": str, "n_dof": int, "scheme": str,
+                  "model_version": int}
 _STATISTICS_FIELDS = tuple(f.name for f in dataclasses.fields(Statistics))
 
 
@@ -732,11 +736,16 @@ class Integrator:
             them back in.
         """
         self._sync_counters()
-        return self._s.copy(copy_arrays)
+        saved = self._s.copy(copy_arrays)
+        saved.model_version = -1 if self._model_version is None else int(self._model_version)
+        return saved
 
     def set_state(self, saved: IntegratorState) -> None:
         """Restore a state from :meth:`get_state`; the run then continues
-        exactly as it did from that point.
+        exactly as it did from that point. For a model that counts the
+        changes of its parameters (``parameter_version``), a state saved
+        under another version is refreshed as by :meth:`model_changed`
+        (``f``, ``a`` and ``V`` recomputed, the step history dropped).
 
         Raises
         ------
@@ -755,6 +764,13 @@ class Integrator:
             raise TypeError(f"state must be an IntegratorState, got {type(saved).__name__}")
         refresh = self._check_state(saved)
         before, version = self._s, self._model_version
+        now = getattr(self.system, "parameter_version", None)
+        if now is not None:
+            # the state's f_n, a_n and V were computed under the parameters of
+            # its version; under others they are recomputed (Newmark and Bathe
+            # keep no f_n to tell by)
+            refresh = refresh or saved.model_version != now
+            self._model_version = now
         self._s = saved.copy()
         st = self._s.statistics
         ev = self.ev
@@ -841,9 +857,9 @@ class Integrator:
             if not getattr(saved, name) >= 0:
                 raise ValueError(f"state.{name} must be >= 0 (inf: none measured), got "
                                  f"{getattr(saved, name)!r}")
-        return self._check_state_model(saved.current)
+        return self._check_state_model(saved.current, saved.model_version)
 
-    def _check_state_model(self, current: State) -> bool:
+    def _check_state_model(self, current: State, saved_version: int) -> bool:
         """The kept force ``f_n`` of a state against this model's ``f(u_n)``.
 
         The schemes read ``f_n`` and ``a_n`` from the state instead of
@@ -853,9 +869,11 @@ class Integrator:
         apart; the margin (1e-9 of the largest of ``f``, ``p`` and ``M a``)
         lets the compiled and Python kernels' roundings pass. For a model
         that counts the changes of its parameters (``parameter_version``, as
-        :class:`~hfdi.models.symbolic.EnergyModel`) a mismatch is a state saved under
-        other parameters: ``True`` is returned, and :meth:`set_state` then
-        recomputes ``f``, ``a`` and ``V`` as :meth:`model_changed` does.
+        :class:`~hfdi.models.symbolic.EnergyModel`) a mismatch under another
+        version than the state's is a state saved under other parameters:
+        ``True`` is returned, and :meth:`set_state` then recomputes ``f``,
+        ``a`` and ``V`` as :meth:`model_changed` does; under the same version
+        it is another model, refused.
         """
         if current.f is None:
             # Newmark and Bathe keep no f_n (they would need one more force
@@ -876,8 +894,8 @@ class Integrator:
         mismatch = float(np.abs(f - current.f).max())
         if mismatch <= 1e-9 * scale:
             return False
-        if self._model_version is not None:
-            return True
+        if self._model_version is not None and saved_version != self.system.parameter_version:
+            return True                 # the same model under other parameters
         raise ValueError(f"state.current.f differs from this model's internal_force at "
                              f"state.current.u by {mismatch:.3g} (scale {scale:.3g}): the state "
                              f"was saved from another model, or from this one with other "
@@ -1006,48 +1024,75 @@ class Integrator:
         return State(t0, u0.copy(), v0.copy(), a, f, p), K, T, potential
 
     def _check_stiffness(self, u0, f, K, call, name):
-        """``K(u0)`` against a central difference of ``f`` along one direction.
+        """``K(u0)`` against central differences of ``f`` along one direction.
 
         HFDI uses ``K`` in its step equation (``g_t = p' − K v``), so a wrong
         ``K`` gives wrong answers there, not only a slow Newton; in every
-        scheme it is a mistake in the model. Two extra force evaluations.
-        Each degree of freedom is perturbed relative to its own size
-        (``√ε·max(|u0_i|, 1e-3·U)``, ``U = max(max|u0|, u_scale)``): with one
-        step for all, a degree of freedom 1e5 times smaller than the largest
-        (a rotation beside translations in mm) was perturbed by a large part
-        of itself and a correct ``K`` refused. The central difference is
-        exact to ``O(δ²)``; a mismatch above 0.1 % of ``‖K d‖`` (plus the
-        rounding of the difference) is refused.
+        scheme it is a mistake in the model.
+
+        Each degree of freedom is perturbed relative to its own size,
+        ``d_i = s·√ε·max(|u0_i|, 1e-3·U) w_i`` (``U = max(max|u0|, u_scale)``,
+        ``w`` a fixed direction), so that a rotation beside translations in
+        mm is not perturbed by a large part of itself. At each scale ``s``
+        (1, 1e2, 1e4, 1e6) the mismatches of the central differences at
+        ``d`` and ``2d`` with ``K d`` and ``2 K d`` are Richardson-combined,
+        ``(8 m(d) − m(2d))/6``, which cancels the ``O(d³)`` of the
+        nonlinearity (a pure cubic spring at rest) and leaves ``(∂f/∂u − K) d``.
+        Row ``i`` counts at a scale where the rounding of ``f`` there is below
+        1e-4 of its terms ``Σ_j |K_ij d_j|`` (a large preload in ``f`` hides a
+        wrong ``K`` at small ``d``), and its error is the smallest over the
+        scales that count (rounding inside ``f``, large terms cancelling, is
+        gone at a larger ``d``; a kink near ``u0`` at a smaller one). A row
+        whose error is above 0.1 % of its terms is refused; a row that never
+        counts (``K`` zero there) is not judged. 4 to 16 force evaluations;
+        beyond the first scale a failing evaluation (a model leaving its
+        domain) only drops that scale.
         """
         ev = self.ev
         w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
         size_u = max(float(np.abs(u0).max()), self.floor)
-        d = _SQRT_EPS * np.maximum(np.abs(u0), 1e-3 * size_u) * w
-        d = (u0 + d) - u0                                  # the step as represented
-        f1 = call("internal_force", ev.force, u0 + d)
-        f2 = call("internal_force", ev.force, u0 - d)
-        difference = 0.5 * (f1 - f2)
-        Kd = np.asarray(K @ d).ravel()
-        # row by row, against the size of the row's terms Σ_j |K_ij d_j|: a
-        # small degree of freedom's row is judged on its own scale (a row
-        # that is zero at u0 against 1e-8 of the largest: its difference is
-        # the O(d²) of the nonlinearity)
-        terms = np.asarray(abs(K) @ np.abs(d)).ravel()
-        excess = np.abs(difference - Kd) - 1e-3 * terms - 1e-8 * float(terms.max()) \
-            - 1e3 * _EPS * (np.abs(f1) + np.abs(f2))
-        worst = int(np.argmax(excess / np.maximum(terms, 1e-300)))
-        if excess[worst] > 0:
-            mismatch = float(abs(difference[worst] - Kd[worst]))
-            size = max(float(terms[worst]), 1e-300)
-            largest = float(np.abs(d).max())
+        base = _SQRT_EPS * np.maximum(np.abs(u0), 1e-3 * size_u) * w
+        n = ev.n
+        best = np.full(n, np.inf)
+        best_scale = np.zeros(n)
+        for scale in (1.0, 1e2, 1e4, 1e6):
+            steps, values = [], []
+            try:
+                for factor in (1.0, 2.0):
+                    d = (u0 + factor * scale * base) - u0        # the step as represented
+                    plus = call("internal_force", ev.force, u0 + d)
+                    minus = call("internal_force", ev.force, u0 - d)
+                    steps.append(d)
+                    values.append((plus, minus))
+            except ModelError:
+                if scale == 1.0:
+                    raise
+                break
+            (d1, d2), ((p1, q1), (p2, q2)) = steps, values
+            m1 = 0.5 * (p1 - q1) - np.asarray(K @ d1).ravel()
+            m2 = 0.5 * (p2 - q2) - np.asarray(K @ d2).ravel()
+            error = np.abs(8.0 * m1 - m2) / 6.0
+            terms = np.asarray(abs(K) @ np.abs(d1)).ravel()
+            rounding = 16.0 * _EPS * (np.abs(p1) + np.abs(q1) + np.abs(p2) + np.abs(q2))
+            counts = (terms > 0) & (rounding <= 1e-4 * terms)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                relative = np.where(counts, error / terms, np.inf)
+            better = relative < best
+            best[better], best_scale[better] = relative[better], scale
+        judged = np.isfinite(best)
+        if not judged.any():
+            return
+        worst = int(np.argmax(np.where(judged, best, -1.0)))
+        if best[worst] > 1e-3:
+            largest = float(np.abs(base).max()) * best_scale[worst]
             raise ModelError(
-                f"model {name!r}: stiffness does not match internal_force at u0: K(u0)·d and "
-                f"the difference (f(u0 + d) − f(u0 − d))/2 (|d| ≤ {largest:.3g}) differ in "
-                f"row {worst} by {mismatch:.3g}, {mismatch / size:.2%} of the size of its "
-                f"terms. K must be ∂f/∂u: "
-                f"HFDI uses it in its step equation, where a wrong K gives a wrong answer "
-                f"(check the model with hfdi.check_derivatives; pass check_stiffness=False "
-                f"only if f has a kink at u0)")
+                f"model {name!r}: stiffness does not match internal_force at u0: in row "
+                f"{worst}, K(u0)·d and the central differences of f (|d| ≤ {largest:.3g}, "
+                f"Richardson-extrapolated; the best of the steps 1 … 1e6 times that) "
+                f"differ by {best[worst]:.2%} of the size of the row's terms. K must be "
+                f"∂f/∂u: HFDI uses it in its step equation, where a wrong K gives a wrong "
+                f"answer (check the model with hfdi.check_derivatives; pass "
+                f"check_stiffness=False only if f has a kink at u0)")
 
     def _check_load_rate(self, call, name):
         """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`).
@@ -1055,22 +1100,32 @@ class Integrator:
         HFDI puts ``p'`` into its step equation (``g_t = p' − K v``), so a
         wrong rate gives a wrong answer that no tolerance shows: a rate 5 times
         too large was off by 800 times the tolerance at rtol 1e-6. The
-        differences are taken at steps of ``10^-2 … 10^-9`` times the run's
-        span (1 where it is not known) and the best agreement counts, so a
-        correct rate of a load of any time scale passes; a mismatch above
-        0.1 % is refused, as for ``K``.
+        differences are taken at steps of ``10^-2 … 10^-13`` times the run's
+        span (1 where it is not known) that end before the load's next
+        breakpoint, and the best agreement counts, so a correct rate of a load
+        of any time scale passes; a mismatch above 0.1 % is refused, as for
+        ``K``; a rate that cannot be judged (below the rounding of ``p``) is
+        not.
         """
         ev, t0 = self.ev, self.t0
         scale = self.t_bound - t0 if self.t_bound is not None else 1.0
-        mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale))
+        try:
+            points = np.asarray(list(self.system.load_breakpoints()), dtype=float).ravel()
+        except Exception:                   # the run says so later, where it lands on them
+            points = np.empty(0)
+        points = np.concatenate([points, self.breakpoints])
+        later = points[points > t0]
+        horizon = float(later.min()) if later.size else math.inf
+        mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale,
+                                                        horizon))
         if mismatch > 1e-3:
             raise ModelError(
                 f"model {name!r}: load_rate does not match load at t0 = {t0:g}: p'(t0) and "
                 f"forward differences of p differ by {mismatch:.3g} of their size at the "
-                f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-9:.3g}. HFDI uses p' in "
-                f"its step equation, where a wrong rate gives a wrong answer (check the model with "
-                f"hfdi.check_derivatives; check_stiffness=False skips the checks of K and "
-                f"p')")
+                f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}. HFDI uses p' in "
+                f"its step equation, where a wrong rate gives a wrong answer (check the model "
+                f"with hfdi.check_derivatives; check_stiffness=False skips the checks of K "
+                f"and p')")
 
     def _default_first_step(self, K) -> float:
         """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""
@@ -1633,7 +1688,8 @@ def _time_value(name, value) -> float:
 
 def _times(name, value, t0, t_end):
     """``value`` as a finite, strictly increasing float array inside ``[t0, t_end]``."""
-    if checks.complex_values(value) or isinstance(value, (str, bytes)):
+    if checks.complex_values(value) or isinstance(value, (str, bytes, bool)) \
+            or np.asarray(value).dtype.kind == "b":
         raise ValueError(f"{name} must be an array of real times in [t0, t_end], "
                          f"got {value!r:.80}")
     try:

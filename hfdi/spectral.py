@@ -133,8 +133,8 @@ def spectral_properties(scheme, ratios) -> SpectralProperties:
         raise ValueError(f"ratios (Δt/T) must be a 1-D array, got shape {ratios.shape}")
     bad = ~(np.isfinite(ratios) & (ratios >= low) & (ratios <= high))
     if np.any(bad):
-        raise ValueError(f"ratios (Δt/T) must be {allowed}: below, rounding in the "
-                         f"amplification matrix outweighs the period elongation; got "
+        raise ValueError(f"ratios (Δt/T) must be {allowed} (outside it, rounding in the "
+                         f"amplification matrix outweighs the measures), got "
                          f"{float(ratios[bad][0])!r}")
     tau = 2.0 * np.pi * ratios
     n = ratios.size

@@ -379,7 +379,7 @@ INPUT_CASES = [
     ("K-wrong", "Integrator", "stiffness twice ∂f/∂u (f right)",
      lambda: hfdi.Integrator(duffing(stiffness=lambda u: 2.0 * DUFFING.stiffness(u)), "hfdi"),
      hfdi.ModelError, ["stiffness does not match internal_force at u0",
-                       "50.00% of the size of its terms",
+                       "differ by 50.00% of the size of the row's terms",
                        "check_stiffness=False"]),
     ("K-wrong-sign", "Integrator", "stiffness of the wrong sign (Newmark too)",
      lambda: hfdi.Integrator(duffing(stiffness=lambda u: -DUFFING.stiffness(u)), "newmark",
@@ -929,3 +929,111 @@ def test_the_stiffness_check_takes_degrees_of_freedom_of_any_size(scale):
     hfdi.Integrator(model(), "hfdi", rtol=1e-6, atol=[1e-9, 1e-9 * scale])
     with pytest.raises(hfdi.ModelError, match="stiffness does not match internal_force"):
         hfdi.Integrator(model(1.01), "hfdi", rtol=1e-6, atol=[1e-9, 1e-9 * scale])
+
+
+def _one_dof(force, stiffness, u0=0.0, **kwargs):
+    return hfdi.System(mass=[1.0], internal_force=lambda u: np.array([force(u[0])]),
+                       stiffness=lambda u: np.array([[stiffness(u[0])]]),
+                       stiffness_derivative=lambda u, w: np.zeros((1, 1)),
+                       initial_displacement=[u0], **kwargs)
+
+
+def test_the_stiffness_check_accepts_correct_models_that_differences_find_hard():
+    """A pure cubic spring at rest (K(0) = 0: the difference is all O(d³)),
+    large terms that cancel in f (rounding 1e8 times K d at the first
+    step), and a stiffness contrast of 1e12: correct K, accepted."""
+    for model in (_one_dof(lambda x: x**3, lambda x: 3 * x**2),
+                  _one_dof(lambda x: x * abs(x), lambda x: 2 * abs(x)),
+                  _one_dof(lambda x: (1e8 * x + x + x**3) - 1e8 * x, lambda x: 1 + 3 * x**2,
+                           u0=1.0)):
+        for scheme in ("newmark", "hfdi"):
+            hfdi.Integrator(model, scheme, rtol=1e-6)
+    stiff = hfdi.System(mass=[1.0, 1.0], internal_force=lambda u: np.array([1e12, 1.0]) * u,
+                        stiffness=lambda u: np.diag([1e12, 1.0]),
+                        stiffness_derivative=lambda u, w: np.zeros((2, 2)),
+                        initial_displacement=[1e-9, 1.0])
+    hfdi.Integrator(stiff, "hfdi", rtol=1e-6)
+
+
+def test_the_stiffness_check_refuses_a_wrong_k_hidden_by_size():
+    """A soft DOF's K wrong beside a 1e12 stiff one, and a K twice too large
+    under a preload 1e5 times the force of its step: refused."""
+    soft = hfdi.System(mass=[1.0, 1.0], internal_force=lambda u: np.array([1e12, 1.0]) * u,
+                       stiffness=lambda u: np.diag([1e12, 2.0]),
+                       stiffness_derivative=lambda u, w: np.zeros((2, 2)),
+                       initial_displacement=[1e-9, 1.0])
+    preloaded = _one_dof(lambda x: 4 * x + 1e5, lambda x: 8.0, u0=1.0)
+    for model in (soft, preloaded):
+        with pytest.raises(hfdi.ModelError, match="stiffness does not match internal_force"):
+            hfdi.Integrator(model, "hfdi", rtol=1e-6)
+
+
+def test_the_load_rate_check_sees_through_a_static_load_and_across_time_scales():
+    """p = 1e5 + sin t: a forgotten (zero) or 5 times too large rate is refused
+    (the rounding of the 1e5 hid it at short steps); correct rates of sin(1e7 t)
+    over a span of 10 and of a ramp ending at 1e-12 (a declared breakpoint)
+    are accepted."""
+    def model(load, rate, breakpoints=()):
+        m = _one_dof(lambda x: 4 * x, lambda x: 4.0, load=lambda t: np.array([load(t)]),
+                     load_rate=lambda t: np.array([rate(t)]))
+        m.load_breakpoints = lambda: breakpoints
+        return m
+
+    for wrong in (lambda t: 0.0, lambda t: 5 * np.cos(t)):
+        with pytest.raises(hfdi.ModelError, match="load_rate does not match load"):
+            hfdi.Integrator(model(lambda t: 1e5 + np.sin(t), wrong), "hfdi", rtol=1e-6)
+        assert hfdi.check_derivatives(model(lambda t: 1e5 + np.sin(t), wrong),
+                                      samples=1).load_rate > 0.5
+    hfdi.Integrator(model(lambda t: np.sin(1e7 * t), lambda t: 1e7 * np.cos(1e7 * t)),
+                    "hfdi", rtol=1e-6, t_bound=10.0)
+    ramp = model(lambda t: min(t / 1e-12, 1.0), lambda t: 1e12 if t < 1e-12 else 0.0,
+                 breakpoints=(1e-12,))
+    hfdi.Integrator(ramp, "hfdi", rtol=1e-6, t_bound=1.0)
+
+
+def test_an_energy_models_derived_load_rate_is_the_right_limit():
+    """EnergyModel's rate of A·max(0, t) at t = 0 is 1 (sympy's Heaviside(0)
+    is 1/2), and of A·t·Heaviside(t) it has no DiracDelta (which has no
+    numerical value): both run, compiled and not."""
+    sympy = pytest.importorskip("sympy")
+    from hfdi.models.symbolic import EnergyModel
+    x, t, a = sympy.symbols("x t A")
+    for load in (a * sympy.Max(0, t), a * t * sympy.Heaviside(t)):
+        m = EnergyModel([x], 2 * x**2, mass=[1.0], parameters={a: 1.0}, load=[load], time=t,
+                        initial_displacement=[0.1])
+        assert m.load_rate(0.0)[0] == 1.0
+        for compiled in (False, True):
+            assert hfdi.Integrator(m, "hfdi", rtol=1e-6, compiled=compiled).advance(0.5)
+
+
+def test_set_state_follows_the_parameters_of_an_energy_model():
+    """A state saved under other parameters is refreshed on every scheme
+    (Newmark and Bathe keep no force to tell by: the version tells); a state
+    of another EnergyModel of the same size is refused."""
+    sympy = pytest.importorskip("sympy")
+    from hfdi.models.symbolic import EnergyModel
+    x, k = sympy.symbols("x k")
+
+    def make(energy):
+        return EnergyModel([x], energy, mass=[1.0], parameters={k: 30.0},
+                           initial_displacement=[0.2])
+
+    for scheme in ("newmark", "bathe", "hfdi"):
+        model = make(k * x**2 / 2 + x**4)
+        first = hfdi.Integrator(model, scheme, rtol=1e-8, compiled=False)
+        assert first.advance(0.5)
+        saved = first.get_state()
+        model.set_parameters(k=60.0)
+        restored = hfdi.Integrator(model, scheme, rtol=1e-8, compiled=False)
+        restored.set_state(saved)
+        refreshed = hfdi.Integrator(model, scheme, rtol=1e-8, compiled=False)
+        refreshed.set_state(saved)
+        refreshed.model_changed()
+        for itg in (restored, refreshed):
+            assert itg.advance(1.0)
+        np.testing.assert_array_equal(restored.state.u, refreshed.state.u)
+        other = hfdi.Integrator(make(k * x**2 / 2 + 3 * x**4), scheme, rtol=1e-8,
+                                compiled=False)
+        if scheme == "hfdi":
+            with pytest.raises(ValueError, match="saved from another model"):
+                other.set_state(first.get_state())

@@ -175,6 +175,16 @@ def _compile(args, exprs):
 
 # -- the model ------------------------------------------------------------------
 
+def _right_rate(rate):
+    """A derived load rate as HFDI reads it: at a kink of the load the right
+    limit (a step leaves its start forwards), so ``Heaviside(0) = 1`` (sympy
+    and numpy take 1/2); and without the impulses of a jump (``DiracDelta``,
+    which has no numerical value: a jump of the load is a breakpoint, not a
+    rate)."""
+    rate = rate.replace(sympy.DiracDelta, lambda *args: sympy.Integer(0))
+    return rate.replace(sympy.Heaviside, lambda arg, *rest: sympy.Heaviside(arg, 1))
+
+
 class EnergyModel(SecondOrderSystem):
     """A model ``M u'' + C u' + ∂V/∂u = p(t)`` from a sympy potential energy ``V``.
 
@@ -384,8 +394,8 @@ class EnergyModel(SecondOrderSystem):
             "q": [e.xreplace(rename) for e in quantity_exprs],
             "p": [] if load_exprs is None else [e.xreplace(rename) for e in load_exprs],
             "dp": [] if load_exprs is None else [
-                (e.diff(time) if time is not None else sympy.Integer(0)).xreplace(rename)
-                for e in load_exprs],
+                (_right_rate(e.diff(time)) if time is not None else sympy.Integer(0))
+                .xreplace(rename) for e in load_exprs],
         }
         self.load_expressions = load_exprs
         self._build_functions()
