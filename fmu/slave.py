@@ -578,9 +578,11 @@ class HfdiSlave(Fmi2Slave):
         self._phase = "initialization"
 
     def exit_initialization_mode(self):
-        if self._phase not in ("instantiated", "initialization"):
-            # starting again from t0 would silently discard the simulation so far
-            self._reject(f"fmi2ExitInitializationMode: the FMU is {_PHASES[self._phase]}")
+        if self._phase != "initialization":
+            # after initialization, starting again from t0 would silently discard
+            # the simulation so far; before it, the master skipped a call (FMI 2.0)
+            self._reject(f"fmi2ExitInitializationMode: the FMU is {_PHASES[self._phase]}; "
+                         f"it exits initialization mode after fmi2EnterInitializationMode")
         try:
             bad = [f"F[{i + 1}] = {float(x)!r}" for i, x in enumerate(self._F_input)
                    if not math.isfinite(x)]

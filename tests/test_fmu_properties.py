@@ -434,6 +434,12 @@ class FmuMachine(RuleBasedStateMachine):
     def misplaced_initialization(self, which):
         self.apply("misplaced_initialization", (which,))
 
+    @precondition(lambda self: self.track.phase == "instantiated")
+    @rule()
+    def exit_before_enter(self):
+        """fmi2ExitInitializationMode without fmi2EnterInitializationMode."""
+        self.apply("misplaced_initialization", ("exit",))
+
     @precondition(lambda self: len(self.saves) < 8)
     @rule()
     def save_state(self):

@@ -19,7 +19,7 @@ import hfdi
 from .experiments import SCHEME_ORDER, experiment, names
 
 __all__ = ["Parser", "UsageError", "schemes", "targets", "rtols", "positive", "ratios",
-           "problems", "positive_integer", "numbers", "output_file", "out_dir",
+           "problems", "positive_integer", "job_count", "numbers", "output_file", "out_dir",
            "check_problem", "check_runs", "add_parallel_options", "runner_from_args",
            "LONGEST_RUN", "caused_by_interrupt", "watching_interrupts", "interrupted",
            "raise_if_interrupted"]
@@ -189,6 +189,20 @@ def positive_integer(text) -> int:
     return value
 
 
+def job_count(text) -> int:
+    """An integer in ``[1, validation.parallel.max_jobs()]``."""
+    from .parallel import max_jobs
+    most = max_jobs()
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not 1 <= value <= most:
+        raise argparse.ArgumentTypeError(f"must be an integer in [1, {most}] (four worker "
+                                         f"processes per CPU), got {text!r}")
+    return value
+
+
 def output_file(text) -> str:
     """A file the command will write at the end: checked now, not after the runs."""
     if not text.strip():
@@ -281,8 +295,9 @@ def _address(text):
 
 def add_parallel_options(parser) -> None:
     """Add ``--jobs N`` and ``--dask ADDRESS`` to a sub-command's parser."""
-    parser.add_argument("--jobs", type=positive_integer, default=1, metavar="N",
-                        help="worker processes on this machine (default 1: this process)")
+    parser.add_argument("--jobs", type=job_count, default=1, metavar="N",
+                        help="worker processes on this machine (default 1: this process; "
+                             "at most four per CPU)")
     parser.add_argument("--dask", metavar="ADDRESS", type=_address, default=None,
                         help="run the tasks on an existing Dask distributed cluster "
                              "(scheduler address, e.g. tcp://host:8786; extra 'dask'); "

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import numbers
 import os
 import signal
 import sys
@@ -117,6 +118,14 @@ def _first_line(exc) -> str:
     return f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__
 
 
+def max_jobs() -> int:
+    """The most local worker processes a :class:`Runner` takes: four per CPU
+    (at least 8). The runs are CPU-bound, so more only cost memory (each
+    worker imports numpy, scipy and the compiled path): ``--jobs 100000``
+    forked thousands of processes and filled 16 GB."""
+    return max(8, 4 * (os.cpu_count() or 1))
+
+
 class Runner:
     """Maps a module-level function over tasks: here, on ``jobs`` local
     processes, or on the Dask scheduler at ``dask_address`` (which overrides
@@ -127,15 +136,17 @@ class Runner:
     Raises
     ------
     ValueError
-        ``jobs`` is not an integer >= 1.
+        ``jobs`` is not an integer in ``[1, max_jobs()]``.
     RunnerError
         ``dask_address`` without the ``dask`` extra installed.
     """
 
     def __init__(self, jobs: int = 1, dask_address: str | None = None,
                  connect_timeout: float = DASK_CONNECT_TIMEOUT):
-        if isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1:
-            raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
+        if isinstance(jobs, bool) or not isinstance(jobs, numbers.Integral) \
+                or not 1 <= jobs <= max_jobs():
+            raise ValueError(f"jobs must be an integer in [1, {max_jobs()}] (four per CPU), "
+                             f"got {jobs!r}")
         self.jobs = int(jobs)
         self.dask_address = dask_address or None
         self.connect_timeout = float(connect_timeout)
