@@ -399,15 +399,42 @@ def accuracy_table(rtols=(1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)):
     return "\n".join(lines)
 
 
+def ida_table(rtols=(1e-6, 1e-8), factors=(1, 10, 100)):
+    """The same error against IDA (scikit-sundae, validation.reference) at the
+    same rtol and atol (``validation.reference.default_atol``), and HFDI at
+    ``rtol / factor`` with that rtol's atol."""
+    from validation.reference import default_atol, ida_dense_reference
+    head = "| problem | rtol | IDA | " + " | ".join(
+        "HFDI" if k == 1 else f"HFDI at rtol/{k}" for k in factors) + " |"
+    lines = [head, "|---|---|---|" + "---|" * len(factors)]
+    for problem in PROBLEMS:
+        factory, t_end = PROBLEMS[problem]
+        model, exact = factory()
+        for rtol in rtols:
+            ida = ida_dense_reference(model, t_end, rtol=rtol,
+                                      atol=default_atol(model, rtol, t_end))
+            u, _ = exact(ida.t)
+            cells = [f"{float(np.max(np.abs(ida.u - u)) / np.max(np.abs(u))):.1e} "
+                     f"({ida.stats['steps']})"]
+            for k in factors:
+                result = hfdi.integrate(model, "hfdi", t_end, rtol=rtol / k,
+                                        atol=default_atol(model, rtol / k, t_end))
+                cells.append(f"{relative_error(result, exact):.1e} ({result.stats.steps})")
+            lines.append(f"| {problem} | {rtol:.0e} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
-    # python tests/test_accuracy.py          prints the table
-    # python tests/test_accuracy.py --write  updates it in docs/accuracy.md
+    # python tests/test_accuracy.py          prints the tables
+    # python tests/test_accuracy.py --write  updates them in docs/accuracy.md
     from problems import write_doc_table
-    table = accuracy_table()
-    if "--write" in sys.argv[1:]:
-        write_doc_table("accuracy", table, Path(__file__).parents[1] / "docs" / "accuracy.md")
-    else:
-        print(table)
+    doc = Path(__file__).parents[1] / "docs" / "accuracy.md"
+    tables = {"accuracy": accuracy_table(), "ida": ida_table()}
+    for name, table in tables.items():
+        if "--write" in sys.argv[1:]:
+            write_doc_table(name, table, doc)
+        else:
+            print(table)
 
 
 def test_an_injected_controller_takes_the_order_of_the_scheme_and_stays_reusable():
