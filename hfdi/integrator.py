@@ -1044,9 +1044,10 @@ class Integrator:
         scales that count (rounding inside ``f``, large terms cancelling, is
         gone at a larger ``d``; a kink near ``u0`` at a smaller one). A row
         whose error is above 0.1 % of its terms is refused; a row that never
-        counts (``K`` zero there) is not judged. 4 to 16 force evaluations;
-        beyond the first scale a failing evaluation (a model leaving its
-        domain) only drops that scale.
+        counts (``K`` zero there) is not judged. 4 force evaluations when
+        every row passes at the first scale, up to 16; beyond the first scale
+        a failing evaluation (a model leaving its domain) only drops that
+        scale.
         """
         ev = self.ev
         w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
@@ -1079,6 +1080,8 @@ class Integrator:
                 relative = np.where(counts, error / terms, np.inf)
             better = relative < best
             best[better], best_scale[better] = relative[better], scale
+            if not np.any((terms > 0) & ~(best <= 1e-3)):
+                break           # every row that can be judged has passed: no scale fails it
         judged = np.isfinite(best)
         if not judged.any():
             return
