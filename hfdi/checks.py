@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["real", "positive", "non_negative", "integer", "finite_array",
+__all__ = ["real", "positive", "non_negative", "integer", "finite_array", "real_array",
            "callable_or_none", "square_matrix", "symmetric_definite", "complex_values"]
 
 
@@ -68,6 +68,21 @@ def complex_values(value) -> bool:
         return bool(np.iscomplexobj(value))
     except (TypeError, ValueError):          # ragged or unconvertible: the caller says why
         return False
+
+
+def real_array(value) -> np.ndarray | None:
+    """``value`` (a number or an array of any shape) as a float ndarray when
+    it holds real numbers; ``None`` for text, bools, complex numbers or what
+    numpy cannot read as numbers, where ``np.asarray(value, float)`` would read
+    ``"1.5"`` as 1.5 and ``True`` as 1, or drop imaginary parts. The caller
+    checks shape and range and names the parameter."""
+    if isinstance(value, (str, bytes)) or complex_values(value):
+        return None
+    try:
+        raw = np.asarray(value)
+        return None if raw.dtype.kind in "bSU" else raw.astype(float)
+    except (TypeError, ValueError):
+        return None
 
 
 def finite_array(name: str, value, shape, *, positive: bool = False) -> np.ndarray:

@@ -113,17 +113,13 @@ class Solution:
         ValueError
             For a time outside the run or not finite.
         """
-        scalar = np.ndim(t) == 0
-        if checks.complex_values(t) or isinstance(t, (str, bytes, bool)) \
-                or np.asarray(t).dtype.kind == "b":
+        times = checks.real_array(t)
+        if times is None:
             raise ValueError(f"t must be real times in the run's interval, got {t!r:.80}")
-        if np.ndim(t) > 1:
-            raise ValueError(f"t must be a time or a 1-D array of times, got shape {np.shape(t)}")
-        try:
-            times = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
-        except (TypeError, ValueError):
-            raise ValueError(f"t must be real times in the run's interval, got "
-                             f"{t!r:.80}") from None
+        if times.ndim > 1:
+            raise ValueError(f"t must be a time or a 1-D array of times, got shape {times.shape}")
+        scalar = times.ndim == 0
+        times = np.atleast_1d(times)
         t0, t1 = self.t_span
         if not np.all(np.isfinite(times)) or times.size and (times.min() < t0 or
                                                              times.max() > t1):

@@ -394,10 +394,11 @@ class Integrator:
         the predictor restarts there; the iteration-count and fixed-step
         modes keep their steps (the paper's tables are made so).
     check_stiffness : bool
-        Check ``K(u0)`` against a finite difference of ``f`` (one extra
-        force evaluation) and refuse a model whose ``K`` is not ``∂f/∂u``
-        (default); for HFDI with the model's ``load_rate``, check ``p'(t0)``
-        against forward differences of ``p`` too (16 load evaluations).
+        Check ``K(u0)`` against central differences of ``f`` (4 extra force
+        evaluations for a correct model, at most 16) and refuse a model whose
+        ``K`` is not ``∂f/∂u`` (default); for HFDI with the model's
+        ``load_rate``, check ``p'(t0)`` against forward differences of ``p``
+        too (at most 26 load evaluations).
         Turn off only for a force with a kink at ``u0``.
     compiled : {None, True, False}
         Take the steps in compiled code (:mod:`hfdi.compiled`, numba; see
@@ -762,15 +763,14 @@ class Integrator:
         """
         if not isinstance(saved, IntegratorState):
             raise TypeError(f"state must be an IntegratorState, got {type(saved).__name__}")
-        refresh = self._check_state(saved)
+        self._check_state(saved)
         before, version = self._s, self._model_version
         now = getattr(self.system, "parameter_version", None)
-        if now is not None:
-            # the state's f_n, a_n and V were computed under the parameters of
-            # its version; under others they are recomputed (Newmark and Bathe
-            # keep no f_n to tell by)
-            refresh = refresh or saved.model_version != now
-            self._model_version = now
+        # the state's f_n, a_n and V were computed under the parameters of its
+        # version; under others they are recomputed (Newmark and Bathe keep no
+        # f_n to tell by)
+        refresh = now is not None and saved.model_version != now
+        self._model_version = now
         self._s = saved.copy()
         st = self._s.statistics
         ev = self.ev
@@ -857,9 +857,9 @@ class Integrator:
             if not getattr(saved, name) >= 0:
                 raise ValueError(f"state.{name} must be >= 0 (inf: none measured), got "
                                  f"{getattr(saved, name)!r}")
-        return self._check_state_model(saved.current, saved.model_version)
+        self._check_state_model(saved.current, saved.model_version)
 
-    def _check_state_model(self, current: State, saved_version: int) -> bool:
+    def _check_state_model(self, current: State, saved_version: int) -> None:
         """The kept force ``f_n`` of a state against this model's ``f(u_n)``.
 
         The schemes read ``f_n`` and ``a_n`` from the state instead of
@@ -870,15 +870,14 @@ class Integrator:
         lets the compiled and Python kernels' roundings pass. For a model
         that counts the changes of its parameters (``parameter_version``, as
         :class:`~hfdi.models.symbolic.EnergyModel`) a mismatch under another
-        version than the state's is a state saved under other parameters:
-        ``True`` is returned, and :meth:`set_state` then recomputes ``f``,
-        ``a`` and ``V`` as :meth:`model_changed` does; under the same version
-        it is another model, refused.
+        version than the state's is a state saved under other parameters,
+        which :meth:`set_state` refreshes; under the same version it is
+        another model, refused.
         """
         if current.f is None:
             # Newmark and Bathe keep no f_n (they would need one more force
             # evaluation per step); their states are not told apart by model
-            return False
+            return
         ev = self.ev
         saved_counts = (ev.nfev, ev.njev, ev.ntev, ev.npev, ev.nlu)
         try:
@@ -893,9 +892,9 @@ class Integrator:
                     float(np.abs(ev.mass_times(current.a)).max()))
         mismatch = float(np.abs(f - current.f).max())
         if mismatch <= 1e-9 * scale:
-            return False
+            return
         if self._model_version is not None and saved_version != self.system.parameter_version:
-            return True                 # the same model under other parameters
+            return                      # the same model under other parameters
         raise ValueError(f"state.current.f differs from this model's internal_force at "
                              f"state.current.u by {mismatch:.3g} (scale {scale:.3g}): the state "
                              f"was saved from another model, or from this one with other "
@@ -1112,11 +1111,12 @@ class Integrator:
         """
         ev, t0 = self.ev, self.t0
         scale = self.t_bound - t0 if self.t_bound is not None else 1.0
+        # the model's and the given ones under error control; the model's in
+        # the other modes, which do not land on them
         try:
-            points = np.asarray(list(self.system.load_breakpoints()), dtype=float).ravel()
-        except Exception:                   # the run says so later, where it lands on them
+            points = self.breakpoints if self.breakpoints.size else self._breakpoints(None)
+        except Exception:              # not times: the run says so where it lands on them
             points = np.empty(0)
-        points = np.concatenate([points, self.breakpoints])
         later = points[points > t0]
         horizon = float(later.min()) if later.size else math.inf
         mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale,
@@ -1691,15 +1691,10 @@ def _time_value(name, value) -> float:
 
 def _times(name, value, t0, t_end):
     """``value`` as a finite, strictly increasing float array inside ``[t0, t_end]``."""
-    if checks.complex_values(value) or isinstance(value, (str, bytes, bool)) \
-            or np.asarray(value).dtype.kind == "b":
+    times = checks.real_array(value)
+    if times is None:
         raise ValueError(f"{name} must be an array of real times in [t0, t_end], "
                          f"got {value!r:.80}")
-    try:
-        times = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of times in [t0, t_end], "
-                         f"got {value!r}") from None
     if times.ndim > 1:
         raise ValueError(f"{name} must be a 1-D array of times, got shape {times.shape}")
     times = times.ravel()

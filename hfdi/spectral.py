@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import checks
 from .evaluation import Evaluator, State
 from .schemes import get_scheme
 from .system import LinearSystem
@@ -132,12 +133,10 @@ def spectral_properties(scheme, ratios) -> SpectralProperties:
     """
     low, high = RATIO_RANGE
     allowed = f"real numbers in [{low:g}, {high:g}] (hfdi.spectral.RATIO_RANGE)"
-    if np.iscomplexobj(ratios) or isinstance(ratios, (str, bytes)):
-        raise ValueError(f"ratios (Δt/T) must be {allowed}, got {ratios!r:.80}")
-    try:
-        ratios = np.atleast_1d(np.asarray(ratios, dtype=float))
-    except (TypeError, ValueError):
-        raise ValueError(f"ratios (Δt/T) must be {allowed}, got {ratios!r:.80}") from None
+    given, ratios = ratios, checks.real_array(ratios)
+    if ratios is None:
+        raise ValueError(f"ratios (Δt/T) must be {allowed}, got {given!r:.80}")
+    ratios = np.atleast_1d(ratios)
     if ratios.ndim != 1:
         raise ValueError(f"ratios (Δt/T) must be a 1-D array, got shape {ratios.shape}")
     bad = ~(np.isfinite(ratios) & (ratios >= low) & (ratios <= high))

@@ -335,8 +335,9 @@ class DerivativeCheck:
     samples : int
         Number of states tried.
     load_rate : float
-        ``max ‖p'(t) − D_t p‖ / ‖p'(t)‖`` over the times checked (NaN when
-        the model has no ``load_rate``).
+        The largest relative mismatch of a component of ``p'(t)`` with the
+        forward differences of ``p`` over the times checked
+        (:func:`load_rate_error`; NaN when the model has no ``load_rate``).
     """
 
     force: float
@@ -466,10 +467,9 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
         samples = checks.integer("samples", samples, 1)
         if samples > 1_000_000:
             raise ValueError(f"samples must be an integer in [1, 1000000], got {samples!r}")
+        u0 = getattr(system, "initial_displacement", None)
         base = checks.finite_array("system.initial_displacement",
-                                   getattr(system, "initial_displacement", None)
-                                   if getattr(system, "initial_displacement", None) is not None
-                                   else np.zeros(n), (n,))
+                                   np.zeros(n) if u0 is None else u0, (n,))
         states = base + spread * scale * rng.standard_normal((samples, n))
     else:
         try:
@@ -516,15 +516,9 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
         worst_p = np.nan
         if getattr(system, "load_rate", None) is not None:
             given = times
-            if times is None:
-                times = np.linspace(0.0, 1.0, 5)
-            elif checks.complex_values(times) or isinstance(times, (str, bytes, bool)):
-                times = None
-            else:
-                try:
-                    times = np.atleast_1d(np.asarray(times, dtype=float))
-                except (TypeError, ValueError):
-                    times = None
+            times = np.linspace(0.0, 1.0, 5) if given is None else checks.real_array(given)
+            if times is not None:
+                times = np.atleast_1d(times)
             if times is None or times.ndim != 1 or times.size < 1 \
                     or not np.all(np.isfinite(times)):
                 raise ValueError(f"times must be a 1-D array of finite real times, got "

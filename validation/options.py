@@ -168,8 +168,8 @@ def ratios(text) -> list:
         raise argparse.ArgumentTypeError(f"ratios must be numbers, got {text!r}") from None
     if not values or any(not (low <= v <= high) for v in values):
         raise argparse.ArgumentTypeError(f"ratios Δt/T must be numbers in [{low:g}, {high:g}] "
-                                         f"(below, rounding outweighs the period "
-                                         f"elongation), got {text!r}")
+                                         f"(outside, rounding outweighs the measures), "
+                                         f"got {text!r}")
     return values
 
 
