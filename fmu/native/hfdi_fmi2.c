@@ -225,7 +225,6 @@ typedef struct {
     int logging_on;
     PyObject* adapter;             /* the entry module's Adapter */
     int64_t* gate;                 /* the Adapter's gate (see above), or NULL */
-    double last_successful_time;
     char** strings;                /* what fmi2GetString returned last */
     size_t n_strings;
 } Instance;
@@ -673,9 +672,7 @@ FMI2_Export fmi2Status fmi2Terminate(fmi2Component c)
 
 FMI2_Export fmi2Status fmi2Reset(fmi2Component c)
 {
-    fmi2Status status = simple(c, "reset", NULL, NULL);
-    if (status == fmi2OK) ((Instance*)c)->last_successful_time = 0.0;
-    return status;
+    return simple(c, "reset", NULL, NULL);
 }
 
 /* ---------------------------------------------------------------------------
@@ -1002,10 +999,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
 {
     (void)noSetFMUStatePriorToCurrentPoint;
     INSTANCE_OR_ERROR(c)
-    if (native_step(inst, currentCommunicationPoint, communicationStepSize)) {
-        inst->last_successful_time = currentCommunicationPoint + communicationStepSize;
-        return fmi2OK;
-    }
+    if (native_step(inst, currentCommunicationPoint, communicationStepSize)) return fmi2OK;
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     Step s = {currentCommunicationPoint, communicationStepSize};
@@ -1013,11 +1007,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
     if (taken) {
         int ok = p_PyObject_IsTrue(taken);
         p_Py_DecRef(taken);
-        if (ok == 1) inst->last_successful_time = currentCommunicationPoint + communicationStepSize;
-        else {
-            inst->last_successful_time = currentCommunicationPoint;
-            status = ok == 0 ? fmi2Discard : report_exception(inst, "do_step");
-        }
+        if (ok != 1) status = ok == 0 ? fmi2Discard : report_exception(inst, "do_step");
     }
     p_PyGILState_Release(gil);
     return status;
@@ -1052,19 +1042,18 @@ FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s
     Instance* inst = (Instance*)c;
     if (!inst || !value) return fmi2Error;
     if (s != fmi2LastSuccessfulTime) return no_status(c, "fmi2GetRealStatus");
-    /* the time of the FMU's last good state, asked of the slave: after a
-       discarded doStep it is where the FMU stayed, which need not be the
-       master's communication point (a doStep from a time the FMU is not at) */
+    /* the time of the FMU's last good state, asked of the slave (not kept
+       here): after a discarded doStep it is where the FMU stayed, which need
+       not be the master's communication point (a doStep from a time the FMU
+       is not at), and the start time before the first step */
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     PyObject* t = invoke(inst, "time", NULL, &status);
     if (t) {
-        double now = p_PyFloat_AsDouble(t);
+        *value = p_PyFloat_AsDouble(t);
         p_Py_DecRef(t);
-        if (now == now) inst->last_successful_time = now;
     }
     p_PyGILState_Release(gil);
-    *value = inst->last_successful_time;
     return status;
 }
 
