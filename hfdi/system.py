@@ -327,7 +327,8 @@ class DerivativeCheck:
     Attributes
     ----------
     force : float
-        ``max |D_d V − f·d| / ‖f‖`` (NaN when the model has no potential energy).
+        ``max |D_d V − f·d| / ‖f‖`` (NaN when the model has no potential energy,
+        ``V`` NaN at every state; ``inf`` when ``V`` is NaN at some states only).
     stiffness : float
         ``max ‖K d − D_d f‖ / ‖K d‖`` over random unit directions ``d``.
     stiffness_derivative : float
@@ -484,7 +485,9 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
             raise ValueError("states must be finite")
     h = eps * scale
     worst_f = worst_k = worst_t = 0.0
-    has_potential = True
+    # V known at some states and NaN ("not provided") at others is a fault of
+    # the model, as in a run (MODEL_ERROR), not a model without V
+    known_potential = unknown_potential = False
     details = []
     with np.errstate(all="ignore"):
         for u in states:
@@ -496,9 +499,10 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
             # f against the gradient of V, along d
             potential = np.asarray(system.potential_energy(u), dtype=float)
             if np.isnan(potential).any():
-                has_potential = False
+                unknown_potential = True
                 e_f = np.nan
             else:
+                known_potential = True
                 dv = _richardson(lambda x: np.asarray(system.potential_energy(x), dtype=float),
                                  u, d, h)
                 e_f = _rel(float(dv) - float(f @ d), max(np.linalg.norm(f), 1e-300)) \
@@ -509,7 +513,7 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
             e_t = _rel(Tw @ z - _richardson(lambda x: _dense(system.stiffness(x)) @ w, u, z, h),
                        Tw @ z)
             details.append((e_f, e_k, e_t))
-            if has_potential:
+            if not np.isnan(e_f):
                 worst_f = max(worst_f, e_f)
             worst_k = max(worst_k, e_k)
             worst_t = max(worst_t, e_t)
@@ -538,6 +542,8 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
             errors = np.asarray(errors)
             worst_p = np.inf if np.isinf(errors).any() else \
                 (float(np.nanmax(errors)) if not np.isnan(errors).all() else np.nan)
-    return DerivativeCheck(force=worst_f if has_potential else np.nan,
+    if known_potential and unknown_potential:
+        worst_f = np.inf
+    return DerivativeCheck(force=worst_f if known_potential else np.nan,
                            stiffness=worst_k, stiffness_derivative=worst_t,
                            samples=len(states), details=details, load_rate=worst_p)

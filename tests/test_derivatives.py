@@ -97,6 +97,23 @@ def test_check_fails_a_model_whose_values_are_not_finite():
         assert not check.ok(1.0), (overrides, check)
 
 
+def test_check_fails_a_potential_known_at_some_states_only():
+    """V given at one state and NaN ("not provided") at another is a faulty
+    model (a run stops on it with MODEL_ERROR), not a model without V: the
+    force check must not be dropped. NaN everywhere is a model without V."""
+    good = coupled_duffing()
+    states = good.initial_displacement + np.array([[0.0, 0.0], [0.3, -0.2], [-0.1, 0.4]])
+    u0 = good.initial_displacement
+    picky = _with(potential_energy=lambda u: good.potential_energy(u) if u[0] < u0[0] + 0.2
+                  else np.nan)
+    check = hfdi.check_derivatives(picky, states=states)
+    assert check.force == np.inf and not check.ok(1.0), check
+    # the same states, V everywhere: passes; V nowhere: no force check, passes
+    assert hfdi.check_derivatives(good, states=states).ok(1e-7)
+    check = hfdi.check_derivatives(_with(potential_energy=lambda u: np.nan), states=states)
+    assert np.isnan(check.force) and check.ok(1e-7), check
+
+
 def test_check_refuses_bad_arguments():
     model = coupled_duffing()
     n = model.n_dof
