@@ -1,11 +1,23 @@
-"""Dense output: the quintic Hermite interpolant on (u, v, a) at the step ends.
+"""Dense output: Hermite interpolants on (u, v, a) at the step ends.
 
 Every scheme gives, at the end of each step, a displacement, a velocity and an
-acceleration in equilibrium. On each step the interpolant matches all three
-at both ends, so it is ``C²`` across steps and its error in ``u`` is
-``O(h⁶ u⁽⁶⁾)``, far below the schemes' own local errors (``O(h³)`` for
-Newmark and Bathe, ``O(h⁴)`` for HFDI): interpolating adds nothing visible
-to the error of the run.
+acceleration in equilibrium. ``u`` is interpolated by the quintic Hermite
+interpolant that matches all three at both ends (``C²`` across steps, error
+``O(h⁶ u⁽⁶⁾)`` on exact data), ``v`` by the cubic Hermite interpolant of
+``(v, a)`` at both ends (error ``h⁴ max|u⁽⁵⁾| / 384`` on exact data).
+
+Decision: **v is not the quintic's derivative.** That derivative carries the
+consistency defect ``u_{n+1} − u_n − h (v_n + v_{n+1})/2 − h² (a_n −
+a_{n+1})/12`` divided by ``h`` (weight 1.875 at mid-step): ``O(h⁵)`` on exact
+data, but a scheme's step leaves its local error ``ℓ_u`` (``O(h³)`` Newmark
+and Bathe, ``O(h⁴)`` HFDI) in that defect, so ``P'`` erred by ``ℓ_u/h``, one
+order below the step-end velocity's: at mid-step 6 to 245 times the step
+end's local error of ``v`` (a damped 3-mass chain, rtol 1e-4 to 1e-8, all
+three schemes). The cubic takes no ``u``: its error between the step ends
+is that of ``v`` and ``a`` there plus its own ``O(h⁴)`` (there 0.5–0.7 of
+the step end's, as the quintic's is in ``u``; ``tests/test_accuracy.py``).
+(:mod:`validation.reference` interpolates IDA's tight references with the
+quintic and ``v = P'``: there the defect is IDA's, below its tolerance.)
 """
 from __future__ import annotations
 
@@ -13,7 +25,7 @@ import numpy as np
 
 from . import checks
 
-__all__ = ["hermite_quintic", "Solution"]
+__all__ = ["hermite_quintic", "hermite_cubic", "interpolate_state", "Solution"]
 
 
 def hermite_quintic(t_nodes, u, v, a, t):
@@ -26,7 +38,7 @@ def hermite_quintic(t_nodes, u, v, a, t):
 
     Parameters
     ----------
-    t_nodes : ndarray (K,), strictly increasing, K >= 2
+    t_nodes : ndarray (K,), non-decreasing, K >= 2
     u, v, a : ndarray (K, N)
     t : ndarray (n,), inside ``[t_nodes[0], t_nodes[-1]]``
 
@@ -35,11 +47,7 @@ def hermite_quintic(t_nodes, u, v, a, t):
     P, dP, ddP : ndarray (n, N)
         ``P(t)``, ``P'(t)`` and ``P''(t)``.
     """
-    t_nodes = np.asarray(t_nodes, dtype=float)
-    t = np.asarray(t, dtype=float)
-    k = np.clip(np.searchsorted(t_nodes, t, side="right") - 1, 0, t_nodes.size - 2)
-    h = (t_nodes[k + 1] - t_nodes[k])[:, None]
-    s = ((t - t_nodes[k])[:, None]) / h
+    k, h, s = _intervals(t_nodes, t)
     s2 = s * s
     s3 = s2 * s
     s4 = s3 * s
@@ -73,6 +81,67 @@ def hermite_quintic(t_nodes, u, v, a, t):
     return P, dP, ddP
 
 
+def _intervals(t_nodes, t):
+    """For each time of ``t``: the interval ``k`` of ``t_nodes`` holding it, its
+    length ``h`` and the position ``s`` in it, (n, 1) each but ``k``. A time
+    given twice among the nodes (a jump of the acceleration) belongs to the
+    interval after it; the last node, given twice, to the state that reached
+    it (``s = 0`` on the zero-length interval)."""
+    t_nodes = np.asarray(t_nodes, dtype=float)
+    t = np.asarray(t, dtype=float)
+    k = np.clip(np.searchsorted(t_nodes, t, side="right") - 1, 0, t_nodes.size - 2)
+    h = (t_nodes[k + 1] - t_nodes[k])[:, None]
+    empty = h == 0.0
+    h = np.where(empty, 1.0, h)
+    s = np.where(empty, 0.0, (t - t_nodes[k])[:, None] / h)
+    return k, h, s
+
+
+def hermite_cubic(t_nodes, y, dy, t):
+    """Cubic Hermite interpolation of ``y`` with ``y' = dy`` at the nodes.
+
+    Its error on each interval is at most ``h⁴ max|y⁽⁴⁾| / 384``.
+
+    Parameters
+    ----------
+    t_nodes : ndarray (K,), non-decreasing, K >= 2
+    y, dy : ndarray (K, N)
+    t : ndarray (n,), inside ``[t_nodes[0], t_nodes[-1]]``
+
+    Returns
+    -------
+    ndarray (n, N)
+    """
+    k, h, s = _intervals(t_nodes, t)
+    s2 = s * s
+    s3 = s2 * s
+    h10 = s - 2 * s2 + s3
+    h01 = 3 * s2 - 2 * s3
+    h11 = s3 - s2
+    y0 = y[k]
+    return y0 + h01 * (y[k + 1] - y0) + h10 * (h * dy[k]) + h11 * (h * dy[k + 1])
+
+
+def interpolate_state(t_nodes, u, v, a, t):
+    """``u`` and ``v`` between step ends (the module's rule): ``u`` by
+    :func:`hermite_quintic` on ``(u, v, a)``, ``v`` by :func:`hermite_cubic` on
+    ``(v, a)``.
+
+    Parameters
+    ----------
+    t_nodes : ndarray (K,), non-decreasing, K >= 2
+        A time given twice is a jump of the acceleration.
+    u, v, a : ndarray (K, N)
+    t : ndarray (n,), inside ``[t_nodes[0], t_nodes[-1]]``
+
+    Returns
+    -------
+    u, v : ndarray (n, N)
+    """
+    P, _, _ = hermite_quintic(t_nodes, u, v, a, t)
+    return P, hermite_cubic(t_nodes, v, a, t)
+
+
 class Solution:
     """The continuous solution of a run: ``u`` and ``v`` anywhere in ``[t[0], t[-1]]``.
 
@@ -97,7 +166,7 @@ class Solution:
         return float(self.t[0]), float(self.t[-1])
 
     def evaluate(self, t):
-        """``u(t)`` and ``v(t)`` by the quintic Hermite interpolant.
+        """``u(t)`` and ``v(t)`` by :func:`interpolate_state`.
 
         Parameters
         ----------
@@ -131,7 +200,7 @@ class Solution:
             u = np.repeat(self.u[:1], times.size, axis=0)
             v = np.repeat(self.v[:1], times.size, axis=0)
         else:
-            u, v, _ = hermite_quintic(self.t, self.u, self.v, self.a, times)
+            u, v = interpolate_state(self.t, self.u, self.v, self.a, times)
         return (u[0], v[0]) if scalar else (u, v)
 
     __call__ = evaluate

@@ -28,7 +28,7 @@ from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorContr
                          IterationCount)
 from .corrector import (SHORT_STEP_RATE, StepOutcome, fastest_rate, is_short, local_error,
                         predict, short_step, solve_step)
-from .dense import Solution, hermite_quintic
+from .dense import Solution, interpolate_state
 from .evaluation import (Evaluator, ModelError, NonFiniteError, State, brief, energy_overflows,
                          potential_lost)
 from .linalg import all_finite
@@ -1608,8 +1608,8 @@ class Result:
     @property
     def sol(self) -> Solution:
         """Dense output over the run: ``sol(t)`` gives ``(u, v)`` at any ``t``
-        in ``[t[0], t[-1]]`` by the quintic Hermite interpolant on the step
-        ends (:class:`~hfdi.dense.Solution`)."""
+        in ``[t[0], t[-1]]`` by Hermite interpolants on the step ends
+        (:class:`~hfdi.dense.Solution`: quintic in ``u``, cubic in ``v``)."""
         if not self.steps_saved:
             raise ValueError("sol needs the steps: this run was made with save_steps=False")
         return Solution(self.t, self.u, self.v, self.a)
@@ -1823,10 +1823,10 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
             stop = int(np.searchsorted(t_eval, t[-1], side="right"))
             if stop > pending[0]:
                 old = last[0]          # where the first of these steps started
-                ue, ve, _ = hermite_quintic(np.concatenate([[old.t], t]),
-                                            np.vstack([old.u[None], u]),
-                                            np.vstack([old.v[None], v]),
-                                            np.vstack([old.a[None], a]), t_eval[pending[0]:stop])
+                ue, ve = interpolate_state(np.concatenate([[old.t], t]),
+                                           np.vstack([old.u[None], u]),
+                                           np.vstack([old.v[None], v]),
+                                           np.vstack([old.a[None], a]), t_eval[pending[0]:stop])
                 u_eval[pending[0]:stop], v_eval[pending[0]:stop] = ue, ve
                 pending[0] = stop
 

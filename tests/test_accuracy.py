@@ -314,6 +314,56 @@ def test_dense_output_is_as_accurate_as_the_steps():
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_dense_output_between_steps_errs_as_the_step_ends(scheme):
+    """Local errors (exact flow from each step's start) of the dense ``u`` and
+    ``v`` at mid-step against those of the step's end: of the same size, for
+    ``v`` too. (The quintic's derivative put the step's ``ℓ_u/h`` into ``v``:
+    6 to 245 times the step end's error of ``v`` here.)"""
+    model, _ = exact_problems.damped_chain()
+    m, K, C = model.mass, model.stiffness(np.zeros(3)), np.asarray(model.damping)
+    A = np.block([[np.zeros((3, 3)), np.eye(3)], [-K / m[:, None], -C / m[:, None]]])
+    lam, V = np.linalg.eig(A)
+    Vinv = np.linalg.inv(V)
+
+    def flow(y0, h):                      # exp(A h) y0 for each row of y0 and h
+        return np.real(np.einsum("ij,kj,jl,kl->ki", V, np.exp(np.outer(h, lam)), Vinv, y0))
+
+    for rtol in (1e-4, 1e-6):
+        r = hfdi.integrate(model, scheme, 5.0, rtol=rtol)
+        h = np.diff(r.t)
+        y0 = np.hstack([r.u[:-1], r.v[:-1]])
+        end, mid = flow(y0, h), flow(y0, h / 2)
+        um, vm = r.sol(r.t[:-1] + h / 2)
+        end_u, end_v = np.abs(r.u[1:] - end[:, :3]).max(), np.abs(r.v[1:] - end[:, 3:]).max()
+        mid_u, mid_v = np.abs(um - mid[:, :3]).max(), np.abs(vm - mid[:, 3:]).max()
+        assert mid_u <= end_u and mid_v <= end_v, (rtol, mid_u / end_u, mid_v / end_v)
+
+
+@pytest.mark.slow
+def test_dense_output_at_the_end_of_a_run_stopped_on_a_load_jump():
+    """A run that stops on a breakpoint keeps the jump's second row (time given
+    twice): the interpolant at that time is the state reached, not 0/0."""
+    model, _ = exact_problems.damped_chain()
+    jumpy = hfdi.LinearSystem(model.mass, model.stiffness(np.zeros(3)), model.damping,
+                              load=lambda t: np.array([1.0, 0.0, 0.0]) * (t >= 0.5),
+                              initial_displacement=model.initial_displacement,
+                              initial_velocity=model.initial_velocity)
+    for scheme in ("newmark", "hfdi"):
+        first = hfdi.integrate(jumpy, scheme, 2.0, rtol=1e-4, breakpoints=[0.5])
+        accepted = int(np.searchsorted(first.t, 0.5))   # steps to the jump, rejections aside
+        for max_steps in range(accepted, accepted + first.stats.rejected + 1):
+            r = hfdi.integrate(jumpy, scheme, 2.0, rtol=1e-4, breakpoints=[0.5],
+                               max_steps=max_steps)
+            if r.t[-1] == 0.5:
+                break
+        assert r.status.name == "MAX_STEPS" and r.t[-1] == r.t[-2] == 0.5, (scheme, r.t[-3:])
+        u, v = r.sol(0.5)
+        np.testing.assert_array_equal(u, r.u[-1])
+        np.testing.assert_array_equal(v, r.v[-1])
+
+
+@pytest.mark.slow
 def test_save_steps_false_keeps_only_the_outputs():
     model, _ = exact_problems.duffing()
     t_eval = np.linspace(0.0, 10.0, 11)
