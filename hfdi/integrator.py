@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import checks, serial
-from .compiled import InitialValues, compiled_driver, compiled_step
+from .compiled import InitialValues, compiled_driver, compiled_step, say_once
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import (SHORT_STEP_RATE, StepOutcome, fastest_rate, is_short, local_error,
@@ -1529,7 +1529,23 @@ class Integrator:
                 continue
             start = time.process_time()
             limit = t_stop if self.t_bound is None else min(t_stop, self.t_bound)
-            reason, taken, arrays, pending = driver.run(self, limit, rows is not None, held)
+            try:
+                reason, taken, arrays, pending = driver.run(self, limit, rows is not None, held)
+            except Exception as exc:
+                # a kernel raised inside the driver, which loses the steps of
+                # this call with it (the state is still the call's start). The
+                # Python driver takes them again and the rest of the run around
+                # the compiled attempt, where a raise is a failed attempt, as a
+                # raising model is on the Python path.
+                self._cpu(start)
+                self._driver = None
+                say_once(f"{type(exc).__name__}: {exc}",
+                         "a compiled kernel raised {reason} in the compiled driver; the rest "
+                         "of the run takes its steps in the Python driver")
+                while self.t < t_stop:
+                    if not self._python_step(t_stop, callback):
+                        return False
+                return True
             self._cpu(start)
             self._sync_counters()
             if taken:

@@ -8,6 +8,7 @@ integrate()'s rows and dense output, and where the driver hands a step back
 holds the compiled path against the Python path.
 """
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -440,3 +441,115 @@ def test_kernels_that_compute_another_model_are_refused(model, what):
     assert any(what in str(w.message) and "another model" in str(w.message) for w in caught)
     with pytest.raises(hc.CompiledUnavailable, match=f"compiled {what}"):
         hfdi.Integrator(model(None), "newmark", rtol=1e-6, compiled=True)
+
+
+# -- kernels that fail: a wrong shape, an exception ------------------------------------
+
+def _faulty_kernels():
+    """A Duffing pair whose force kernel returns shape (1,) beyond |u_0| > params[0],
+    and whose load kernel raises beyond t > load_params[0] (the model's Python
+    methods are right everywhere but for the same raising load)."""
+    from numba import njit
+
+    from hfdi.compiled import CompiledKernels
+    from hfdi.compiled.signatures import (FORCE, JIT_OPTIONS, LOAD, POTENTIAL_ENERGY,
+                                          STIFFNESS, STIFFNESS_DERIVATIVE)
+
+    @njit(FORCE, **JIT_OPTIONS)
+    def force(u, params):
+        if abs(u[0]) > params[0]:
+            return np.zeros(1)
+        return np.array([u[0] + u[0] ** 3, 2.0 * u[1]])
+
+    @njit(STIFFNESS, **JIT_OPTIONS)
+    def stiffness(u, params):
+        return np.array([[1.0 + 3.0 * u[0] ** 2, 0.0], [0.0, 2.0]])
+
+    @njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+    def derivative(u, w, params):
+        return np.array([[6.0 * u[0] * w[0], 0.0], [0.0, 0.0]])
+
+    @njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+    def potential(u, params):
+        return 0.5 * u[0] ** 2 + 0.25 * u[0] ** 4 + u[1] ** 2
+
+    @njit(LOAD, **JIT_OPTIONS)
+    def load(t, load_params):
+        if t > load_params[0]:
+            raise ValueError("the load fails late")
+        return np.zeros(2)
+
+    class Faulty(hfdi.SecondOrderSystem):
+        mass, damping, n_dof, u_scale = np.ones(2), None, 2, 1.0
+        initial_displacement, initial_velocity = np.array([0.0, 0.1]), np.array([0.3, 0.0])
+
+        def __init__(self, limit=math.inf, fails_after=math.inf):
+            self.limit, self.fails_after = limit, fails_after
+
+        def internal_force(self, u):
+            return np.array([u[0] + u[0] ** 3, 2.0 * u[1]])
+
+        def stiffness(self, u):
+            return np.array([[1.0 + 3.0 * u[0] ** 2, 0.0], [0.0, 2.0]])
+
+        def stiffness_derivative(self, u, w):
+            return np.array([[6.0 * u[0] * w[0], 0.0], [0.0, 0.0]])
+
+        def potential_energy(self, u):
+            return 0.5 * u[0] ** 2 + 0.25 * u[0] ** 4 + u[1] ** 2
+
+        def load(self, t):
+            if t > self.fails_after:
+                raise ValueError("the load fails late")
+            return np.zeros(2)
+
+        def compiled_kernels(self):
+            return CompiledKernels(force, stiffness, derivative, potential,
+                                   np.array([self.limit]), load,
+                                   np.array([min(self.fails_after, 1e300)]))
+
+    return Faulty
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+def test_a_kernel_value_of_a_wrong_shape_stops_the_run_with_model_error(scheme):
+    """numba checks no bounds: a force kernel of shape (1,) was read past its
+    end (a wrong run reported as a success); it is now MODEL_ERROR at the last
+    good state, as a wrong shape of the model's method is on the Python path."""
+    Faulty = _faulty_kernels()
+    r = hfdi.integrate(Faulty(limit=0.27), scheme, 6.0, rtol=1e-6, compiled=True)
+    assert r.status == hfdi.Status.MODEL_ERROR, (r.status, r.message)
+    assert "internal_force returned shape (1,), expected (2,)" in r.message
+    assert 0.5 < r.t[-1] < 6.0 and np.abs(r.u[:, 0]).max() <= 0.27
+    # below the limit the same kernels run to the end, as the Python path does
+    good = hfdi.integrate(Faulty(limit=0.5), scheme, 6.0, rtol=1e-6, compiled=True)
+    plain = hfdi.integrate(Faulty(), scheme, 6.0, rtol=1e-6, compiled=False)
+    assert good.success and good.stats.steps == plain.stats.steps
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+def test_a_raising_kernel_is_a_failed_attempt_as_on_the_python_path(scheme):
+    """An exception in a kernel escaped integrate() (no Result; advance() lost
+    the driver's steps of that call); it is now a failed attempt, as a raising
+    model is on the Python path: the same stop, at the same time, after the
+    same accepted steps."""
+    Faulty = _faulty_kernels()
+    itg = hfdi.Integrator(Faulty(fails_after=1.5), scheme, rtol=1e-6, compiled=True)
+    assert itg.driven
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)       # said once per process
+        assert not itg.advance(3.0)
+    assert not itg.driven           # the rest of the run is the Python driver's
+    python = hfdi.Integrator(Faulty(fails_after=1.5), scheme, rtol=1e-6, compiled=False)
+    assert not python.advance(3.0)
+    assert itg.status == python.status == hfdi.Status.STEP_BELOW_MINIMUM
+    assert itg.t == python.t and 1.5 - 1e-9 < itg.t <= 1.5
+    assert itg.statistics.accepted == python.statistics.accepted
+    np.testing.assert_allclose(itg.state.u, python.state.u, rtol=0, atol=1e-12)
+    # integrate() keeps every row of such a run
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        r = hfdi.integrate(Faulty(fails_after=1.5), scheme, 3.0, rtol=1e-6, compiled=True)
+    plain = hfdi.integrate(Faulty(fails_after=1.5), scheme, 3.0, rtol=1e-6, compiled=False)
+    assert r.status == plain.status and r.message == plain.message
+    assert r.t.size == plain.t.size == r.stats.accepted + 1 and r.t[-1] == plain.t[-1]

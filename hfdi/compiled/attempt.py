@@ -57,6 +57,12 @@ FORCE_NOT_FINITE = 6
 STIFFNESS_NOT_FINITE = 7
 DERIVATIVE_NOT_FINITE = 8
 STEP_MATRIX_SINGULAR = 9
+# a kernel's value of another shape than (N,) or (N, N): the Python side
+# raises ModelError, as the Evaluator does for the model's methods (numba
+# checks no bounds: the attempt must not read past such a value)
+FORCE_SHAPE = 10
+STIFFNESS_SHAPE = 11
+DERIVATIVE_SHAPE = 12
 # schemes
 NEWMARK, BATHE, HFDI_SCHEME = 0, 1, 2
 # entries of ``config`` (int64)
@@ -65,7 +71,9 @@ SCHEME, HAS_PREVIOUS, HAS_START_FORCE, MAX_ITERATIONS, MASS_KIND, DAMPING_KIND, 
 # entries of ``coefficients`` (float64)
 GAMMA, BETA, T_START, T_PREVIOUS, T_END, TOL, FLOOR, NEWTON_CONSTANT, NEWTON_GUARD = range(9)
 # entries of the returned ``info`` (int64)
-ITERATIONS_0, ITERATIONS_1, STAGES_COUNTED, NFEV, NJEV, NTEV, NLU, FAILED_STAGE = range(8)
+ITERATIONS_0, ITERATIONS_1, STAGES_COUNTED, NFEV, NJEV, NTEV, NLU, FAILED_STAGE, BAD_ROWS, \
+    BAD_COLUMNS = range(10)
+INFO_SIZE = 10
 # rows of the returned ``out``: the end state, then Bathe's mid-step state
 END_U, END_V, END_A, END_F, MID_U, MID_V, MID_A = range(7)
 # kinds of M and C
@@ -78,6 +86,28 @@ _WORK_VECTORS, _WORK_MATRICES = 17, 8
 
 # the Python path's test itself, compiled (hfdi.compiled.cache watches its source too)
 _convergence_test = njit(**JIT_OPTIONS)(convergence_test)
+
+
+# -- the kernels' values ------------------------------------------------------------
+
+@njit(inline="always", **JIT_OPTIONS)
+def _vector_fault(x, n, shape_status, finite_status, info):
+    """``OK``, or the status of a kernel's vector that is not (N,) (its length
+    into ``info[BAD_ROWS]``) or not finite."""
+    if x.shape[0] != n:
+        info[BAD_ROWS], info[BAD_COLUMNS] = x.shape[0], -1
+        return shape_status
+    return OK if _all_finite(x) else finite_status
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _matrix_fault(X, n, shape_status, finite_status, info):
+    """``OK``, or the status of a kernel's matrix that is not (N, N) (its shape
+    into ``info``) or not finite."""
+    if X.shape[0] != n or X.shape[1] != n:
+        info[BAD_ROWS], info[BAD_COLUMNS] = X.shape[0], X.shape[1]
+        return shape_status
+    return OK if _all_finite(X) else finite_status
 
 
 # -- small dense linear algebra ----------------------------------------------------
@@ -215,8 +245,9 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
     for k in range(1, max_iterations + 1):
         counters[NFEV] += 1
         f = force(u, params)
-        if not _all_finite(f):
-            return FORCE_NOT_FINITE, -1, math.inf, constant, guard
+        status = _vector_fault(f, n, FORCE_SHAPE, FORCE_NOT_FINITE, counters)
+        if status != OK:
+            return status, -1, math.inf, constant, guard
         _times_into(Md, Mf, m_kind, u, work)
         for i in range(n):
             residual[i] = ca * work[i] + f[i] - rhs[i]
@@ -226,8 +257,9 @@ def _inertia_stage(force, stiffness, params, Md, Mf, m_kind, Cd, Cf, c_kind, ca,
                 residual[i] += cv * work[i]
         counters[NJEV] += 1
         K = stiffness(u, params)
-        if not _all_finite(K):
-            return STIFFNESS_NOT_FINITE, -1, math.inf, constant, guard
+        status = _matrix_fault(K, n, STIFFNESS_SHAPE, STIFFNESS_NOT_FINITE, counters)
+        if status != OK:
+            return status, -1, math.inf, constant, guard
         # ca M + cv C + K, summed as hfdi.linalg.combine sums them
         for i in range(n):
             for j in range(n):
@@ -364,14 +396,16 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
     for k in range(1, max_iterations + 1):
         counters[NFEV] += 1
         f = force(u, params)
-        if not _all_finite(f):
-            return FORCE_NOT_FINITE, -1, math.inf, constant, guard
+        status = _vector_fault(f, n, FORCE_SHAPE, FORCE_NOT_FINITE, counters)
+        if status != OK:
+            return status, -1, math.inf, constant, guard
         for i in range(n):
             g[i] = p[i] - f[i]
         counters[NJEV] += 1
         K = stiffness(u, params)
-        if not _all_finite(K):
-            return STIFFNESS_NOT_FINITE, -1, math.inf, constant, guard
+        status = _matrix_fault(K, n, STIFFNESS_SHAPE, STIFFNESS_NOT_FINITE, counters)
+        if status != OK:
+            return status, -1, math.inf, constant, guard
         _hfdi_velocity_into(Md, Mf, m_kind, u, q0, c, g, b_diagonal, dense_b, B_lu, b_pivots,
                             b_ints, vD)
         # residual = M v_D − c2 g + c (p' − K v_D) + F0 (+ C u)
@@ -387,8 +421,9 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
                 residual[i] += work[i]
         counters[NTEV] += 1
         T = derivative(u, vD, params)
-        if not _all_finite(T):
-            return DERIVATIVE_NOT_FINITE, -1, math.inf, constant, guard
+        status = _matrix_fault(T, n, DERIVATIVE_SHAPE, DERIVATIVE_NOT_FINITE, counters)
+        if status != OK:
+            return status, -1, math.inf, constant, guard
         # S = M − c K and R = C + c2 K − c T, summed as hfdi.linalg.combine sums them
         for i in range(n):
             for j in range(n):
@@ -430,9 +465,12 @@ def _hfdi_stage(force, stiffness, derivative, params, Md, Mf, m_kind, Cd, Cf, c_
     # the end state: f, v_D and a = M⁻¹(p − f − C v) (Eq. 14)
     counters[NFEV] += 1
     f = force(u, params)
-    if not _all_finite(f):
+    status = _vector_fault(f, n, FORCE_SHAPE, FORCE_NOT_FINITE, counters)
+    if status == FORCE_SHAPE:
+        return status, k_done, error, constant, guard
+    if status != OK:
         out[END_U] = u
-        return FORCE_NOT_FINITE, k_done, error, constant, guard
+        return status, k_done, error, constant, guard
     for i in range(n):
         g[i] = p[i] - f[i]
     v, a = out[END_V], out[END_A]
@@ -492,7 +530,7 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     loads : ndarray (3, N)
         ``p`` at Bathe's mid-step time, ``p(t_end)`` and HFDI's ``p'(t_end)``.
     out : ndarray (7, N)
-    info : ndarray (8,) int64
+    info : ndarray (INFO_SIZE,) int64
         Written over (see below) and returned.
     vectors, matrices, pivots, ints : the work arrays of :func:`workspace`
 
@@ -501,9 +539,10 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
     status : int
     out : ndarray (7, N)
         ``u, v, a, f`` at ``t_end`` and ``u, v, a`` at Bathe's mid-step.
-    info : ndarray (8,) int64
+    info : ndarray (INFO_SIZE,) int64
         Corrections per stage, stages counted, ``nfev``, ``njev``, ``ntev``,
-        ``nlu`` and the failed stage.
+        ``nlu``, the failed stage, and the shape of a kernel's value of a
+        wrong shape (``FORCE_SHAPE`` …; columns −1 for a vector).
     newton_error : float
         The largest estimate over the stages of the corrector's remaining error.
     """
@@ -528,8 +567,9 @@ def attempt(force, stiffness, derivative, params, config, coefficients, Md, Mf, 
         else:
             info[NFEV] += 1
             f_n = force(np.ascontiguousarray(u_n), params)
-            if not _all_finite(f_n):
-                return FORCE_NOT_FINITE, out, info, math.inf
+            status = _vector_fault(f_n, n, FORCE_SHAPE, FORCE_NOT_FINITE, info)
+            if status != OK:
+                return status, out, info, math.inf
         guess = _predict(u_n, v_n, a_n, has_previous, H, previous[0], previous[1], 1.0 * h,
                          vectors[W_U])
         status, k, error, constant, guard = _hfdi_stage(
@@ -624,6 +664,11 @@ _MESSAGES = {
 }
 
 
+#: a kernel's value of a wrong shape: the model's method it stands for
+_SHAPE_OF = {FORCE_SHAPE: ("internal_force", 1), STIFFNESS_SHAPE: ("stiffness", 2),
+             DERIVATIVE_SHAPE: ("stiffness_derivative", 2)}
+
+
 def _kind_and_arrays(matrix, n):
     """``(kind, diagonal (N,), dense (N, N))`` of an Evaluator's M or C (unused one empty)."""
     empty_vector, empty_matrix = np.zeros(0), np.zeros((0, 0))
@@ -663,7 +708,7 @@ def attempt_with(kernels, params, config, coefficients, Md, Mf, Cd, Cf, start, p
     n = start.shape[1]
     return attempt(kernels.force, kernels.stiffness, kernels.stiffness_derivative, params,
                    config, coefficients, Md, Mf, Cd, Cf, start, previous, loads,
-                   np.empty((7, n)), np.empty(8, np.int64), vectors, matrices, pivots, ints)
+                   np.empty((7, n)), np.empty(INFO_SIZE, np.int64), vectors, matrices, pivots, ints)
 
 
 @functools.lru_cache(maxsize=32)
@@ -771,9 +816,20 @@ class CompiledStep:
             history[0], history[1] = previous.u, previous.v
         start_rows = np.stack([start.u, start.v, start.a,
                                start.f if start.f is not None else self._zero, start.p])
-        status, out, info, newton_error = attempt_with(
-            self.kernel_set, self.params(), config, coefficients, self.Md, self.Mf, self.Cd,
-            self.Cf, start_rows, history, loads, *self._workspace)
+        try:
+            status, out, info, newton_error = attempt_with(
+                self.kernel_set, self.params(), config, coefficients, self.Md, self.Mf,
+                self.Cd, self.Cf, start_rows, history, loads, *self._workspace)
+        except Exception as exc:
+            # a kernel raised: a failed attempt, as a raising model is on the
+            # Python path (its evaluations of this attempt go uncounted)
+            return StepOutcome(None, [], f"model raised {type(exc).__name__}: {exc}")
+        if status in _SHAPE_OF:
+            what, _ = _SHAPE_OF[int(status)]
+            rows, columns = int(info[BAD_ROWS]), int(info[BAD_COLUMNS])
+            shape = (rows,) if columns < 0 else (rows, columns)
+            expected = (ev.n,) if columns < 0 else (ev.n, ev.n)
+            raise ModelError(f"{what} returned shape {shape}, expected {expected}")
         ev.nfev += int(info[NFEV])
         ev.njev += int(info[NJEV])
         ev.ntev += int(info[NTEV])

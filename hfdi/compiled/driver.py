@@ -34,9 +34,9 @@ import numpy as np
 from numba import njit, types
 
 from ..evaluation import State
-from .attempt import (BATHE, END_A, END_F, END_U, END_V, HFDI_SCHEME, MID_U, NFEV, NJEV, NLU,
-                      NTEV, OK, STAGES_COUNTED, T_END, T_PREVIOUS, T_START, attempt,
-                      workspace)
+from .attempt import (BATHE, DERIVATIVE_SHAPE, END_A, END_F, END_U, END_V, FORCE_SHAPE,
+                      HFDI_SCHEME, INFO_SIZE, MID_U, NFEV, NJEV, NLU, NTEV, OK, STAGES_COUNTED,
+                      STIFFNESS_SHAPE, T_END, T_PREVIOUS, T_START, attempt, workspace)
 from .lapack import all_finite
 from .attempt import HAS_PREVIOUS as A_HAS_PREVIOUS
 from .attempt import HAS_START_FORCE as A_HAS_START_FORCE
@@ -398,7 +398,7 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
     history = np.empty((2, n))
     # the work arrays of every attempt and of the error estimate and the
     # energy balance, made once per call (an allocation costs about 50 ns)
-    out, info = np.empty((7, n)), np.empty(8, np.int64)     # attempt() zeroes them
+    out, info = np.empty((7, n)), np.empty(INFO_SIZE, np.int64)  # attempt() zeroes them
     vectors, matrices, pivots, ints = workspace(n)
     error, ratio = np.empty(2 * n), np.empty(2 * n)
     difference, load_sum = np.empty(n), np.empty(n)
@@ -465,6 +465,12 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
         status, out, info, newton_error = attempt(
             force, stiffness, derivative, params, config, coefficients, Md, Mf, Cd, Cf,
             current, history, loads, out, info, vectors, matrices, pivots, ints)
+        if status == FORCE_SHAPE or status == STIFFNESS_SHAPE or status == DERIVATIVE_SHAPE:
+            # a kernel's value of a wrong shape: the Python driver redoes the
+            # attempt and stops the run with MODEL_ERROR
+            coefficients[A_NEWTON_CONSTANT], coefficients[A_NEWTON_GUARD] = constant, guard
+            counters[REJECTIONS] = rejections
+            return HAND_OVER, taken
         converged = status == OK
         iterations = 0
         for i in range(info[STAGES_COUNTED]):
