@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import checks, serial
-from .compiled import InitialValues, compiled_driver, compiled_step, say_once
+from .compiled import InitialValues, compiled_driver, compiled_step, kernel_mismatch, say_once
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import (SHORT_STEP_RATE, StepOutcome, fastest_rate, is_short, local_error,
@@ -520,7 +520,8 @@ class Integrator:
                 f"returns NaN (unknown) from potential_energy at u0; give the model "
                 f"potential_energy or leave energy_limit=None")
         self._compiled = compiled_step(ev, self.scheme, compiled, initial=InitialValues(
-            current.t, current.u, current.v, current.f, K0, T0, potential))
+            current.t, current.u, current.v, current.f, K0, T0, potential,
+            math.inf if self.t_bound is None else self.t_bound))
         self._driver = None if self._compiled is None else compiled_driver(self)
         if self.fixed:
             proposed = c.step
@@ -948,6 +949,30 @@ class Integrator:
         s.potential = potential
         s.newton_constant = s.newton_guard = math.inf     # measured on the model as it was
         self._model_version = getattr(self.system, "parameter_version", None)
+        if self._compiled is not None:
+            self._check_kernels_again()
+
+    def _check_kernels_again(self):
+        """The compiled kernels against the changed model at the current state,
+        as at construction (:func:`hfdi.compiled.kernel_mismatch`): kernels
+        that agreed under the old parameters may not under the new ones (a
+        term that vanished). Where they differ, the rest of the run is the
+        Python path, said once."""
+        cur, system = self._s.current, self.system
+        try:
+            K = system.stiffness(cur.u)
+            T = system.stiffness_derivative(cur.u, cur.v) if isinstance(self.scheme, HFDI) \
+                else None
+        except Exception:       # not compared; the next step meets it
+            return
+        initial = InitialValues(cur.t, cur.u, cur.v, cur.f, K, T, self._s.potential,
+                                math.inf if self.t_bound is None else self.t_bound)
+        reason = kernel_mismatch(system, self._compiled.kernels, initial,
+                                 params=self._compiled.params())
+        if reason:
+            say_once(str(reason), "after the model changed: {reason}; the rest of the run "
+                     "is the Python path")
+            self._compiled = self._driver = None
 
     def _follow_model(self) -> bool:
         """:meth:`model_changed` if the model's ``parameter_version`` moved;
@@ -1491,6 +1516,10 @@ class Integrator:
             raise ValueError(f"t_stop must be <= t_bound = {self.t_bound}, got {t_stop!r}")
         if callback is None and self._driver is not None:
             return self._drive(t_stop)
+        return self._python_steps(t_stop, callback)
+
+    def _python_steps(self, t_stop, callback) -> bool:
+        """:meth:`advance` in the Python driver."""
         while self.t < t_stop:
             if not self._python_step(t_stop, callback):
                 return False
@@ -1514,12 +1543,14 @@ class Integrator:
         accepted steps in bulk (the arrays of :class:`Result`), in order with
         the callbacks.
         """
-        driver = self._driver
         while self.t < t_stop:
             if self.failed:
                 return False
             if not self._follow_model():
                 return False
+            driver = self._driver
+            if driver is None:          # dropped by a change of the model or a fault
+                return self._python_steps(t_stop, callback)
             held = driver.held_load(self)
             if self._s.first_step_pending or held is None:
                 # the controller's init; or a faulty held load, which the
@@ -1542,10 +1573,7 @@ class Integrator:
                 say_once(f"{type(exc).__name__}: {exc}",
                          "a compiled kernel raised {reason} in the compiled driver; the rest "
                          "of the run takes its steps in the Python driver")
-                while self.t < t_stop:
-                    if not self._python_step(t_stop, callback):
-                        return False
-                return True
+                return self._python_steps(t_stop, callback)
             self._cpu(start)
             self._sync_counters()
             if taken:

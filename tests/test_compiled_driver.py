@@ -553,3 +553,106 @@ def test_a_raising_kernel_is_a_failed_attempt_as_on_the_python_path(scheme):
     plain = hfdi.integrate(Faulty(fails_after=1.5), scheme, 3.0, rtol=1e-6, compiled=False)
     assert r.status == plain.status and r.message == plain.message
     assert r.t.size == plain.t.size == r.stats.accepted + 1 and r.t[-1] == plain.t[-1]
+
+
+def _hidden_term_model():
+    """Kernels that add ``c u₀³`` to the force (and its K and T) where the Python
+    model has none: nothing at u0 = 0, v0 = 0, or while ``c = 0``."""
+    from numba import njit
+
+    from hfdi.compiled import CompiledKernels
+    from hfdi.compiled.signatures import (FORCE, JIT_OPTIONS, LOAD, POTENTIAL_ENERGY,
+                                          STIFFNESS, STIFFNESS_DERIVATIVE)
+
+    @njit(FORCE, **JIT_OPTIONS)
+    def force(u, params):
+        return np.array([u[0] + params[0] * u[0] ** 3, 2.0 * u[1]])
+
+    @njit(STIFFNESS, **JIT_OPTIONS)
+    def stiffness(u, params):
+        return np.array([[1.0 + 3.0 * params[0] * u[0] ** 2, 0.0], [0.0, 2.0]])
+
+    @njit(STIFFNESS_DERIVATIVE, **JIT_OPTIONS)
+    def derivative(u, w, params):
+        return np.array([[6.0 * params[0] * u[0] * w[0], 0.0], [0.0, 0.0]])
+
+    @njit(POTENTIAL_ENERGY, **JIT_OPTIONS)
+    def potential(u, params):
+        return 0.5 * u[0] ** 2 + 0.25 * params[0] * u[0] ** 4 + u[1] ** 2
+
+    @njit(LOAD, **JIT_OPTIONS)
+    def load(t, load_params):
+        if t > 5.0:                       # defined up to t = 5 only
+            return np.full(2, np.nan)
+        return np.array([math.sin(t), 0.0])
+
+    class Hidden(hfdi.SecondOrderSystem):
+        mass, damping, n_dof, u_scale = np.ones(2), None, 2, 1.0
+        initial_displacement, initial_velocity = np.zeros(2), np.zeros(2)
+
+        def __init__(self, c):
+            self.c, self.parameter_version = c, 0
+
+        def set_c(self, c):
+            self.c, self.parameter_version = c, self.parameter_version + 1
+
+        def internal_force(self, u):
+            return np.array([u[0], 2.0 * u[1]])
+
+        def stiffness(self, u):
+            return np.diag([1.0, 2.0])
+
+        def stiffness_derivative(self, u, w):
+            return np.zeros((2, 2))
+
+        def potential_energy(self, u):
+            return 0.5 * u[0] ** 2 + u[1] ** 2
+
+        def load(self, t):
+            return np.full(2, np.nan) if t > 5.0 else np.array([math.sin(t), 0.0])
+
+        def compiled_params(self):
+            return np.array([self.c])
+
+        def compiled_kernels(self):
+            return CompiledKernels(force, stiffness, derivative, potential,
+                                   self.compiled_params(), load, np.zeros(0))
+
+    return Hidden
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+def test_kernels_that_differ_only_away_from_the_initial_state_are_refused(scheme):
+    """Kernels were compared at u0 only (T at v0): a term vanishing at a model
+    released from rest passed, and the run was silently another model's. A
+    second state near u0 tells them apart."""
+    Hidden = _hidden_term_model()
+    with pytest.raises(hfdi.compiled.CompiledUnavailable, match="force at a second state"):
+        hfdi.Integrator(Hidden(0.5), scheme, rtol=1e-6, compiled=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        itg = hfdi.Integrator(Hidden(0.5), scheme, rtol=1e-6)
+    assert not itg.compiled
+    same = hfdi.Integrator(Hidden(0.0), scheme, rtol=1e-6, compiled=True)   # no term: agree
+    assert same.driven      # (and a load NaN past t = 5 in both is agreement, not a mismatch)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+def test_kernels_are_checked_again_when_the_model_changes(scheme):
+    """Kernels that agree under one set of parameters may not under the next:
+    after a change (parameter_version) they are compared again, and the rest
+    of the run is the Python path where they differ."""
+    Hidden = _hidden_term_model()
+    model = Hidden(0.0)
+    itg = hfdi.Integrator(model, scheme, rtol=1e-6, compiled=True)
+    assert itg.driven and itg.advance(2.0)
+    model.set_c(0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert itg.advance(4.0)
+    assert not itg.compiled and not itg.driven
+    plain = hfdi.Integrator(Hidden(0.0), scheme, rtol=1e-6, compiled=False)
+    assert plain.advance(2.0)
+    plain.system.set_c(0.5)
+    assert plain.advance(4.0)
+    np.testing.assert_allclose(itg.state.u, plain.state.u, rtol=0, atol=1e-9)

@@ -103,6 +103,8 @@ class InitialValues(NamedTuple):
     K: object
     T: object
     V: float
+    #: the load is compared at times up to this one (the run's ``t_bound``)
+    t_end: float = math.inf
 
 
 #: Largest relative difference allowed between a kernel and the Python method it
@@ -125,22 +127,64 @@ def _difference(kernel_value, python_value):
     b = python_value.toarray() if hasattr(python_value, "toarray") else np.asarray(
         python_value, dtype=float)
     a = np.asarray(kernel_value, dtype=float)
-    if a.shape != b.shape or not np.all(np.isfinite(a)):
+    if a.shape != b.shape:
         return math.inf
+    # not finite where the Python method is not finite either is agreement
+    # (a load undefined past the run, a state outside a model's domain)
+    finite = np.isfinite(b)
+    if not np.array_equal(np.isfinite(a), finite) or not np.array_equal(a[~finite], b[~finite],
+                                                                       equal_nan=True):
+        return math.inf
+    a, b = a[finite], b[finite]
     scale = float(np.abs(b).max()) if b.size else 0.0
+    if not b.size:
+        return 0.0
     return float(np.abs(a - b).max()) / scale if scale > 0 else float(np.abs(a).max())
 
 
-def kernel_mismatch(system, kernels, initial: InitialValues) -> str:
+def _probe(system, u0):
+    """A second state for the kernels' check, ``u0`` moved by 5 % of ``u_scale``
+    along a fixed direction with no zero entry, and a direction ``w`` for
+    ``T[w]``: a term that vanishes at ``u0`` (a model released from rest, a
+    branch not taken there) or ``T[v0]`` at ``v0 = 0`` proves nothing."""
+    i = np.arange(1.0, u0.size + 1.0)
+    scale = float(getattr(system, "u_scale", 1.0) or 1.0)
+    d = np.sin(1.3 * i + 0.7)
+    return u0 + 0.05 * scale * d / np.abs(d).max(), np.cos(0.9 * i + 0.4)
+
+
+def _probe_checks(system, u0, hfdi, potential, kernel_calls):
+    """``(what, kernel call, Python value)`` at :func:`_probe`'s state, for the
+    kernels ``kernel_calls = (f(u), K(u), T(u, w), V(u))`` (``None`` where not
+    checked); none where the Python model fails there (not compared)."""
+    u1, w = _probe(system, u0)
+    force, stiffness, derivative, energy = kernel_calls
+    try:
+        values = [("force", lambda: force(u1), system.internal_force(u1)),
+                  ("stiffness", lambda: stiffness(u1), system.stiffness(u1))]
+        if hfdi:
+            values.append(("stiffness_derivative", lambda: derivative(u1, w),
+                           system.stiffness_derivative(u1, w)))
+        if potential and energy is not None:
+            values.append(("potential_energy", lambda: energy(u1), system.potential_energy(u1)))
+    except Exception:
+        return []
+    return [(f"{what} at a second state", call, value) for what, call, value in values]
+
+
+def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str:
     """Why ``kernels`` do not compute ``system`` (``""`` when they do): each
-    kernel at the initial state, and the load at a few times, against the
-    Python model's values (relative difference above :data:`KERNEL_TOLERANCE`,
-    another shape, or a value that is not finite). One call of each kernel, no
-    evaluation of the model counted."""
+    kernel at the initial state and at a second state near it
+    (:func:`_probe`), and the load at a few times up to ``initial.t_end``,
+    against the Python model's values (relative difference above
+    :data:`KERNEL_TOLERANCE`, another shape, or a value that is not finite
+    where the Python one is). Two calls of each kernel and of each of the
+    model's methods, no evaluation of the model counted. ``params``: the
+    kernels' data now (default ``kernels.params``)."""
     name = type(system).__name__
     u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
     v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
-    p = kernels.params
+    p = kernels.params if params is None else params
     checks = [("force", lambda: kernels.force(u0, p), initial.f),
               ("stiffness", lambda: kernels.stiffness(u0, p), initial.K)]
     if initial.T is not None:
@@ -149,12 +193,18 @@ def kernel_mismatch(system, kernels, initial: InitialValues) -> str:
     if math.isfinite(initial.V):
         checks.append(("potential_energy", lambda: kernels.potential_energy(u0, p),
                        initial.V))
+    checks += _probe_checks(system, u0, initial.T is not None, math.isfinite(initial.V), (
+        lambda u: kernels.force(u, p), lambda u: kernels.stiffness(u, p),
+        lambda u, w: kernels.stiffness_derivative(u, w, p),
+        lambda u: kernels.potential_energy(u, p)))
     if kernels.load is not None:
         # a pulse is often zero at t0: the load also at later times, and just
-        # after each breakpoint
+        # after each breakpoint; within the run (a load may be defined up to
+        # its end only)
         times = [initial.t0 + dt for dt in (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0)]
         breakpoints = system.load_breakpoints() if hasattr(system, "load_breakpoints") else ()
         times += [float(b) * (1.0 + 1e-3) + 1e-9 for b in list(breakpoints)[:8]]
+        times = [t for t in times if t == initial.t0 or t <= initial.t_end]
         rate = kernels.load_rate if getattr(system, "load_rate", None) is not None else None
         for t in times:
             try:
@@ -285,7 +335,8 @@ def _offered(system, method, kind, what):
 
 
 def sparse_kernel_mismatch(system, kernels: SparseKernels, initial: InitialValues) -> str:
-    """:func:`kernel_mismatch` for :class:`SparseKernels` (f, K and T[v0] at u0)."""
+    """:func:`kernel_mismatch` for :class:`SparseKernels` (f, K and T[v0] at u0,
+    f, K and T[w] at the second state)."""
     u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
     v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
     checks = [("force", lambda: kernels.force(u0), initial.f),
@@ -293,6 +344,8 @@ def sparse_kernel_mismatch(system, kernels: SparseKernels, initial: InitialValue
     if initial.T is not None:
         checks.append(("stiffness_derivative",
                        lambda: kernels.stiffness_derivative(u0, v0), initial.T))
+    checks += _probe_checks(system, u0, initial.T is not None, False, (
+        kernels.force, kernels.stiffness, kernels.stiffness_derivative, None))
     return _first_mismatch(type(system).__name__, checks)
 
 
