@@ -114,6 +114,22 @@ def test_check_fails_a_potential_known_at_some_states_only():
     assert np.isnan(check.force) and check.ok(1e-7), check
 
 
+def test_a_load_rate_of_zero_at_an_extremum_of_the_load_is_judged_right():
+    """p = cos t: p'(0) = 0 was measured against the differences' own O(δ³)
+    error and refused ("differ by 1"), by check_derivatives and by HFDI's
+    Integrator; a wrong rate there is still refused."""
+    e0 = np.array([1.0, 0.0])
+    right = _with(load=lambda t: np.cos(t) * e0, load_rate=lambda t: -np.sin(t) * e0)
+    wrong = _with(load=lambda t: np.cos(t) * e0, load_rate=lambda t: (0.01 - np.sin(t)) * e0)
+    assert hfdi.check_derivatives(right, samples=1, times=[0.0, 1.0]).load_rate < 1e-6
+    assert hfdi.check_derivatives(wrong, samples=1, times=[0.0]).load_rate > 1e-2
+    for t_end in (3.0, 1e-3, 100.0):
+        itg = hfdi.Integrator(right, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=t_end)
+        assert itg.advance(t_end)
+    with pytest.raises(hfdi.ModelError, match="load_rate does not match"):
+        hfdi.Integrator(wrong, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=3.0)
+
+
 def test_check_refuses_bad_arguments():
     model = coupled_duffing()
     n = model.n_dof
