@@ -451,7 +451,9 @@ class ErrorControl(Controller):
             if decision.accept:
                 return attempt, decision
             message = decision.message
-            if decision.status is not None:
+            # first_step_trials bounds this loop; max_halvings is the bound
+            # of a later step's rejections (it had capped the trials at 31)
+            if decision.status is not None and decision.status != "HALVINGS_EXHAUSTED":
                 break
             h = decision.next_step
         return None, Decision(False, h, "FIRST_STEP_FAILED",

@@ -368,7 +368,8 @@ class Integrator:
         Guards on the step size. Defaults: ``1e-12·max(1, |t_bound|)`` and
         ``t_bound − t0`` (or no limit without ``t_bound``).
     max_halvings : int
-        Consecutive rejected attempts allowed for one step.
+        Consecutive rejected attempts allowed for one step (the first
+        step's trials are bounded by ``first_step_trials`` instead).
     max_steps : int
         Maximum number of steps (attempts included).
     max_iterations : int, optional
@@ -1395,9 +1396,17 @@ class Integrator:
         Rejected attempts are retried as the controller says (halved after a
         diverged corrector). Returns ``False`` when no step was taken: a guard
         stopped the run (:attr:`status` and :attr:`message` say why, and
-        :attr:`state` is the last good state), or the integrator is
-        :attr:`finished` (status ``SUCCESS``).
+        :attr:`state` is the last good state), the integrator is
+        :attr:`finished` (status ``SUCCESS``), or ``t_limit`` is the current
+        time (so that ``while integrator.step(T)`` ends at ``T``).
+
+        Raises
+        ------
+        ValueError
+            For ``t_limit`` before the current time.
         """
+        if not (self.failed or self.finished) and _time_value("t_limit", t_limit) == self.t:
+            return False
         return self._step(t_limit)
 
     def _step(self, t_limit: float, rejections: int = 0) -> bool:
@@ -1514,6 +1523,8 @@ class Integrator:
             raise ValueError(f"t_stop must be finite and >= t = {self.t}, got {t_stop!r}")
         if self.t_bound is not None and t_stop > self.t_bound:
             raise ValueError(f"t_stop must be <= t_bound = {self.t_bound}, got {t_stop!r}")
+        if self.failed:             # even at t_stop = t: the run did not get there well
+            return False
         if callback is None and self._driver is not None:
             return self._drive(t_stop)
         return self._python_steps(t_stop, callback)

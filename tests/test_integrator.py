@@ -467,3 +467,57 @@ def test_advance_in_pieces_is_bit_identical_with_and_without_restores(case, sche
         if whole.success:
             np.testing.assert_allclose(whole.u_eval, plain.sol(times)[0], rtol=0,
                                        atol=1e-12 * (1.0 + np.abs(plain.u).max()))
+
+
+def test_a_failed_integrator_does_not_report_reaching_its_own_time():
+    """advance(t) on a failed integrator returned True when t was its time."""
+    model = coupled_duffing()
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6, max_steps=5)
+    assert not itg.advance(10.0) and itg.failed
+    assert not itg.advance(itg.t)
+
+
+def test_step_at_its_limit_takes_none_and_says_false():
+    """step(t_limit) with t_limit the current time raised; a loop
+    ``while step(T)`` now ends at T (before T it still raises)."""
+    itg = hfdi.Integrator(coupled_duffing(), "newmark", rtol=1e-6)
+    taken = 0
+    while itg.step(0.5):
+        taken += 1
+    assert itg.t == 0.5 and taken == itg.statistics.accepted and not itg.failed
+    with pytest.raises(ValueError, match="t_limit must be > t"):
+        itg.step(0.25)
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+def test_first_step_trials_is_the_bound_of_the_first_step(scheme):
+    """The first step's trials stopped at max_halvings + 1 (31 by default, so
+    first_step_trials = 40 could never be reached); max_halvings bounds the
+    rejections of the later steps."""
+    good = coupled_duffing()
+    # f is not finite beyond a hundredth of the initial displacement: every
+    # trial's corrector fails until the step is small enough
+    limit = 1e-2 * np.abs(good.initial_displacement).max()
+    u0 = good.initial_displacement
+    picky = hfdi.System(mass=good.mass, initial_displacement=u0,
+                        initial_velocity=np.array([1.0, -1.0]),
+                        internal_force=lambda u: good.internal_force(u) if
+                        np.abs(u - u0).max() < limit else np.full(2, np.nan),
+                        stiffness=good.stiffness, stiffness_derivative=good.stiffness_derivative,
+                        potential_energy=good.potential_energy)
+    stuck = hfdi.System(mass=good.mass, initial_displacement=u0,
+                        initial_velocity=np.array([1.0, -1.0]),
+                        internal_force=lambda u: good.internal_force(u) if
+                        np.array_equal(u, u0) else np.full(2, np.nan),
+                        stiffness=good.stiffness, stiffness_derivative=good.stiffness_derivative,
+                        potential_energy=good.potential_energy)
+    for trials, halvings in ((6, 2), (35, 30)):
+        r = hfdi.integrate(stuck, scheme, 1.0, rtol=1e-6, first_step=1.0,
+                           first_step_trials=trials, max_halvings=halvings,
+                           check_stiffness=False)         # its differences are NaN
+        assert r.status == hfdi.Status.FIRST_STEP_FAILED, (r.status, r.message)
+        assert r.stats.first_step_trials == trials, r.message
+    # enough trials to get below the limit: the run starts
+    r = hfdi.integrate(picky, scheme, 1.0, rtol=1e-6, first_step=1.0, first_step_trials=20,
+                       max_halvings=2, check_stiffness=False)
+    assert r.stats.first_step_trials > 3 and r.stats.accepted >= 1, r.message
