@@ -392,8 +392,11 @@ class Integrator:
     breakpoints : array_like, optional
         Times where the load or its rate jumps, besides the model's own
         ``load_breakpoints()``. Under error control steps land on them and
-        the predictor restarts there; the iteration-count and fixed-step
-        modes keep their steps (the paper's tables are made so).
+        the predictor restarts there; the iteration-count mode keeps its
+        steps (the paper's tables are made so); the fixed-step mode keeps
+        its grid and treats the breakpoints on it as error control does (the
+        load's left limit at the end of the step that lands there, its right
+        limit after), and steps over the others.
     check_stiffness : bool
         Check ``K(u0)`` against central differences of ``f`` (4 extra force
         evaluations for a correct model, at most 16) and refuse a model whose
@@ -486,8 +489,12 @@ class Integrator:
         self.newton_test = newton_test
         self._estimated = newton_test == "error"
         self.floor = float(getattr(system, "u_scale", 1.0) or 1.0)
-        self.breakpoints = self._breakpoints(breakpoints) if c.uses_error_estimate else \
-            np.empty(0)
+        if c.uses_error_estimate:
+            self.breakpoints = self._breakpoints(breakpoints)
+        elif self.fixed:
+            self.breakpoints = self._on_grid(self._breakpoints(breakpoints), c.step)
+        else:
+            self.breakpoints = np.empty(0)
 
         n = ev.n
         initial = []
@@ -619,6 +626,16 @@ class Integrator:
             return checks.real("tol", tol, low=0.0, high=1.0)
         except ValueError:
             raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
+
+    def _on_grid(self, points, h):
+        """The breakpoints after ``t0`` that the fixed step's grid ``t0 + k h``
+        lands on (within the ``1e-6 h`` of its landing rule): there the step
+        that ends on one takes the load's left limit and the next starts
+        from its right limit, as under error control, and no step changes.
+        The others are stepped over (the grid is kept)."""
+        later = points[points > self.t0]
+        k = np.round((later - self.t0) / h)
+        return later[np.abs(later - (self.t0 + k * h)) <= 1e-6 * h]
 
     def _breakpoints(self, extra):
         """The sorted load breakpoints of the model and of ``extra``."""
