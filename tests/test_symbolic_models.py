@@ -376,6 +376,84 @@ def test_bad_input_is_rejected_with_clear_errors():
         spring_chain(n_masses=0)
 
 
+@pytest.mark.parametrize("where", ["energy", "load", "quantity"])
+def test_names_that_would_be_printed_as_code_are_refused(where, tmp_path):
+    """Only free symbols are renamed before the expressions become code
+    (lambdify's, and the compiled kernels'): a bound variable's name, or a
+    code-generation node's, would be written out verbatim."""
+    from sympy.codegen.ast import FunctionCall
+    marker = tmp_path / "ran"
+    payload = f"[0][__import__('os').system('touch {marker}')]"
+    x, t = sympy.symbols("x t")
+    i = sympy.Symbol(payload, integer=True)
+    bound = {"energy": sympy.Sum(i * x ** 4, (i, 1, 2)),
+             "load": sympy.Product(i * t, (i, 1, 2)),
+             "quantity": sympy.Integral(x * i, (i, 0, 1))}[where]
+    kw = {"energy": {}, "load": dict(time=t, load=[bound]),
+          "quantity": dict(quantities={"q": bound})}[where]
+    energy = x ** 2 / 2 + (bound if where == "energy" else 0)
+    with pytest.raises(ValueError, match=f"{where}.*bound variable"):
+        model = EnergyModel([x], energy, [1.0], initial_displacement=[0.5], **kw)
+        # (before the check: evaluating ran the payload)
+        model.internal_force([0.5]), model.load(1.0), model.quantities(1.0, [0.5])
+    with pytest.raises(ValueError, match="energy.*Subs"):
+        EnergyModel([x], x ** 2 + sympy.Subs(x * i, i, 2), [1.0])
+    with pytest.raises(ValueError, match="energy contains the symbols.*other than as free"):
+        EnergyModel([x], x ** 2 + sympy.Limit(x * i, i, 0), [1.0])
+    with pytest.raises(ValueError, match="energy.*code-generation node FunctionCall"):
+        EnergyModel([x], x ** 2 + FunctionCall(f"__import__('os').system('touch {marker}')",
+                                               [x]), [1.0]).internal_force([0.5])
+    assert not marker.exists()
+
+
+def _contact_model(**kw):
+    """Two masses, the first against a contact spring beyond a gap, the second
+    on ``|y|³`` and a one-sided spring: Max, Abs and Min of real symbols."""
+    x, y = sympy.symbols("x y", real=True)
+    c, g, a, b = sympy.symbols("c g a b", positive=True)
+    energy = (x ** 2 / 2 + (y - x) ** 2 / 2 + c * sympy.Max(0, x - g) ** 2 / 2
+              + a * sympy.Abs(y) ** 3 / 3 + b * sympy.Min(0, y) ** 2 / 2)
+    return EnergyModel([x, y], energy, [1.0, 1.0], parameters={c: 50.0, g: 0.2, a: 3.0, b: 7.0},
+                       **kw)
+
+
+def test_max_min_and_abs_of_real_symbols_evaluate_with_their_kinks():
+    """The derivatives of Max, Min and Abs bring DiracDelta, which has no
+    value in numpy: it counts as 0, so f, K, T and V evaluate everywhere,
+    on the kinks too (initial state)."""
+    model = _contact_model(initial_displacement=[0.2, 0.0], initial_velocity=[1.0, -0.5])
+    c, g, a, b = 50.0, 0.2, 3.0, 7.0
+
+    def expected(u, w):
+        x, y = u
+        f = [x - (y - x) + c * max(0.0, x - g), (y - x) + a * y * abs(y) + b * min(0.0, y)]
+        K = [[2.0 + c * (x > g), -1.0], [-1.0, 1.0 + 2 * a * abs(y) + b * (y < 0)]]
+        T = [[0.0, 0.0], [0.0, 2 * a * np.sign(y) * w[1]]]
+        V = (x ** 2 / 2 + (y - x) ** 2 / 2 + c * max(0.0, x - g) ** 2 / 2 + a * abs(y) ** 3 / 3
+             + b * min(0.0, y) ** 2 / 2)
+        return f, K, T, V
+
+    rng = np.random.default_rng(5)
+    for u in [[0.5, 0.3], [-0.1, -0.4], [0.3, -0.2], [0.1, 0.6]]:
+        w = rng.standard_normal(2)
+        f, K, T, V = expected(np.array(u), w)
+        np.testing.assert_allclose(model.internal_force(u), f, rtol=1e-13)
+        np.testing.assert_allclose(model.stiffness(u), K, rtol=1e-13)
+        np.testing.assert_allclose(model.stiffness_derivative(u, w), T, rtol=1e-13, atol=1e-13)
+        assert model.potential_energy(u) == pytest.approx(V, rel=1e-13)
+    # on the kinks: finite, with sympy's Heaviside(0) = 1/2
+    kink = model.initial_displacement
+    np.testing.assert_allclose(model.internal_force(kink), [0.4, -0.2])
+    np.testing.assert_allclose(model.stiffness(kink), [[2.0 + c / 4, -1.0], [-1.0, 1.0 + b / 4]])
+    assert np.all(np.isfinite(model.stiffness_derivative(kink, [1.0, 1.0])))
+    # a run through the kinks (starting on one fails the start's check of K)
+    moving = _contact_model(initial_displacement=[0.0, 0.1], initial_velocity=[1.0, -0.5])
+    res = hfdi.integrate(moving, "hfdi", 2.0, rtol=1e-6, compiled=False)
+    assert res.success, res.message
+    assert res.u[:, 0].max() > 0.2 and res.u[:, 1].min() < 0.0
+    assert np.ptp(res.total_energy) < 1e-3 * abs(res.total_energy[0])
+
+
 def test_evaluation_rejects_a_wrong_state_shape():
     model = elastic_pendulum()
     with pytest.raises(ValueError, match=r"shape \(2,\)"):

@@ -92,6 +92,24 @@ def _expression(value, what):
     if undefined:
         raise ValueError(f"{what} contains undefined functions {sorted(map(str, undefined))}; "
                          "write them out as expressions of the symbols")
+    # Only the free symbols are renamed before the expressions are printed as
+    # code (by lambdify, and for the compiled kernels): the name of a bound
+    # variable (of Sum, Product, Integral, Lambda, Subs), or of a sympy.codegen
+    # node, would be written into that code verbatim, so a name could be code.
+    for node in sympy.preorder_traversal(expr):
+        bound = getattr(node, "bound_symbols", None)
+        if bound:
+            raise ValueError(
+                f"{what} contains {type(node).__name__} over the bound variable(s) "
+                f"{sorted(map(str, bound))}: expressions with bound variables (Sum, Product, "
+                f"Integral, Lambda, Subs) are not taken; write them out (e.g. with .doit())")
+        if type(node).__module__.startswith("sympy.codegen"):
+            raise ValueError(f"{what} contains the code-generation node "
+                             f"{type(node).__name__}: write it as a sympy expression")
+    hidden = expr.atoms(sympy.Symbol) - expr.free_symbols
+    if hidden:
+        raise ValueError(f"{what} contains the symbols {sorted(map(str, hidden))} other than "
+                         "as free symbols: write the expression out in its symbols")
     return expr
 
 
@@ -175,13 +193,27 @@ def _compile(args, exprs):
 
 # -- the model ------------------------------------------------------------------
 
+def _without_impulses(expr):
+    """``expr`` with every ``DiracDelta`` as 0.
+
+    Derivatives of ``Max``, ``Min``, ``Abs``, ``sign`` and ``Heaviside`` bring
+    ``DiracDelta`` (the second derivative of a contact ``Max(0, x)``, say),
+    which has no numerical value: neither numpy nor Python has it. Away from
+    the kink it is 0, as a ``Piecewise`` written out would give; at the kink
+    itself ``Heaviside(0)`` is sympy's 1/2 on both paths.
+    """
+    if not expr.has(sympy.DiracDelta):
+        return expr
+    return expr.replace(sympy.DiracDelta, lambda *args: sympy.Integer(0))
+
+
 def _right_rate(rate):
     """A derived load rate as HFDI reads it: at a kink of the load the right
     limit (a step leaves its start forwards), so ``Heaviside(0) = 1`` (sympy
     and numpy take 1/2); and without the impulses of a jump (``DiracDelta``,
     which has no numerical value: a jump of the load is a breakpoint, not a
     rate)."""
-    rate = rate.replace(sympy.DiracDelta, lambda *args: sympy.Integer(0))
+    rate = _without_impulses(rate)
     return rate.replace(sympy.Heaviside, lambda arg, *rest: sympy.Heaviside(arg, 1))
 
 
@@ -200,7 +232,10 @@ class EnergyModel(SecondOrderSystem):
         The ``N`` degrees of freedom ``u``, in the order of the state vector.
     energy : sympy expression
         Potential energy ``V``; may use the ``dofs`` and the symbols of
-        ``parameters`` and nothing else.
+        ``parameters`` and nothing else (no bound variables, as of a ``Sum``).
+        ``Max``, ``Min``, ``Abs`` and the like of real DOF symbols are taken:
+        the ``DiracDelta`` of their derivatives counts as 0 (and at a kink
+        ``Heaviside(0) = 1/2``, on the compiled path as on the Python path).
     mass : array_like (N,) or (N, N) or scipy sparse (N, N)
         Mass matrix; a 1-D array is a (positive) diagonal.
     parameters : dict of sympy.Symbol to float, optional
@@ -255,7 +290,8 @@ class EnergyModel(SecondOrderSystem):
     ------
     ValueError
         If a symbol is repeated or is not a Symbol, if the energy or a quantity
-        uses a symbol that is neither a DOF nor declared, if the mass or
+        uses a symbol that is neither a DOF nor declared, or a bound variable
+        or an undefined function, if the mass or
         damping does not match the number of DOFs, if a parameter value is not
         a finite real number, ...
 
@@ -387,12 +423,13 @@ class EnergyModel(SecondOrderSystem):
         w_rename = dict(zip(w_user, self._w))
         w_rename.update(rename)
         self._exprs = {
-            "V": energy.xreplace(rename),
+            "V": _without_impulses(energy).xreplace(rename),
             "f": [g.xreplace(rename) for g in self.gradient],
             "K": [e.xreplace(rename) for e in k_exprs],
             "T": [e.xreplace(w_rename) for e in t_exprs],
-            "q": [e.xreplace(rename) for e in quantity_exprs],
-            "p": [] if load_exprs is None else [e.xreplace(rename) for e in load_exprs],
+            "q": [_without_impulses(e).xreplace(rename) for e in quantity_exprs],
+            "p": [] if load_exprs is None else [_without_impulses(e).xreplace(rename)
+                                                 for e in load_exprs],
             "dp": [] if load_exprs is None else [
                 (_right_rate(e.diff(time)) if time is not None else sympy.Integer(0))
                 .xreplace(rename) for e in load_exprs],
@@ -455,12 +492,13 @@ class EnergyModel(SecondOrderSystem):
         # Differentiate term by term, each term only by the DOFs it contains:
         # for an energy that is a sum of local terms (springs, bonds) this keeps
         # the work proportional to the number of terms instead of N times it.
-        terms = sympy.Add.make_args(self.energy)
+        terms = sympy.Add.make_args(_without_impulses(self.energy))
         by_dof = {s: [] for s in dofs}
         for term in terms:
             for s in term.free_symbols & dof_set:
                 by_dof[s].append(term)
-        gradient = tuple(sympy.Add(*[term.diff(s) for term in by_dof[s]]) for s in dofs)
+        gradient = tuple(_without_impulses(sympy.Add(*[term.diff(s) for term in by_dof[s]]))
+                         for s in dofs)
         depends = [g.free_symbols & dof_set for g in gradient]
         k_rows, k_cols, k_exprs = [], [], []
         hessian = {}
@@ -469,7 +507,7 @@ class EnergyModel(SecondOrderSystem):
                 # ∂g_i/∂u_j is structurally zero unless g_i contains u_j
                 if dofs[j] not in depends[i]:
                     continue
-                e = gradient[i].diff(dofs[j])
+                e = _without_impulses(gradient[i].diff(dofs[j]))
                 if e == 0:
                     continue
                 k_rows.append(i)
@@ -482,7 +520,7 @@ class EnergyModel(SecondOrderSystem):
         for i, j, e in zip(k_rows, k_cols, k_exprs):
             present = e.free_symbols
             terms = [e.diff(s) * w[k] for k, s in enumerate(dofs) if s in present]
-            te = sympy.Add(*terms)
+            te = _without_impulses(sympy.Add(*terms))
             if te == 0:
                 continue
             t_rows.append(i)
@@ -600,6 +638,9 @@ class EnergyModel(SecondOrderSystem):
         ------
         hfdi.compiled.CompiledUnavailable
             When an expression has no compiled form (the Python path runs).
+        OSError, RuntimeError, ...
+            When the kernels cannot be written, compiled or cached otherwise:
+            ``compiled=None`` then says so once and runs the Python path.
         """
         from ..compiled import CompiledUnavailable
         from ..compiled.symbolic import KernelSourceError, energy_model_kernels
