@@ -2,6 +2,8 @@
 (hfdi.compiled.symbolic): against the model's Python f, K, T and V, the same
 runs on both paths, parameters, the disk cache, and the fallback when an
 expression has no compiled form."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 import sympy
@@ -249,6 +251,8 @@ def test_a_load_of_expressions_follows_the_parameters_on_both_paths():
         itg.advance(0.5)
         model.set_parameters(A=-9.0)
         itg.advance(1.0)
+        # the kernels, checked again after the change, still agree
+        assert itg.compiled == compiled and itg.driven == compiled
         ends.append(itg.state.u)
     assert _relative(ends[1], ends[0]) < 1e-12
     model = _loaded_chain()
@@ -268,3 +272,154 @@ def test_a_load_of_expressions_is_checked():
                     load_rate=lambda s: np.array([np.cos(s)]))
     with pytest.raises(ValueError, match="load"):
         EnergyModel([x], x ** 2 / 2, [1.0], time=t, load="sin(t)")
+
+
+@pytest.mark.parametrize("case", ["floor power", "ceiling power", "Max of integers",
+                                  "beyond int64"])
+def test_integer_valued_expressions_compute_in_floats_as_on_the_python_path(case):
+    """numba's math.floor and math.ceil are int64, and so are max and powers of
+    them: printed as such, floor(n)**(-2) was 0 and ceiling(n)**5 wrapped
+    around, while lambdify's numpy code computes in floats; an integer
+    constant beyond int64 could not be compiled at all."""
+    x, y = sympy.symbols("x y")
+    n = sympy.Symbol("n", positive=True)
+    # (x⁴ + y⁴) times the factor: common-subexpression elimination makes the
+    # factor a temporary of its own, an integer power of an int64
+    term = (x ** 4 + y ** 4) * {"floor power": 1 / (4 * sympy.floor(n) ** 2),
+                                "ceiling power": sympy.ceiling(n) ** 5 * sympy.Float(1e-30),
+                                "Max of integers": sympy.Max(1, sympy.floor(n)) ** 3 * 1e-20,
+                                "beyond int64": sympy.Integer(10) ** 20 * n}[case]
+    model = EnergyModel([x, y], (x ** 2 + y ** 2) / 2 + (x - y) ** 3 / 3 + term, [1.0, 1.0],
+                        parameters={n: 1.0}, initial_displacement=[0.5, -0.2])
+    kernels, why = kernels_of(model)
+    assert kernels is not None, why
+    rng = np.random.default_rng(3)
+    for value in (1.0, 2.5, 3.7e6):
+        model.set_parameters(n=value)
+        p = model.compiled_params()
+        for _ in range(3):
+            u, w = rng.uniform(-2.0, 2.0, 2), rng.standard_normal(2)
+            assert _relative(kernels.force(u, p), model.internal_force(u)) < 1e-13
+            assert _relative(kernels.stiffness(u, p), model.stiffness(u)) < 1e-13
+            assert _relative(kernels.stiffness_derivative(u, w, p),
+                             model.stiffness_derivative(u, w)) < 1e-13
+            assert kernels.potential_energy(u, p) == pytest.approx(model.potential_energy(u),
+                                                                   rel=1e-13)
+
+
+def test_max_min_and_abs_kernels_match_the_python_path_on_and_off_the_kinks():
+    """DiracDelta (from the derivatives) counts as 0 and Heaviside(0) is 1/2 on
+    both paths: the kernels and the Python methods agree everywhere, and so
+    do the runs."""
+    from test_symbolic_models import _contact_model
+    model = _contact_model(initial_displacement=[0.0, 0.1], initial_velocity=[1.0, -0.5])
+    kernels, why = kernels_of(model)
+    assert kernels is not None, why
+    p = kernels.params
+    for u in ([0.2, 0.0], [0.5, 0.3], [-0.1, -0.4], [0.2, -0.3], [0.7, 0.0]):
+        u = np.array(u)
+        w = np.array([0.3, -1.1])
+        assert _relative(kernels.force(u, p), model.internal_force(u)) < 1e-14
+        assert _relative(kernels.stiffness(u, p), model.stiffness(u)) < 1e-14
+        assert _relative(kernels.stiffness_derivative(u, w, p),
+                         model.stiffness_derivative(u, w)) < 1e-14
+        assert kernels.potential_energy(u, p) == pytest.approx(model.potential_energy(u),
+                                                               rel=1e-14)
+    runs = [hfdi.integrate(model, "hfdi", 2.0, rtol=1e-6, compiled=c) for c in (False, True)]
+    assert runs[0].success and runs[1].success
+    assert runs[1].stats.steps == runs[0].stats.steps
+    assert _relative(runs[1].u[-1], runs[0].u[-1]) < 1e-8
+
+
+def _planted_model():
+    x, y = sympy.symbols("x y")
+    return EnergyModel([x, y], (x ** 2 + y ** 2) / 2 + (x - y) ** 4 / 4 + x ** 3 / 11,
+                       [1.0, 1.0], initial_displacement=[0.3, 0.0])
+
+
+def test_bytecode_found_beside_the_generated_source_is_never_run(tmp_path, monkeypatch):
+    """Python's import takes a __pycache__/*.pyc whose header matches the
+    source file's mtime and size, without comparing its code with the text:
+    the kernels run the text generated, whatever the directory holds."""
+    import importlib.util
+    import marshal
+    import struct
+    from hfdi.compiled import symbolic
+    from hfdi.files import write_atomic
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(symbolic, "_IMPORTED", {})
+    model = _planted_model()
+    source = symbolic.kernel_source(model)
+    digest = __import__("hashlib").sha256(source.encode()).hexdigest()[:24]
+    path = tmp_path / "kernels" / f"hfdi_energy_kernels_{digest}.py"
+    write_atomic(path, source)
+    marker = tmp_path / "foreign code ran"
+    foreign = (f"open({str(marker)!r}, 'w').close()\n"
+               + source.replace("    return f\n", "    f[0] += 1.0\n    return f\n", 1))
+    stat = path.stat()
+    pyc = Path(importlib.util.cache_from_source(str(path)))
+    pyc.parent.mkdir(parents=True, exist_ok=True)
+    pyc.write_bytes(importlib.util.MAGIC_NUMBER + struct.pack(
+        "<III", 0, int(stat.st_mtime) & 0xFFFFFFFF, stat.st_size & 0xFFFFFFFF)
+        + marshal.dumps(compile(foreign, str(path), "exec")))
+    kernels = symbolic.energy_model_kernels(model)
+    assert not marker.exists()
+    u = np.array([0.4, -0.1])
+    assert _relative(kernels.force(u, kernels.params), model.internal_force(u)) < 1e-14
+
+
+def test_numba_caches_the_generated_kernels_for_a_later_process(tmp_path):
+    """The kernels are run from the generated text with the file's name, so
+    that numba caches their machine code beside it: a second process loads
+    all four kernels from that cache instead of compiling them."""
+    import os
+    import subprocess
+    import sys
+    script = """
+import sympy
+from hfdi.compiled.symbolic import energy_model_kernels
+from hfdi.models import EnergyModel
+x, y = sympy.symbols("x y")
+k = energy_model_kernels(EnergyModel([x, y], (x**2 + y**2) / 2 + (x - y)**4 / 4 + x**3 / 13,
+                                     [1.0, 1.0]))
+print(sum(len(getattr(k, n).stats.cache_hits)
+          for n in ("force", "stiffness", "stiffness_derivative", "potential_energy")))
+"""
+    env = dict(os.environ, HFDI_CACHE_DIR=str(tmp_path))
+    hits = []
+    for _ in range(2):
+        run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                             env=env, timeout=600)
+        assert run.returncode == 0, run.stderr[-2000:]
+        hits.append(int(run.stdout.split()[-1]))
+    assert hits == [0, 4]
+
+
+def test_kernels_that_numba_cannot_cache_are_a_fault_said_once(tmp_path, monkeypatch):
+    """Neither beside the source (its __pycache__ is a file here) nor in the
+    user-wide directory (under a file): numba refuses to cache. That is a
+    fault of the installation, which compiled=None says once, not a model
+    without kernels (which runs on the Python path silently)."""
+    from hfdi.compiled import _Fault, symbolic
+    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(symbolic, "_IMPORTED", {})
+    (tmp_path / "kernels").mkdir()
+    (tmp_path / "kernels" / "__pycache__").touch()
+    (tmp_path / "a file").touch()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "a file" / "cache"))
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    model = _planted_model()
+    kernels, why = kernels_of(model)
+    assert kernels is None and isinstance(why, _Fault) and "cannot cache" in why
+    with pytest.warns(RuntimeWarning, match="cannot cache"):
+        assert not hfdi.Integrator(_planted_model(), "newmark", step=0.01).compiled
+
+
+def test_a_function_numba_cannot_compile_leaves_the_model_without_kernels():
+    """math.factorial has no numba form for a float: no kernels, not a fault."""
+    from hfdi.compiled import _Fault
+    x, n = sympy.symbols("x n")
+    model = EnergyModel([x], x ** 2 / 2 + sympy.factorial(n) * x ** 4, [1.0],
+                        parameters={n: 3.0}, initial_displacement=[0.3])
+    kernels, why = kernels_of(model)
+    assert kernels is None and "factorial" in why and not isinstance(why, _Fault)

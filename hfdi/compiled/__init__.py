@@ -205,6 +205,8 @@ def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str
         breakpoints = system.load_breakpoints() if hasattr(system, "load_breakpoints") else ()
         times += [float(b) * (1.0 + 1e-3) + 1e-9 for b in list(breakpoints)[:8]]
         times = [t for t in times if t == initial.t0 or t <= initial.t_end]
+        # load data that are the model's data follow them, as in the driver
+        load_params = p if kernels.load_params is kernels.params else kernels.load_params
         rate = kernels.load_rate if getattr(system, "load_rate", None) is not None else None
         for t in times:
             try:
@@ -212,11 +214,11 @@ def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str
                 python_rate = None if rate is None else np.asarray(system.load_rate(t), float)
             except Exception:        # the Python load is not defined there: not compared
                 continue
-            checks.append((f"load at t = {t:g}", lambda t=t: kernels.load(t, kernels.load_params),
+            checks.append((f"load at t = {t:g}", lambda t=t: kernels.load(t, load_params),
                            python))
             if rate is not None:
                 checks.append((f"load_rate at t = {t:g}",
-                               lambda t=t: rate(t, kernels.load_params), python_rate))
+                               lambda t=t: rate(t, load_params), python_rate))
     return _first_mismatch(name, checks)
 
 

@@ -4,11 +4,12 @@ The model's ``f``, ``K``, ``T[w]`` and ``V`` are the expressions the model
 derived once at construction (the ones its Python methods evaluate through
 :func:`sympy.lambdify`). Here they are printed, after common-subexpression
 elimination, as the source of four numba functions with the signatures of
-:mod:`hfdi.compiled.signatures`; the source is written once to
-``<cache>/kernels/`` (:func:`hfdi.files.cache_dir`) under the digest of its
-text and imported from there, so that numba caches the machine code beside it
-and a later process (or another model with the same expressions) loads it
-instead of compiling again.
+:mod:`hfdi.compiled.signatures`, computing in float64 as the Python path
+does; the source is written once to ``<cache>/kernels/``
+(:func:`hfdi.files.cache_dir`) under the digest of its text and run as that
+file (the text generated here, never bytecode found there), so that numba
+caches the machine code beside it and a later process (or another model with
+the same expressions) loads it instead of compiling again.
 
 The kernels read the model's parameter values from ``params`` in the order
 of ``parameter_symbols``, handed to every call as the model holds them then
@@ -20,8 +21,8 @@ dense systems (``N < DENSE_BELOW``).
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import sys
+import types
 import weakref
 
 from . import CompiledKernels
@@ -40,9 +41,46 @@ class KernelSourceError(ValueError):
     function without a Python ``math`` counterpart, such as ``besselj``)."""
 
 
+_PRINTER_CLASS = None
+
+
 def _printer():
-    from sympy.printing.pycode import PythonCodePrinter
-    return PythonCodePrinter({"fully_qualified_modules": True})
+    """sympy's Python printer, made to compute in float64 as the Python path does.
+
+    Under numba ``math.floor``, ``math.ceil``, ``abs``/``max``/``min`` of
+    integers, a conditional between integer literals and a product of int64
+    values are int64: ``floor(n)**(-2)`` would be 0 and ``ceil(n)**5`` could
+    wrap around, where lambdify's numpy code computes in floats. So every
+    application of a function (``floor``, ``Max``, ``Mod``, ``sign``,
+    ``Piecewise``, ...) is printed inside ``float(...)``, which costs nothing
+    on a float. An integer beyond 2**53 is printed as the float numpy makes
+    of it (numba cannot type one beyond int64 at all).
+    Sums, products and powers of floats are floats; the integer literals
+    left are exponents and coefficients, which numba converts as Python does.
+    """
+    global _PRINTER_CLASS
+    if _PRINTER_CLASS is None:
+        import sympy
+        from sympy.printing.pycode import PythonCodePrinter
+
+        class FloatPrinter(PythonCodePrinter):
+            def _print(self, expr, **kwargs):
+                text = super()._print(expr, **kwargs)
+                if isinstance(expr, sympy.Expr) and not isinstance(
+                        expr, (sympy.Atom, sympy.Add, sympy.Mul, sympy.Pow)):
+                    return f"float({text})"
+                return text
+
+            def _print_Integer(self, expr):
+                value = int(expr)
+                return repr(float(value)) if abs(value) > 2 ** 53 else str(value)
+
+            def _print_Rational(self, expr):
+                return (f"{self._print_Integer(sympy.Integer(expr.p))}/"
+                        f"{self._print_Integer(sympy.Integer(expr.q))}")
+
+        _PRINTER_CLASS = FloatPrinter
+    return _PRINTER_CLASS({"fully_qualified_modules": True})
 
 
 def _body(printer, exprs, prefix):
@@ -129,11 +167,17 @@ def _import(source: str):
     path = cache_dir() / "kernels" / f"{name}.py"
     if not (path.is_file() and path.read_text(encoding="utf-8") == source):
         write_atomic(path, source)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
+    # The text run is the one generated here, never what the directory holds:
+    # an import would take a __pycache__/*.pyc whose header matches the
+    # file's mtime and size, and nothing compares that bytecode with the
+    # text. The file is there for numba, which finds it through the code's
+    # file name and caches the machine code beside it.
+    code = compile(source, str(path), "exec", dont_inherit=True)
+    module = types.ModuleType(name)
+    module.__file__ = str(path)
     sys.modules[name] = module
     try:
-        spec.loader.exec_module(module)
+        exec(code, module.__dict__)
     except BaseException:
         sys.modules.pop(name, None)
         raise
@@ -149,18 +193,28 @@ def energy_model_kernels(model) -> CompiledKernels:
     KernelSourceError
         When an expression has no compiled form; the model then runs on the
         Python path.
+    OSError, RuntimeError, ...
+        When the kernels cannot be written, compiled or cached otherwise: a
+        fault, which the default ``compiled=None`` reports once before it
+        runs the Python path.
     """
     module = _MODULE_OF.get(model)
     if module is None:
         source = kernel_source(model)
+        from numba.core.errors import TypingError, UnsupportedError
         try:
             module = _import(source)
-        except OSError:
-            raise
-        except Exception as exc:      # numba refused the generated code
+        except (TypingError, UnsupportedError) as exc:
+            # numba has no compiled form of a printed function (math.factorial
+            # of a float, say): a model without kernels, as for an unprintable
+            # one. Anything else (numba unable to cache the code beside the
+            # source or user-wide, an unwritable cache directory) is a fault
+            # the caller reports, not a model without kernels. The first line
+            # after numba's "Failed in nopython mode pipeline" names the function.
+            lines = [line for line in str(exc).splitlines()
+                     if line.strip() and not line.startswith("Failed in")] or [""]
             raise KernelSourceError(f"numba could not compile the generated kernels: "
-                                    f"{type(exc).__name__}: {str(exc).splitlines()[0]}") \
-                from None
+                                    f"{type(exc).__name__}: {lines[0]}") from None
         # printing the expressions costs tens of ms, more than a short run:
         # once per model (its expressions are fixed at construction)
         _MODULE_OF[model] = module
