@@ -501,3 +501,16 @@ def test_the_user_guide_examples_run():
     namespace = {}
     for block in blocks:
         exec(compile(block, str(guide), "exec"), namespace)
+
+
+def test_a_load_whose_rate_sympy_cannot_derive_is_refused_by_name():
+    """|sin 2t| with a time symbol not declared real: sympy leaves
+    Derivative(im(t)) in the rate, and lambdify's PrintMethodNotImplementedError
+    escaped the constructor; now a ValueError that says what to declare."""
+    x = sympy.Symbol("x", real=True)
+    t = sympy.Symbol("t")
+    with pytest.raises(ValueError, match="load rate could not be derived.*real"):
+        EnergyModel([x], x ** 2 / 2, [1.0], time=t, load=[sympy.Abs(sympy.sin(2 * t))])
+    t = sympy.Symbol("t", real=True)
+    model = EnergyModel([x], x ** 2 / 2, [1.0], time=t, load=[sympy.Abs(sympy.sin(2 * t))])
+    assert model.load_rate(0.3)[0] == pytest.approx(2 * math.cos(0.6))

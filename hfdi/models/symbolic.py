@@ -187,8 +187,23 @@ class _SymmetricLayout:
                              shape=(self.n, self.n))
 
 
-def _compile(args, exprs):
-    return sympy.lambdify(args, exprs, modules="numpy", cse=True)
+def _compile(args, exprs, what):
+    """The numpy function of ``exprs`` (lambdify), or a ValueError naming
+    ``what`` when an expression has no numerical form: a derivative sympy
+    could not take (``Abs``, ``sign``, ``re`` of a symbol not declared real
+    leaves ``Derivative(re(...))``), or a function numpy lacks."""
+    from sympy.printing.codeprinter import PrintMethodNotImplementedError
+    for expr in (exprs if isinstance(exprs, (list, tuple)) else [exprs]):
+        if expr.has(sympy.Derivative):
+            raise ValueError(
+                f"the model's {what} could not be derived in closed form (sympy left "
+                f"{next(iter(expr.atoms(sympy.Derivative)))}); declare the symbols that "
+                f"Abs, sign, re or im act on real (sympy.Symbol(name, real=True))")
+    try:
+        return sympy.lambdify(args, exprs, modules="numpy", cse=True)
+    except PrintMethodNotImplementedError as exc:
+        raise ValueError(f"the model's {what} has no numerical form: "
+                         f"{str(exc).splitlines()[0]}") from None
 
 
 # -- the model ------------------------------------------------------------------
@@ -540,13 +555,13 @@ class EnergyModel(SecondOrderSystem):
     def _build_functions(self):
         u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
         ex = self._exprs
-        self._fun_v = _compile([u, p], ex["V"])
-        self._fun_f = _compile([u, p], ex["f"])
-        self._fun_k = _compile([u, p], ex["K"])
-        self._fun_t = _compile([u, w, p], ex["T"])
-        self._fun_q = _compile([t, u, v, p], ex["q"]) if ex["q"] else None
-        self._fun_p = _compile([t, p], ex["p"]) if ex.get("p") else None
-        self._fun_dp = _compile([t, p], ex["dp"]) if ex.get("p") else None
+        self._fun_v = _compile([u, p], ex["V"], "energy")
+        self._fun_f = _compile([u, p], ex["f"], "internal force (the energy's gradient)")
+        self._fun_k = _compile([u, p], ex["K"], "stiffness")
+        self._fun_t = _compile([u, w, p], ex["T"], "stiffness derivative")
+        self._fun_q = _compile([t, u, v, p], ex["q"], "quantities") if ex["q"] else None
+        self._fun_p = _compile([t, p], ex["p"], "load") if ex.get("p") else None
+        self._fun_dp = _compile([t, p], ex["dp"], "load rate") if ex.get("p") else None
 
     # Generated functions do not pickle; the expressions do, so a copy in
     # another process recompiles them (no new derivation).
