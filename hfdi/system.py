@@ -389,23 +389,27 @@ def load_rate_error(load, load_rate, t, time_scale, horizon=np.inf) -> float:
     ``horizon`` (the next breakpoint of the load). For each component, a
     step counts where the rounding of ``p`` there, amplified by ``1/δ``, is
     below 1e-4 of the rate (a static part of the load hides a wrong rate at
-    short steps), the rate's size being the largest of ``|p'(t)|``, the
-    difference and the mean rate over the longest step (so that a rate of
-    zero, at an extremum of the load, is judged against the rates around
-    it); its error is the smallest relative mismatch over the steps
+    short steps); its error is the smallest relative mismatch over the steps
     that count (a correct rate of a fast load agrees at a short step, of a
-    noisy one at a long step; a wrong one at none). The largest of the
-    components' errors is returned; NaN when no component could be judged
-    (a rate of zero, or one below the rounding of ``p`` at every step),
-    ``inf`` where the values are not finite.
+    noisy one at a long step; a wrong one at none). The rate's size is the
+    largest of ``|p'(t)|``, the difference and the smallest mean rate
+    ``|p(t + 2δ) − p(t)|/2δ`` over the steps whose rounding is below 1e-4 of
+    it: so a rate of zero at an extremum of the load (cos at 0) is judged
+    against the load's variation at the finest step it resolves, not
+    against the differences' own ``O(δ³)`` error; and since the smallest
+    mean rate is that of the finest such step, it is no larger than the
+    rate near ``t`` (a mean over a long step of a growing load would make
+    any rate look right). The largest of the components' errors is
+    returned; NaN when no component could be judged (a rate of zero, or one
+    below the rounding of ``p`` at every step), ``inf`` where the values are
+    not finite.
     """
     rate = np.asarray(load_rate(t), dtype=float)
     p0 = np.asarray(load(t), dtype=float)
     if not (np.all(np.isfinite(rate)) and np.all(np.isfinite(p0))):
         return np.inf
-    best = np.full(rate.shape, np.inf)
     eps = np.finfo(float).eps
-    typical = None
+    steps = []
     for k in range(2, 14):
         delta = time_scale * 10.0 ** -k
         t1, t2 = t + delta, t + 2 * delta
@@ -420,13 +424,16 @@ def load_rate_error(load, load_rate, t, time_scale, horizon=np.inf) -> float:
         # 2 D(δ) − D(2δ) with D(h) = (p(t + h) − p(t))/h = p' + h p''/2 + …:
         # error −δ² p‴/3; the steps as represented (t + δ rounds)
         difference = 2.0 * (p1 - p0) / (t1 - t) - (p2 - p0) / (t2 - t)
-        if typical is None:
-            # the rate's size nearby (its mean over the longest step): a rate
-            # of zero at t (cos at 0) is judged against it, not against the
-            # differences' own O(δ²) error
-            typical = np.abs(p2 - p0) / (t2 - t)
-        size = np.maximum(np.maximum(np.abs(rate), np.abs(difference)), typical)
         rounding = 16.0 * eps * (np.abs(p0) + np.abs(p1) + np.abs(p2)) / (t1 - t)
+        steps.append((difference, rounding, np.abs(p2 - p0) / (t2 - t)))
+    # the smallest mean rate the load resolves, per component
+    floor = np.full(rate.shape, np.inf)
+    for _, rounding, mean in steps:
+        floor = np.where((mean > 0) & (rounding <= 1e-4 * mean), np.minimum(floor, mean), floor)
+    floor = np.where(np.isfinite(floor), floor, 0.0)
+    best = np.full(rate.shape, np.inf)
+    for difference, rounding, _ in steps:
+        size = np.maximum(np.maximum(np.abs(rate), np.abs(difference)), floor)
         counts = (size > 0) & (rounding <= 1e-4 * size)
         with np.errstate(divide="ignore", invalid="ignore"):
             relative = np.where(counts, np.abs(rate - difference) / size, np.inf)

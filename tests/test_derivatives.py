@@ -128,6 +128,20 @@ def test_a_load_rate_of_zero_at_an_extremum_of_the_load_is_judged_right():
         assert itg.advance(t_end)
     with pytest.raises(hfdi.ModelError, match="load_rate does not match"):
         hfdi.Integrator(wrong, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=3.0)
+    # the scale of a zero rate is the finest variation the load resolves, not
+    # a mean over a long step, which made wrong rates of growing loads pass
+    from hfdi.system import load_rate_error
+    grow = lambda t: np.array([np.exp(t / 0.01)])                       # noqa: E731
+    for time_scale in (1.0, 10.0):
+        assert load_rate_error(grow, lambda t: 5 * grow(t) / 0.01, 0.0, time_scale) > 0.5
+        assert load_rate_error(grow, lambda t: grow(t) / 0.01, 0.0, time_scale) < 1e-8
+    cube = lambda t: np.array([t ** 3])                                   # noqa: E731
+    assert load_rate_error(cube, lambda t: np.array([1.003 * 3 * t ** 2]), 1.0, 100.0) > 2e-3
+    ramp = _with(load=lambda t: np.tanh(t - 0.5) * e0,
+                 load_rate=lambda t: 2.0 / np.cosh(t - 0.5) ** 2 * e0)   # twice the rate
+    for t_end in (1.0, 10.0):
+        with pytest.raises(hfdi.ModelError, match="load_rate does not match"):
+            hfdi.Integrator(ramp, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=t_end)
 
 
 def test_check_refuses_bad_arguments():
