@@ -489,12 +489,10 @@ class Integrator:
         self.newton_test = newton_test
         self._estimated = newton_test == "error"
         self.floor = float(getattr(system, "u_scale", 1.0) or 1.0)
-        if c.uses_error_estimate:
-            self.breakpoints = self._breakpoints(breakpoints)
-        elif self.fixed:
-            self.breakpoints = self._on_grid(self._breakpoints(breakpoints), c.step)
-        else:
-            self.breakpoints = np.empty(0)
+        # the fixed step lands on those on its grid (_limit)
+        self.breakpoints = self._breakpoints(breakpoints) if c.uses_error_estimate or self.fixed \
+            else np.empty(0)
+        self._given_breakpoints = breakpoints
 
         n = ev.n
         initial = []
@@ -627,15 +625,15 @@ class Integrator:
         except ValueError:
             raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
 
-    def _on_grid(self, points, h):
-        """The breakpoints after ``t0`` that the fixed step's grid ``t0 + k h``
-        lands on (within the ``1e-6 h`` of its landing rule): there the step
-        that ends on one takes the load's left limit and the next starts
-        from its right limit, as under error control, and no step changes.
-        The others are stepped over (the grid is kept)."""
-        later = points[points > self.t0]
-        k = np.round((later - self.t0) / h)
-        return later[np.abs(later - (self.t0 + k * h)) <= 1e-6 * h]
+    def _on_grid(self, point: float) -> bool:
+        """Whether the fixed step's grid ``grid_origin + k h`` (as it is now:
+        a step shortened off it starts a new one) lands on ``point``, within
+        the ``1e-6 h`` of its landing rule. A breakpoint there is taken as
+        under error control (the step that ends on it with the load's left
+        limit, the next from its right limit) and no step changes; the
+        others are stepped over."""
+        origin, h = self._s.grid_origin, self.controller.step
+        return abs(point - (origin + round((point - origin) / h) * h)) <= 1e-6 * h
 
     def _breakpoints(self, extra):
         """The sorted load breakpoints of the model and of ``extra``."""
@@ -1154,10 +1152,11 @@ class Integrator:
         """
         ev, t0 = self.ev, self.t0
         scale = self.t_bound - t0 if self.t_bound is not None else 1.0
-        # the model's and the given ones under error control; the model's in
-        # the other modes, which do not land on them
+        # every breakpoint, the model's and the given ones, whether the mode
+        # lands on them or not: a jump inside the differences hides a wrong rate
         try:
-            points = self.breakpoints if self.breakpoints.size else self._breakpoints(None)
+            points = self.breakpoints if self.breakpoints.size else \
+                self._breakpoints(self._given_breakpoints)
         except Exception:              # not times: the run says so where it lands on them
             points = np.empty(0)
         later = points[points > t0]
@@ -1200,12 +1199,15 @@ class Integrator:
         return False
 
     def _limit(self, t_limit: float) -> float:
-        """``t_limit``, or the next load breakpoint before it."""
+        """``t_limit``, or the next load breakpoint before it (with a fixed step,
+        the next one on its grid: :meth:`_on_grid`)."""
         bp = self.breakpoints
         if bp.size:
-            i = np.searchsorted(bp, self.t, side="right")
-            if i < bp.size and bp[i] < t_limit:
-                return float(bp[i])
+            i = int(np.searchsorted(bp, self.t, side="right"))
+            while i < bp.size and bp[i] < t_limit:
+                if not self.fixed or self._on_grid(float(bp[i])):
+                    return float(bp[i])
+                i += 1
         return t_limit
 
     def _clip(self, h: float, t_limit: float):

@@ -386,6 +386,17 @@ def test_fixed_steps_take_a_load_jump_on_their_grid_one_sided(scheme, bound):
     assert abs(r.u[-1, 0] - exact[0]) < bound
     off = hfdi.integrate(model, scheme, 2.0, step=0.01, breakpoints=[0.505])
     assert off.stats.steps == 200 and not np.any(off.t == 0.505)
+    # the grid as it is: after a step shortened to land off it (advance to
+    # 0.333), the new grid's points count, not the old one's
+    for jump, kept in ((0.5, False), (0.533, True)):
+        moved = hfdi.LinearSystem(np.array([m]), np.array([[k]]), np.array([[c]]),
+                                  load=lambda t, j=jump: np.array([1.0 if t < j else 3.0]))
+        itg = hfdi.Integrator(moved, scheme, step=0.01, breakpoints=[jump])
+        times = []
+        assert itg.advance(0.333) and itg.advance(2.0, callback=lambda i: times.append(i.t))
+        assert np.allclose(np.diff(times)[:-1], 0.01) and np.isclose(times[0], 0.343)
+        error = abs(itg.state.u[0] - flow(flow(np.zeros(2), 1.0, jump), 3.0, 2.0 - jump)[0])
+        assert (error < bound) == kept, (jump, error)
 
 
 @pytest.mark.slow

@@ -308,12 +308,17 @@ def _landing(kind, h, remaining):
 
 
 @njit(**JIT_OPTIONS)
-def _limit(breakpoints, t, t_limit):
-    """:meth:`Integrator._limit`: ``t_limit`` or the next breakpoint before it."""
+def _limit(breakpoints, t, t_limit, fixed, grid_origin, h):
+    """:meth:`Integrator._limit`: ``t_limit`` or the next breakpoint before it
+    (with ``fixed``, the next one on the grid ``grid_origin + k h``)."""
     if breakpoints.shape[0]:
         i = np.searchsorted(breakpoints, t, side="right")
-        if i < breakpoints.shape[0] and breakpoints[i] < t_limit:
-            return breakpoints[i]
+        while i < breakpoints.shape[0] and breakpoints[i] < t_limit:
+            point = breakpoints[i]
+            if not fixed or abs(point - (grid_origin + round((point - grid_origin) / h) * h)) \
+                    <= 1e-6 * h:
+                return point
+            i += 1
     return t_limit
 
 
@@ -367,7 +372,8 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
     rtol, atol : ndarray (2N,)
         Tolerances over ``(u, v)`` (unused without error control).
     breakpoints : ndarray (B,)
-        Sorted load breakpoints (empty unless the controller uses the error estimate).
+        Sorted load breakpoints (empty in the iteration-count mode; the fixed
+        step lands on those on its grid).
     scalars : ndarray (11,), counters : ndarray (17,) int64
         The integrator's state and statistics, updated in place.
     current, previous : ndarray (5, N)
@@ -413,7 +419,8 @@ def drive(kernels, params, load_params, held, config, coefficients, Md, Mf, Cd, 
             counters[REJECTIONS] = rejections
             return FULL, taken
         t = scalars[T_CURRENT]
-        limit = _limit(breakpoints, t, t_stop)
+        limit = _limit(breakpoints, t, t_stop, kind == FIXED, scalars[GRID_ORIGIN],
+                       scalars[PROPOSED])
         if counters[STEPS] >= switches[MAX_STEPS]:
             counters[REJECTIONS] = rejections
             return HAND_OVER, taken
