@@ -517,6 +517,13 @@ def test_first_step_trials_is_the_bound_of_the_first_step(scheme):
                            check_stiffness=False)         # its differences are NaN
         assert r.status == hfdi.Status.FIRST_STEP_FAILED, (r.status, r.message)
         assert r.stats.first_step_trials == trials, r.message
+    # min_step still bounds the first step, whatever max_halvings
+    for halvings in (0, 2, 30):
+        r = hfdi.integrate(stuck, scheme, 1.0, rtol=1e-6, first_step=1.0, min_step=2e-3,
+                           max_halvings=halvings, check_stiffness=False)
+        assert r.status == hfdi.Status.FIRST_STEP_FAILED and "min_step" in r.message, \
+            (halvings, r.message)
+        assert r.stats.first_step_trials <= 10
     # enough trials to get below the limit: the run starts
     r = hfdi.integrate(picky, scheme, 1.0, rtol=1e-6, first_step=1.0, first_step_trials=20,
                        max_halvings=2, check_stiffness=False)
