@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import checks, serial
-from .compiled import InitialValues, compiled_driver, compiled_step, kernel_mismatch, say_once
+from .compiled import (InitialValues, compiled_driver, compiled_step, kernel_mismatch,
+                       library_kernels, say_once)
 from .controller import (DEFAULT_RTOL, Attempt, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .corrector import (SHORT_STEP_RATE, StepOutcome, fastest_rate, is_short, local_error,
@@ -965,7 +966,7 @@ class Integrator:
         s.potential = potential
         s.newton_constant = s.newton_guard = math.inf     # measured on the model as it was
         self._model_version = getattr(self.system, "parameter_version", None)
-        if self._compiled is not None:
+        if self._compiled is not None and not library_kernels(self._compiled.kernels):
             self._check_kernels_again()
 
     def _check_kernels_again(self):
