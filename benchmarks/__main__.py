@@ -24,16 +24,19 @@ def main(argv=None) -> int:
     try:
         with watching_interrupts():
             status = _run(command, argv, rest)
-        # a Ctrl-C that a library swallowed: the command went on, but was interrupted
-        return _interrupted(command) if interrupted() else status
+        # a Ctrl-C that a library swallowed: the command went on, but was
+        # interrupted (130 already: the command said so itself)
+        return _interrupted(command) if interrupted() and status != 130 else status
     except (UsageError, OSError, ValueError) as exc:
-        if caused_by_interrupt(exc):
+        if caused_by_interrupt(exc) or interrupted():
             return _interrupted(command)
         print(f"python -m benchmarks {command}: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, UsageError) else 1
     except BaseException as exc:
-        # Ctrl-C, also when it arrived inside an import and came out as an ImportError
-        if not caused_by_interrupt(exc):
+        # Ctrl-C, also when it arrived inside an import and came out as an
+        # ImportError, or inside an FMU, which turns it into an error status
+        # (fmpy's FMICallException)
+        if not (caused_by_interrupt(exc) or interrupted()):
             raise
         return _interrupted(command)
 

@@ -120,6 +120,10 @@ def benchmark(problem="dumbbell", scheme="hfdi", target_iterations=3.0, internal
             "repeats": repeats, "inputs": bool(inputs)}
 
 
+#: The most communication steps of one run (each is a doStep through fmpy).
+MAX_COMMUNICATION_STEPS = 10_000_000
+
+
 def main(argv=None) -> int:
     """``python -m benchmarks cosim [PROBLEM] [--scheme S] [--communication-step H]
     [--paths] [--repeats N] [--json FILE]``."""
@@ -137,9 +141,20 @@ def main(argv=None) -> int:
                         help="the Python path and the compiled driver, one after the other")
     parser.add_argument("--inputs", action="store_true",
                         help="change the force F[1] at every communication point")
-    parser.add_argument("--repeats", type=opt.positive_integer, default=5)
+    parser.add_argument("--repeats", type=opt.repeats, default=5)
     parser.add_argument("--json", metavar="FILE", type=opt.output_file)
     args = parser.parse_args(argv)
+    longest = opt.LONGEST_RUN * experiment(args.problem).long_time
+    t_end = experiment(args.problem).long_time if args.t_end is None else args.t_end
+    if t_end > longest:
+        parser.error(f"argument --t-end: at most {longest:g} s for {args.problem} "
+                     f"({opt.LONGEST_RUN:g} times its longest observation time), got {t_end:g}")
+    if args.communication_step is not None \
+            and t_end / args.communication_step > MAX_COMMUNICATION_STEPS:
+        parser.error(f"argument --communication-step: at least "
+                     f"{t_end / MAX_COMMUNICATION_STEPS:.3g} s for --t-end {t_end:g} (at most "
+                     f"{MAX_COMMUNICATION_STEPS:,} communication steps), got "
+                     f"{args.communication_step:g}")
     results = []
     for compiled in ((False, True) if args.paths else (False,)):
         result = benchmark(args.problem, args.scheme, repeats=args.repeats, compiled=compiled,

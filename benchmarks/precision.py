@@ -993,7 +993,7 @@ def add_parser(sub) -> None:
                             "(default 1e-3,...,1e-9; none for none)")
     bench.add_argument("--t-end", type=opt.positive, default=None,
                        help="end time of the runs and of the reference (default: T_o)")
-    bench.add_argument("--repeats", type=opt.positive_integer, default=REPEATS,
+    bench.add_argument("--repeats", type=opt.repeats, default=REPEATS,
                        help=f"runs under {REPEAT_BELOW:g} s are made this many times, the "
                             f"shortest kept (default {REPEATS})")
     bench.add_argument("--max-nfev", type=opt.positive_integer, default=MAX_NFEV,

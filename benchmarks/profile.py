@@ -313,7 +313,7 @@ def main(argv=None) -> int:
     parser.add_argument("--schemes", default=list(SCHEME_ORDER), type=opt.schemes)
     parser.add_argument("--target", type=lambda s: opt.targets(s)[0], default=3.0,
                         help="N̄ (default 3)")
-    parser.add_argument("--repeats", type=opt.positive_integer, default=5,
+    parser.add_argument("--repeats", type=opt.repeats, default=5,
                         help="plain runs, best kept (5)")
     parser.add_argument("--t-end", type=opt.positive, default=None, help="default: T_o")
     parser.add_argument("--json", default=None, metavar="FILE", type=opt.output_file)
@@ -322,6 +322,10 @@ def main(argv=None) -> int:
     parser.add_argument("--rtol", type=lambda s: opt.rtols(s)[0], default=None,
                         help="with --paths: error-controlled runs at this rtol")
     args = parser.parse_args(argv)
+    # a --t-end the library refuses, or far beyond the problem's times (1e300
+    # ran zero steps and printed a time per iteration of them)
+    opt.check_runs(args.problems or names(), args.schemes, [args.target], args.t_end,
+                   [args.rtol] if args.rtol is not None else None)
     if args.paths:
         rows = _print_paths(args)
         if args.json:

@@ -36,6 +36,7 @@ Measurement conventions
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
@@ -49,6 +50,8 @@ import numpy as np
 from hfdi.files import write_atomic
 from validation.errors import relative_error
 from validation.experiments import experiment
+from hfdi.models.toss_rule import MAX_ELEMENTS
+from validation import options as opt
 from validation.options import Parser, caused_by_interrupt
 
 __all__ = ["DEFAULT_SIZES", "ASYMPTOTIC_MIN", "measure_size", "fit_exponent", "run_scale",
@@ -325,9 +328,10 @@ def plot_scale(records, fits, path):
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=120)
     plt.close(fig)
-    return path
+    return write_atomic(path, buffer.getvalue())
 
 
 def _fits(records):
@@ -341,8 +345,25 @@ def _fits(records):
     return out
 
 
+def _json_value(value):
+    """``value`` with NaN and infinities as None (strict JSON, as the other
+    commands write it: a measurement that failed or was not made)."""
+    if isinstance(value, dict):
+        return {k: _json_value(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_value(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.ndarray):
+        return _json_value(value.tolist())
+    return value
+
+
 def _write_json(path, data):
-    return write_atomic(path, json.dumps(data, indent=1, default=float, allow_nan=True) + "\n")
+    return write_atomic(path, json.dumps(_json_value(data), indent=1, default=float,
+                                         allow_nan=False) + "\n")
 
 
 def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, threads=1,
@@ -711,9 +732,45 @@ def _sizes(text):
         sizes = [int(s.replace("_", "")) for s in text.split(",") if s.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"sizes must be integers, got {text!r}") from None
-    if not sizes or min(sizes) < 1:
-        raise argparse.ArgumentTypeError(f"sizes must be integers >= 1, got {text!r}")
+    if not sizes or min(sizes) < 1 or max(sizes) > MAX_ELEMENTS:
+        raise argparse.ArgumentTypeError(f"sizes must be integers in [1, {MAX_ELEMENTS}], got "
+                                         f"{text!r}")
     return sizes
+
+
+def _elements(text):
+    sizes = _sizes(text)
+    if len(sizes) != 1:
+        raise argparse.ArgumentTypeError(f"must be one integer in [1, {MAX_ELEMENTS}], got "
+                                         f"{text!r}")
+    return sizes[0]
+
+
+def _integer(low, high):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be an integer in [{low}, {high}], got "
+                                             f"{text!r}")
+        return value
+    return parse
+
+
+def _schemes_or_none(text):
+    return [] if text.strip().lower() == "none" else opt.schemes(text)
+
+
+def _full_t_end(text):
+    value = opt.positive(text)
+    longest = opt.LONGEST_RUN * experiment("toss_rule").long_time
+    if value > longest:
+        raise argparse.ArgumentTypeError(f"must be at most {longest:g} s ({opt.LONGEST_RUN:g} "
+                                         f"times the toss rule's longest observation time), "
+                                         f"got {text!r}")
+    return value
 
 
 def _floats(text):
@@ -737,44 +794,49 @@ def build_parser():
     p.add_argument("--sizes", type=_sizes, default=list(DEFAULT_SIZES),
                    help="comma-separated N_el (default 6,60,600,6000,60000,100000); "
                         "'none' skips the size measurement")
-    p.add_argument("--steps", type=int, default=5, help="steps timed after the first (5)")
+    p.add_argument("--steps", type=_integer(1, 100_000), default=5,
+                   help="steps timed after the first (5)")
     p.add_argument("--scheme", default="hfdi", choices=("hfdi", "newmark", "bathe"))
-    p.add_argument("--target", type=float, default=3.0, help="target iterations N̄ (3)")
+    p.add_argument("--target", type=lambda text: opt.targets(text)[0], default=3.0,
+                   help="target iterations N̄ (3)")
     p.add_argument("--default-threads", action="store_true",
                    help="also time with the default BLAS threads")
     p.add_argument("--compiled", default="auto", choices=tuple(_COMPILED),
                    help="auto: compiled where it can be (default); off: the Python path")
     p.add_argument("--paths", action="store_true",
                    help="with --compiled auto, also time each size on the Python path")
-    p.add_argument("--timeout", type=float, default=3600.0, help="seconds per size (3600)")
+    p.add_argument("--timeout", type=opt.positive, default=3600.0,
+                   help="seconds per size (3600)")
     p.add_argument("--full-run", action=argparse.BooleanOptionalAction, default=True,
                    help="the full T_o run against IDA (default on)")
-    p.add_argument("--full-elements", type=int, default=6000)
-    p.add_argument("--full-schemes", default="hfdi,newmark,bathe",
+    p.add_argument("--full-elements", type=_elements, default=6000)
+    p.add_argument("--full-schemes", type=_schemes_or_none, default=["hfdi", "newmark", "bathe"],
                    help="schemes of the full run ('none' for IDA only)")
-    p.add_argument("--full-t-end", type=float, default=None,
+    p.add_argument("--full-t-end", type=_full_t_end, default=None,
                    help="end of the full run (default T_o = 0.1); the result then goes to "
                         "scale_run_t<T>.json")
     p.add_argument("--rtols", type=_floats, default=[1e-6, 1e-8],
                    help="IDA tolerances ('none': no IDA run)")
-    p.add_argument("--ida-wall-limit", type=float, default=None,
+    p.add_argument("--ida-wall-limit", type=opt.positive, default=None,
                    help="seconds after which an IDA run stops and reports where it got")
     p.add_argument("--no-eps", action="store_true", help="skip eps_u of the full runs")
-    p.add_argument("--ida-atol-v", type=float, default=None,
+    p.add_argument("--ida-atol-v", type=opt.positive, default=None,
                    help="IDA's absolute tolerance on the velocities (default rtol·u_scale/span)")
-    p.add_argument("--json", default=None, help="also write everything to this file")
+    p.add_argument("--json", default=None, type=opt.output_file,
+                   help="also write everything to this file")
     return p
 
 
 def main(argv=None):
     """Command line; returns the exit status (0 ok, 1 failure, 2 bad arguments)."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     say = (lambda text: print(text, file=sys.stderr, flush=True))
     try:
-        if args.steps < 1:
-            raise ValueError(f"--steps must be >= 1, got {args.steps}")
-        out = Path(args.out).expanduser()
-        out.mkdir(parents=True, exist_ok=True)
+        out = opt.out_dir(args.out)
+    except opt.UsageError as exc:
+        parser.error(str(exc))
+    try:
         everything = {}
         if args.sizes:
             result = run_scale(out, args.sizes, args.scheme, args.target, args.steps,
@@ -786,8 +848,7 @@ def main(argv=None):
                     print(result[key])
             everything["scale"] = result
         if args.full_run:
-            schemes = [s.strip() for s in args.full_schemes.split(",")
-                       if s.strip() and s.strip().lower() != "none"]
+            schemes = args.full_schemes
             start = time.perf_counter()
             path = out / ("scale_full_run.json" if args.full_t_end is None
                           else f"scale_run_t{args.full_t_end:g}.json")

@@ -264,7 +264,8 @@ def test_a_false_success_is_marked_inaccurate():
 @pytest.mark.parametrize("args, words", [
     (["--competitors", "cvode"], "unknown competitor"),
     (["--rtols", "2"], "rtols must be numbers in (0, 1)"),
-    (["--repeats", "0"], "integer >= 1"),
+    (["--repeats", "0"], "integer in [1, 1000]"),
+    (["--repeats", "10000000000"], "integer in [1, 1000]"),
     (["--problems", "pendulum"], "unknown problem"),
     (["--jobs", "0"], "integer in [1, "),
 ])
@@ -305,3 +306,35 @@ def test_compiled_runs_give_the_records_of_the_python_path(tiny, tmp_path):
         reference = python[(record["method"], record["target"], record["rtol"])]
         for key in set(record) - TIMING_KEYS:
             assert record[key] == reference[key], (record["method"], key)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["cosim", "--t-end", "1e300"], "--t-end: at most"),
+    (["cosim", "--communication-step", "1e-12"], "at most 10,000,000 communication steps"),
+    (["cosim", "--repeats", "10000000000"], "integer in [1, 1000]"),
+    (["profile", "--t-end", "1e300", "--problems", "dumbbell"], "too long for dumbbell"),
+    (["scale", "--out", "", "--sizes", "6"], "--out must name a directory"),
+    (["scale", "--out", "{tmp}", "--steps", "0"], "--steps: must be an integer in [1, 100000]"),
+    (["scale", "--out", "{tmp}", "--target", "-1"], "--target: targets must be numbers"),
+    (["scale", "--out", "{tmp}", "--sizes", "100000000000"], "sizes must be integers in"),
+    (["scale", "--out", "{tmp}", "--timeout", "0"], "--timeout: must be a positive"),
+    (["scale", "--out", "{tmp}", "--full-schemes", "foo"], "unknown scheme(s) 'foo'"),
+    (["scale", "--out", "{tmp}", "--full-t-end", "1e9"], "--full-t-end: must be at most"),
+    (["scale", "--out", "{tmp}", "--json", "{tmp}/missing/x.json"], "does not exist"),
+])
+def test_bad_arguments_of_every_command_are_one_line_before_any_run(argv, words, tmp_path,
+                                                                     capsys):
+    """Huge or out-of-range settings ran for ever (cosim --t-end 1e300, a
+    communication step of 1e-12), printed a time per iteration of zero steps
+    (profile), or exited 0 or 1 after the measurements (scale); now exit 2
+    with one line, before anything runs."""
+    from benchmarks.__main__ import main as benchmarks_main
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    try:
+        code = benchmarks_main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not any(tmp_path.glob("scale*"))

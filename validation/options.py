@@ -189,6 +189,23 @@ def positive_integer(text) -> int:
     return value
 
 
+#: The most repetitions of a measured run a command takes.
+MAX_REPEATS = 1000
+
+
+def repeats(text) -> int:
+    """An integer in ``[1, MAX_REPEATS]``: repetitions of a measured run (the
+    best kept); more only multiplies the time a command takes."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not 1 <= value <= MAX_REPEATS:
+        raise argparse.ArgumentTypeError(f"must be an integer in [1, {MAX_REPEATS}], got "
+                                         f"{text!r}")
+    return value
+
+
 def job_count(text) -> int:
     """An integer in ``[1, validation.parallel.max_jobs()]``."""
     from .parallel import max_jobs
