@@ -966,7 +966,8 @@ class Integrator:
         s.potential = potential
         s.newton_constant = s.newton_guard = math.inf     # measured on the model as it was
         self._model_version = getattr(self.system, "parameter_version", None)
-        if self._compiled is not None and not library_kernels(self._compiled.kernels):
+        if self._compiled is not None and not library_kernels(self.system,
+                                                              self._compiled.kernels):
             self._check_kernels_again()
 
     def _check_kernels_again(self):

@@ -672,3 +672,11 @@ def test_the_library_kernels_skip_the_check_that_others_pass(monkeypatch):
     assert hfdi.Integrator(toss_rule(60), "hfdi", rtol=1e-6, compiled=True).compiled_model
     with pytest.raises(AssertionError, match="kernel_mismatch called"):
         hfdi.Integrator(_hidden_term_model()(0.0), "hfdi", rtol=1e-6, compiled=True)
+    # the library's kernels with another model's data, handed out by a method
+    # that is not the library's: checked, and refused
+    monkeypatch.undo()
+    from hfdi.models.dumbbell import Dumbbell
+    other = dumbbell(A=2e6)
+    monkeypatch.setattr(Dumbbell, "compiled_kernels", lambda self: other.compiled_kernels())
+    with pytest.raises(hfdi.compiled.CompiledUnavailable, match="another model"):
+        hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6, compiled=True)

@@ -324,7 +324,10 @@ def test_a_sparse_beam_with_compiled_kernels_takes_the_python_paths_steps(scheme
 
 
 def test_sparse_kernels_of_another_model_are_refused(monkeypatch):
+    """The library's own kernels, handed out with another model's data by a
+    method that is not the library's, are checked as any others."""
     import hfdi.compiled as hc
+    import hfdi.compiled.models  # noqa: F401  (hc.models below)
     from hfdi.models.toss_rule import TossRule
     monkeypatch.setattr(hc, "_SAID", set())
     other = toss_rule(60, E=2.0e11)

@@ -179,9 +179,12 @@ def _probe_checks(system, u0, hfdi, potential, kernel_calls):
 _LIBRARY_MODULES = frozenset({"hfdi.compiled.models", "hfdi.compiled.loads"})
 
 
-def library_kernels(kernels) -> bool:
-    """Whether every function of ``kernels`` is one of the library's own
-    (:data:`_LIBRARY_MODULES`): then :func:`kernel_mismatch` is not run.
+def library_kernels(system, kernels) -> bool:
+    """Whether ``system``'s kernels are the library's own: every function of
+    ``kernels`` from :data:`_LIBRARY_MODULES`, handed out by the library's
+    own method (``compiled_kernels`` or ``compiled_sparse_kernels`` of a
+    model class of :mod:`hfdi.models`, not a user's override returning them
+    with another model's data). Then :func:`kernel_mismatch` is not run.
 
     Decision: the check is for kernels the library did not write (a user's,
     an EnergyModel's generated ones). On the paper's models it repeated what
@@ -189,9 +192,12 @@ def library_kernels(kernels) -> bool:
     compiled integrator's 0.9–3.5 ms construction, a tenth of a whole
     dumbbell run at rtol 1e-6.
     """
+    method = "compiled_kernels" if isinstance(kernels, CompiledKernels) else \
+        "compiled_sparse_kernels"
+    source = getattr(getattr(type(system), method, None), "__module__", "") or ""
     functions = [k for k in kernels if callable(k)]
-    return bool(functions) and all(getattr(k, "__module__", None) in _LIBRARY_MODULES
-                                   for k in functions)
+    return source.startswith("hfdi.models.") and bool(functions) and all(
+        getattr(k, "__module__", None) in _LIBRARY_MODULES for k in functions)
 
 
 def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str:
@@ -471,7 +477,8 @@ def compiled_step(ev, scheme, compiled=None, initial: InitialValues | None = Non
     if not reason:
         kernels, reason = kernels_of(ev.system)
     if not reason and initial is not None:
-        reason = "" if library_kernels(kernels) else kernel_mismatch(ev.system, kernels, initial)
+        reason = "" if library_kernels(ev.system, kernels) else \
+            kernel_mismatch(ev.system, kernels, initial)
     step = None
     if not reason:
         try:
@@ -501,7 +508,7 @@ def _sparse_model(ev, compiled, initial):
     and they match it at the initial state; returns ``None``."""
     kernels, reason = sparse_kernels_of(ev.system)
     if not reason and initial is not None:
-        reason = "" if library_kernels(kernels) else \
+        reason = "" if library_kernels(ev.system, kernels) else \
             sparse_kernel_mismatch(ev.system, kernels, initial)
     if reason:
         from ..evaluation import DENSE_BELOW
