@@ -676,7 +676,7 @@ def test_the_library_kernels_skip_the_check_that_others_pass(monkeypatch):
     # that is not the library's: checked, and refused
     monkeypatch.undo()
     from hfdi.models.dumbbell import Dumbbell
-    other = dumbbell(A=2e6)
-    monkeypatch.setattr(Dumbbell, "compiled_kernels", lambda self: other.compiled_kernels())
+    other, library_method = dumbbell(A=2e6), Dumbbell.compiled_kernels
+    monkeypatch.setattr(Dumbbell, "compiled_kernels", lambda self: library_method(other))
     with pytest.raises(hfdi.compiled.CompiledUnavailable, match="another model"):
         hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6, compiled=True)
