@@ -746,19 +746,6 @@ def _elements(text):
     return sizes[0]
 
 
-def _integer(low, high):
-    def parse(text):
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"must be an integer in [{low}, {high}], got "
-                                             f"{text!r}")
-        return value
-    return parse
-
-
 def _schemes_or_none(text):
     return [] if text.strip().lower() == "none" else opt.schemes(text)
 
@@ -794,7 +781,7 @@ def build_parser():
     p.add_argument("--sizes", type=_sizes, default=list(DEFAULT_SIZES),
                    help="comma-separated N_el (default 6,60,600,6000,60000,100000); "
                         "'none' skips the size measurement")
-    p.add_argument("--steps", type=_integer(1, 100_000), default=5,
+    p.add_argument("--steps", type=lambda text: opt.integer_in(text, 1, 100_000), default=5,
                    help="steps timed after the first (5)")
     p.add_argument("--scheme", default="hfdi", choices=("hfdi", "newmark", "bathe"))
     p.add_argument("--target", type=lambda text: opt.targets(text)[0], default=3.0,

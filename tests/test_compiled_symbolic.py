@@ -34,6 +34,15 @@ def _relative(a, b):
     return float(np.abs(a - b).max() / scale) if scale else float(np.abs(a - b).max())
 
 
+def _assert_kernels_match(kernels, p, model, u, w, rtol):
+    """The kernels (data ``p``) against the model's Python methods at ``u``, ``T[w]``."""
+    assert _relative(kernels.force(u, p), model.internal_force(u)) < rtol
+    assert _relative(kernels.stiffness(u, p), model.stiffness(u)) < rtol
+    assert _relative(kernels.stiffness_derivative(u, w, p),
+                     model.stiffness_derivative(u, w)) < rtol
+    assert kernels.potential_energy(u, p) == pytest.approx(model.potential_energy(u), rel=rtol)
+
+
 def _models():
     """A bar on a hinge with a transcendental energy and dense mass and damping,
     beside the two ready-made models (the chain sparse in the Python path)."""
@@ -298,13 +307,8 @@ def test_integer_valued_expressions_compute_in_floats_as_on_the_python_path(case
         model.set_parameters(n=value)
         p = model.compiled_params()
         for _ in range(3):
-            u, w = rng.uniform(-2.0, 2.0, 2), rng.standard_normal(2)
-            assert _relative(kernels.force(u, p), model.internal_force(u)) < 1e-13
-            assert _relative(kernels.stiffness(u, p), model.stiffness(u)) < 1e-13
-            assert _relative(kernels.stiffness_derivative(u, w, p),
-                             model.stiffness_derivative(u, w)) < 1e-13
-            assert kernels.potential_energy(u, p) == pytest.approx(model.potential_energy(u),
-                                                                   rel=1e-13)
+            _assert_kernels_match(kernels, p, model, rng.uniform(-2.0, 2.0, 2),
+                                  rng.standard_normal(2), 1e-13)
 
 
 def test_max_min_and_abs_kernels_match_the_python_path_on_and_off_the_kinks():
@@ -317,14 +321,7 @@ def test_max_min_and_abs_kernels_match_the_python_path_on_and_off_the_kinks():
     assert kernels is not None, why
     p = kernels.params
     for u in ([0.2, 0.0], [0.5, 0.3], [-0.1, -0.4], [0.2, -0.3], [0.7, 0.0]):
-        u = np.array(u)
-        w = np.array([0.3, -1.1])
-        assert _relative(kernels.force(u, p), model.internal_force(u)) < 1e-14
-        assert _relative(kernels.stiffness(u, p), model.stiffness(u)) < 1e-14
-        assert _relative(kernels.stiffness_derivative(u, w, p),
-                         model.stiffness_derivative(u, w)) < 1e-14
-        assert kernels.potential_energy(u, p) == pytest.approx(model.potential_energy(u),
-                                                               rel=1e-14)
+        _assert_kernels_match(kernels, p, model, np.array(u), np.array([0.3, -1.1]), 1e-14)
     runs = [hfdi.integrate(model, "hfdi", 2.0, rtol=1e-6, compiled=c) for c in (False, True)]
     assert runs[0].success and runs[1].success
     assert runs[1].stats.steps == runs[0].stats.steps

@@ -189,6 +189,18 @@ def positive_integer(text) -> int:
     return value
 
 
+def integer_in(text, low: int, high: int, why: str = "") -> int:
+    """An integer in ``[low, high]`` (``why``: the bound's reason, in the message)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be an integer in [{low}, {high}]"
+                                         f"{f' ({why})' if why else ''}, got {text!r}")
+    return value
+
+
 #: The most repetitions of a measured run a command takes.
 MAX_REPEATS = 1000
 
@@ -196,28 +208,13 @@ MAX_REPEATS = 1000
 def repeats(text) -> int:
     """An integer in ``[1, MAX_REPEATS]``: repetitions of a measured run (the
     best kept); more only multiplies the time a command takes."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = None
-    if value is None or not 1 <= value <= MAX_REPEATS:
-        raise argparse.ArgumentTypeError(f"must be an integer in [1, {MAX_REPEATS}], got "
-                                         f"{text!r}")
-    return value
+    return integer_in(text, 1, MAX_REPEATS)
 
 
 def job_count(text) -> int:
     """An integer in ``[1, validation.parallel.max_jobs()]``."""
     from .parallel import max_jobs
-    most = max_jobs()
-    try:
-        value = int(text)
-    except ValueError:
-        value = None
-    if value is None or not 1 <= value <= most:
-        raise argparse.ArgumentTypeError(f"must be an integer in [1, {most}] (four worker "
-                                         f"processes per CPU), got {text!r}")
-    return value
+    return integer_in(text, 1, max_jobs(), "four worker processes per CPU")
 
 
 def output_file(text) -> str:
