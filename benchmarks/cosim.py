@@ -131,7 +131,7 @@ def main(argv=None) -> int:
                         description="Time the FMU through fmpy against in-process advance, "
                                     "communication step ≈ 10 internal steps or as given.")
     parser.add_argument("problem", nargs="?", default="dumbbell",
-                        type=lambda text: opt.problems(text)[0])
+                        type=opt.single(opt.problems, "problem"))
     parser.add_argument("--scheme", choices=SCHEME_ORDER, default="hfdi")
     parser.add_argument("--communication-step", metavar="H", type=opt.positive,
                         help="communication step in s (default: about 10 internal steps)")

@@ -916,7 +916,10 @@ def plot_problem(result, path) -> Path:
         ax.set_yscale("log")
         ax.set_xlabel("wall time [s]")
         ax.set_ylabel("ε_u (Eq. 42)")
-        ax.set_title(f"{result['problem']}: work–precision over [0, {result['t_end']:g}]")
+        path_name = "compiled path" if result.get("settings", {}).get("compiled") else \
+            "Python path"
+        ax.set_title(f"{result['problem']}: work–precision over [0, {result['t_end']:g}] "
+                     f"(ours on the {path_name})")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()

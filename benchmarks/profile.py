@@ -311,7 +311,7 @@ def main(argv=None) -> int:
                         description="Cost per Newton iteration and its split.")
     parser.add_argument("--problems", default=None, type=opt.problems)
     parser.add_argument("--schemes", default=list(SCHEME_ORDER), type=opt.schemes)
-    parser.add_argument("--target", type=lambda s: opt.targets(s)[0], default=3.0,
+    parser.add_argument("--target", type=opt.single(opt.targets, "target"), default=3.0,
                         help="N̄ (default 3)")
     parser.add_argument("--repeats", type=opt.repeats, default=5,
                         help="plain runs, best kept (5)")
@@ -319,7 +319,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=None, metavar="FILE", type=opt.output_file)
     parser.add_argument("--paths", action="store_true",
                         help="compare the Python path with the compiled attempt")
-    parser.add_argument("--rtol", type=lambda s: opt.rtols(s)[0], default=None,
+    parser.add_argument("--rtol", type=opt.single(opt.rtols, "rtol"), default=None,
                         help="with --paths: error-controlled runs at this rtol")
     args = parser.parse_args(argv)
     # a --t-end the library refuses, or far beyond the problem's times (1e300

@@ -409,7 +409,7 @@ def run_scale(out, sizes=DEFAULT_SIZES, scheme="hfdi", target=3.0, steps=5, thre
             rec = {"n_elements": int(n), "n_dof": 3 * (int(n) + 1), "error": str(exc)}
         if default_threads and "error" not in rec:
             try:
-                other = measure_size(n, scheme, target, steps, "default", timeout)
+                other = measure_size(n, scheme, target, steps, "default", timeout, compiled)
                 rec["time_per_iteration_default_threads_s"] = other["time_per_iteration_s"]
             except ScaleError as exc:
                 rec["default_threads_error"] = str(exc)
@@ -784,7 +784,7 @@ def build_parser():
     p.add_argument("--steps", type=lambda text: opt.integer_in(text, 1, 100_000), default=5,
                    help="steps timed after the first (5)")
     p.add_argument("--scheme", default="hfdi", choices=("hfdi", "newmark", "bathe"))
-    p.add_argument("--target", type=lambda text: opt.targets(text)[0], default=3.0,
+    p.add_argument("--target", type=opt.single(opt.targets, "target"), default=3.0,
                    help="target iterations N̄ (3)")
     p.add_argument("--default-threads", action="store_true",
                    help="also time with the default BLAS threads")

@@ -321,13 +321,18 @@ def test_compiled_runs_give_the_records_of_the_python_path(tiny, tmp_path):
     (["scale", "--out", "{tmp}", "--full-schemes", "foo"], "unknown scheme(s) 'foo'"),
     (["scale", "--out", "{tmp}", "--full-t-end", "1e9"], "--full-t-end: must be at most"),
     (["scale", "--out", "{tmp}", "--json", "{tmp}/missing/x.json"], "does not exist"),
+    (["profile", "--target", "1,2"], "one target is taken here"),
+    (["profile", "--paths", "--rtol", "1e-4,1e-6"], "one rtol is taken here"),
+    (["cosim", "dumbbell,tetrahedra"], "one problem is taken here"),
+    (["scale", "--out", "{tmp}", "--target", "2,3"], "one target is taken here"),
 ])
 def test_bad_arguments_of_every_command_are_one_line_before_any_run(argv, words, tmp_path,
                                                                      capsys):
     """Huge or out-of-range settings ran for ever (cosim --t-end 1e300, a
     communication step of 1e-12), printed a time per iteration of zero steps
-    (profile), or exited 0 or 1 after the measurements (scale); now exit 2
-    with one line, before anything runs."""
+    (profile), or exited 0 or 1 after the measurements (scale), and a list
+    where one value is taken was cut to its first; now exit 2 with one line,
+    before anything runs."""
     from benchmarks.__main__ import main as benchmarks_main
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     try:

@@ -680,3 +680,18 @@ def test_the_library_kernels_skip_the_check_that_others_pass(monkeypatch):
     monkeypatch.setattr(Dumbbell, "compiled_kernels", lambda self: library_method(other))
     with pytest.raises(hfdi.compiled.CompiledUnavailable, match="another model"):
         hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6, compiled=True)
+
+
+def test_a_reason_is_said_again_in_another_situation(monkeypatch):
+    """say_once kept the reason only: a fault said at construction was not
+    said when the same reason came up after a model change."""
+    import hfdi.compiled as hc
+    monkeypatch.setattr(hc, "_SAID", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        hc.say_once("the reason")
+        hc.say_once("the reason")
+        hc.say_once("the reason", "after the model changed: {reason}")
+    assert [str(w.message) for w in caught] == [
+        "hfdi: the compiled step is not used (the reason); the Python path runs",
+        "hfdi: after the model changed: the reason"]

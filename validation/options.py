@@ -148,6 +148,17 @@ def rtols(text) -> list:
     return sorted(set(values), reverse=True)
 
 
+def single(parse, what):
+    """The parser of one value of a list option's ``parse`` (a list given
+    where one value is taken is refused, not cut to its first value)."""
+    def one(text):
+        values = parse(text)
+        if len(values) != 1:
+            raise argparse.ArgumentTypeError(f"one {what} is taken here, got {text!r}")
+        return values[0]
+    return one
+
+
 def positive(text) -> float:
     """A positive finite number."""
     try:

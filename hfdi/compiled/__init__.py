@@ -429,12 +429,13 @@ _SAID = set()
 
 def say_once(reason: str, message: str = "the compiled step is not used ({reason}); "
                                         "the Python path runs") -> None:
-    """Warn once per process and reason that the Python path runs instead
-    (``message``, with ``{reason}`` in it)."""
-    if reason in _SAID:
-        return
-    _SAID.add(reason)
+    """Warn once per process, reason and message that the Python path runs
+    instead (``message``, with ``{reason}`` in it): the same reason met in
+    another situation (at construction, after a model change) is said again."""
     message = "hfdi: " + message.format(reason=reason)
+    if message in _SAID:
+        return
+    _SAID.add(message)
     _log.info(message)
     warnings.warn(message, RuntimeWarning, stacklevel=3)
 
