@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=opt.repeats, default=5)
     parser.add_argument("--json", metavar="FILE", type=opt.output_file)
     args = parser.parse_args(argv)
-    longest = opt.LONGEST_RUN * experiment(args.problem).long_time
+    longest = opt.longest_run(args.problem)
     t_end = experiment(args.problem).long_time if args.t_end is None else args.t_end
     if t_end > longest:
         parser.error(f"argument --t-end: at most {longest:g} s for {args.problem} "

@@ -738,21 +738,13 @@ def _sizes(text):
     return sizes
 
 
-def _elements(text):
-    sizes = _sizes(text)
-    if len(sizes) != 1:
-        raise argparse.ArgumentTypeError(f"must be one integer in [1, {MAX_ELEMENTS}], got "
-                                         f"{text!r}")
-    return sizes[0]
-
-
 def _schemes_or_none(text):
     return [] if text.strip().lower() == "none" else opt.schemes(text)
 
 
 def _full_t_end(text):
     value = opt.positive(text)
-    longest = opt.LONGEST_RUN * experiment("toss_rule").long_time
+    longest = opt.longest_run("toss_rule")
     if value > longest:
         raise argparse.ArgumentTypeError(f"must be at most {longest:g} s ({opt.LONGEST_RUN:g} "
                                          f"times the toss rule's longest observation time), "
@@ -796,7 +788,8 @@ def build_parser():
                    help="seconds per size (3600)")
     p.add_argument("--full-run", action=argparse.BooleanOptionalAction, default=True,
                    help="the full T_o run against IDA (default on)")
-    p.add_argument("--full-elements", type=_elements, default=6000)
+    p.add_argument("--full-elements", type=opt.single(_sizes, "number of elements"),
+                   default=6000)
     p.add_argument("--full-schemes", type=_schemes_or_none, default=["hfdi", "newmark", "bathe"],
                    help="schemes of the full run ('none' for IDA only)")
     p.add_argument("--full-t-end", type=_full_t_end, default=None,

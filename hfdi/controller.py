@@ -454,12 +454,13 @@ class ErrorControl(Controller):
             # first_step_trials bounds this loop; max_halvings is the bound
             # of a later step's rejections (it had capped the trials at 31),
             # min_step bounds both
-            if decision.status == "HALVINGS_EXHAUSTED" and decision.next_step < self.min_step:
-                message = (f"step {decision.next_step:.6g} below min_step = "
-                           f"{self.min_step:.6g} after the attempt with h = {attempt.h:.6g} "
-                           f"was rejected")
-                break
-            if decision.status is not None and decision.status != "HALVINGS_EXHAUSTED":
+            if decision.status == "HALVINGS_EXHAUSTED":
+                if decision.next_step < self.min_step:
+                    message = (f"step {decision.next_step:.6g} below min_step = "
+                               f"{self.min_step:.6g} after the attempt with h = "
+                               f"{attempt.h:.6g} was rejected")
+                    break
+            elif decision.status is not None:
                 break
             h = decision.next_step
         return None, Decision(False, h, "FIRST_STEP_FAILED",

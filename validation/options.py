@@ -281,6 +281,11 @@ def check_problem(name) -> None:
 LONGEST_RUN = 10.0
 
 
+def longest_run(name) -> float:
+    """The longest ``--t-end`` accepted for the benchmark ``name``."""
+    return LONGEST_RUN * experiment(name).long_time
+
+
 def check_runs(problem_names, scheme_names, target_values, t_end, rtol_values=None,
                option="--t-end") -> None:
     """Let the library refuse the run settings (say a ``--t-end`` below its
@@ -289,7 +294,7 @@ def check_runs(problem_names, scheme_names, target_values, t_end, rtol_values=No
     for name in problem_names:
         exp = experiment(name)
         model = exp.model()
-        longest = LONGEST_RUN * exp.long_time
+        longest = longest_run(name)
         if t_end is not None and t_end > longest:
             # the IDA reference (rtol 1e-12, every step kept) grows with t_end:
             # 1e300 ran without end, memory growing

@@ -137,9 +137,9 @@ def _difference(kernel_value, python_value):
                                                                        equal_nan=True):
         return math.inf
     a, b = a[finite], b[finite]
-    scale = float(np.abs(b).max()) if b.size else 0.0
     if not b.size:
         return 0.0
+    scale = float(np.abs(b).max())
     return float(np.abs(a - b).max()) / scale if scale > 0 else float(np.abs(a).max())
 
 

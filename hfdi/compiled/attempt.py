@@ -665,8 +665,8 @@ _MESSAGES = {
 
 
 #: a kernel's value of a wrong shape: the model's method it stands for
-_SHAPE_OF = {FORCE_SHAPE: ("internal_force", 1), STIFFNESS_SHAPE: ("stiffness", 2),
-             DERIVATIVE_SHAPE: ("stiffness_derivative", 2)}
+_SHAPE_OF = {FORCE_SHAPE: "internal_force", STIFFNESS_SHAPE: "stiffness",
+             DERIVATIVE_SHAPE: "stiffness_derivative"}
 
 
 def _kind_and_arrays(matrix, n):
@@ -825,7 +825,7 @@ class CompiledStep:
             # Python path (its evaluations of this attempt go uncounted)
             return StepOutcome(None, [], f"model raised {type(exc).__name__}: {exc}")
         if status in _SHAPE_OF:
-            what, _ = _SHAPE_OF[int(status)]
+            what = _SHAPE_OF[int(status)]
             rows, columns = int(info[BAD_ROWS]), int(info[BAD_COLUMNS])
             shape = (rows,) if columns < 0 else (rows, columns)
             expected = (ev.n,) if columns < 0 else (ev.n, ev.n)

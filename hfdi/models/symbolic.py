@@ -189,16 +189,8 @@ class _SymmetricLayout:
 
 def _compile(args, exprs, what):
     """The numpy function of ``exprs`` (lambdify), or a ValueError naming
-    ``what`` when an expression has no numerical form: a derivative sympy
-    could not take (``Abs``, ``sign``, ``re`` of a symbol not declared real
-    leaves ``Derivative(re(...))``), or a function numpy lacks."""
+    ``what`` when an expression has a function numpy lacks."""
     from sympy.printing.codeprinter import PrintMethodNotImplementedError
-    for expr in (exprs if isinstance(exprs, (list, tuple)) else [exprs]):
-        if expr.has(sympy.Derivative):
-            raise ValueError(
-                f"the model's {what} could not be derived in closed form (sympy left "
-                f"{next(iter(expr.atoms(sympy.Derivative)))}); declare the symbols that "
-                f"Abs, sign, re or im act on real (sympy.Symbol(name, real=True))")
     try:
         return sympy.lambdify(args, exprs, modules="numpy", cse=True)
     except PrintMethodNotImplementedError as exc:
@@ -437,6 +429,16 @@ class EnergyModel(SecondOrderSystem):
         rename.update(zip(time_symbols, (self._t,)))
         w_rename = dict(zip(w_user, self._w))
         w_rename.update(rename)
+        rates = [] if load_exprs is None else [
+            _right_rate(e.diff(time)) if time is not None else sympy.Integer(0)
+            for e in load_exprs]
+        leftover = [e for e in rates if e.has(sympy.Derivative)]
+        if leftover:
+            # as for the energy's derivatives (_derive)
+            raise ValueError(
+                f"the model's load rate could not be derived in closed form (sympy left "
+                f"{next(iter(leftover[0].atoms(sympy.Derivative)))}); declare the symbols that "
+                f"Abs, sign, re or im act on real (sympy.Symbol(name, real=True))")
         self._exprs = {
             "V": _without_impulses(energy).xreplace(rename),
             "f": [g.xreplace(rename) for g in self.gradient],
@@ -445,9 +447,7 @@ class EnergyModel(SecondOrderSystem):
             "q": [_without_impulses(e).xreplace(rename) for e in quantity_exprs],
             "p": [] if load_exprs is None else [_without_impulses(e).xreplace(rename)
                                                  for e in load_exprs],
-            "dp": [] if load_exprs is None else [
-                (_right_rate(e.diff(time)) if time is not None else sympy.Integer(0))
-                .xreplace(rename) for e in load_exprs],
+            "dp": [e.xreplace(rename) for e in rates],
         }
         self.load_expressions = load_exprs
         self._build_functions()
