@@ -37,7 +37,7 @@ from ..corrector import NO_MEASUREMENT, StepOutcome, convergence_test
 from ..evaluation import ModelError, NonFiniteError, State
 from ..schemes import HFDI, Bathe, Newmark
 from .lapack import all_finite as _all_finite
-from .lapack import gesv, getrf, getrs, getrs_columns, work_arrays
+from .lapack import INTS, gesv, getrf, getrs, getrs_columns, solve, work_arrays
 from .loads import hat_load
 from .signatures import (FORCE_TYPE, INDEX_VECTOR, INT32_MATRIX, JIT_OPTIONS, KERNEL_SET,
                          LOAD_TYPE, MATRIX, POTENTIAL_ENERGY_TYPE, STIFFNESS_DERIVATIVE_TYPE,
@@ -153,13 +153,13 @@ def _add_diagonal(d, c, diagonal, kind):
 @njit(**JIT_OPTIONS)
 def workspace(n):
     """The work arrays of :func:`attempt`, made once by its caller:
-    ``(vectors (17, N), matrices (8, N, N), pivots (2, N) int32, ints (2, 4)
+    ``(vectors (17, N), matrices (8, N, N), pivots (2, N) int32, ints (2, INTS)
     int32)``, rows named ``W_*`` and ``X_*``; two sets of LAPACK's pivots and
     integers (:func:`~hfdi.compiled.lapack.work_arrays`), the tangent's and
     HFDI's ``B``'s. An allocation costs about 50 ns, and an attempt made
     some forty of them. Every entry is written before it is read: empty, not
     zeroed (a megabyte at N = 127, and the driver makes them at every call)."""
-    ints = np.empty((2, 4), np.int32)
+    ints = np.empty((2, INTS), np.int32)
     for k in range(2):
         ints[k] = work_arrays(0)[2]
     return (np.empty((_WORK_VECTORS, n)), np.empty((_WORK_MATRICES, n, n)),
@@ -202,7 +202,7 @@ def _newton_update(u, tangent, residual, tol, floor, previous, constant, guard, 
     counters[NLU] += 1
     for i in range(du.shape[0]):
         du[i] = -residual[i]
-    if not gesv(tangent, du, lu, pivots, ints):
+    if not solve(tangent, du, lu, pivots, ints):
         return TANGENT_SINGULAR, False, math.inf, previous, constant, guard
     du2 = np.dot(du, du)
     if not math.isfinite(du2) and not _all_finite(du):

@@ -8,8 +8,9 @@ old attempt. The cache is therefore kept for one state of the whole package:
 a stamp of the sources of ``hfdi/compiled`` (names, sizes and modification
 times) lies beside numba's files, and where it differs from the sources the
 package's cached functions are removed before any is loaded. The stamp also
-covers ``hfdi/corrector.py`` and ``hfdi/evaluation.py``, whose rules (the
-convergence test, short steps, the energy overflow) are compiled in.
+covers ``hfdi/corrector.py``, ``hfdi/evaluation.py`` and ``hfdi/linalg.py``,
+whose rules (the convergence test, short steps, the energy overflow, the
+symmetry tolerance of a dense solve) are compiled in.
 
 This covers numba's default place for the cache, ``__pycache__`` beside the
 sources. A cache elsewhere (``NUMBA_CACHE_DIR``, or a user-wide one where the
@@ -28,9 +29,11 @@ __all__ = ["drop_stale_cache", "source_stamp"]
 
 _PACKAGE = Path(__file__).resolve().parent
 _STAMP = "hfdi-compiled-sources.stamp"
-#: Sources outside the package whose functions its compiled code compiles in
-#: (the corrector's convergence test and short steps, the energy overflow).
-_COMPILED_IN = (_PACKAGE.parent / "corrector.py", _PACKAGE.parent / "evaluation.py")
+#: Sources outside the package whose functions or constants its compiled code
+#: compiles in (the corrector's convergence test and short steps, the energy
+#: overflow, the symmetry tolerance of a dense solve).
+_COMPILED_IN = (_PACKAGE.parent / "corrector.py", _PACKAGE.parent / "evaluation.py",
+                _PACKAGE.parent / "linalg.py")
 
 
 def source_stamp(package: Path = _PACKAGE, compiled_in=_COMPILED_IN) -> str:

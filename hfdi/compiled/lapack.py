@@ -1,8 +1,8 @@
 """LAPACK for the compiled attempt: the Python path's routines, called into work arrays.
 
 The Python path solves its dense systems with scipy's LAPACK
-(:mod:`hfdi.linalg`: ``gesv`` for a Newton correction, ``getrf``/``getrs``
-for HFDI's matrix ``B``). The compiled attempt calls the same routines of the
+(:mod:`hfdi.linalg`: ``potrf``/``potrs`` or ``gesv`` for a Newton correction,
+``getrf``/``getrs`` for HFDI's matrix ``B``). The compiled attempt calls the same routines of the
 same library, so that both paths give the same numbers (with kernels equal to
 the model's methods, the same steps bit for bit), but straight and into
 arrays allocated once per stage: ``np.linalg.solve`` in compiled code
@@ -25,11 +25,13 @@ import math
 import llvmlite.binding as llvm
 import numpy as np
 from numba import njit, types
-from numba.extending import get_cython_function_address
+from numba.extending import get_cython_function_address, overload
 
+from ..linalg import SYMMETRY_TOLERANCE
 from .signatures import JIT_OPTIONS
 
-__all__ = ["all_finite", "gesv", "getrf", "getrs", "getrs_columns", "work_arrays"]
+__all__ = ["all_finite", "gesv", "solve", "symmetric", "getrf", "getrs", "getrs_columns",
+           "work_arrays", "INTS"]
 
 
 def _bind(routine: str, arguments: int):
@@ -45,32 +47,67 @@ _dgesv = _bind("dgesv", 8)
 _dgetrf = _bind("dgetrf", 6)
 # dgetrs(trans, n, nrhs, a, lda, ipiv, b, ldb, info)
 _dgetrs = _bind("dgetrs", 9)
+# dpotrf(uplo, n, a, lda, info)
+_dpotrf = _bind("dpotrf", 5)
+# dpotrs(uplo, n, nrhs, a, lda, b, ldb, info)
+_dpotrs = _bind("dpotrs", 8)
 
-# entries of the int32 ``ints`` work array
-_N, _NRHS, _INFO, _TRANS = range(4)
+# entries of the int32 ``ints`` work array (INTS of them)
+_N, _NRHS, _INFO, _TRANS, _UPLO = range(5)
+INTS = 5
+# the symmetry test of the Python path (hfdi.linalg.is_symmetric)
+_SYMMETRY_TOLERANCE = SYMMETRY_TOLERANCE
+
+
+_EXPONENT = 0x7FF0000000000000       # the exponent bits of a float64: all set for inf and NaN
+_MAGNITUDE = 0x7FFFFFFFFFFFFFFF      # all but the sign bit: the word of |x|
+
+
+def _all_finite_words(x):
+    """Pure-Python stand-in; the compiled versions are chosen by the layout below."""
+    return bool(np.all(np.isfinite(x)))
+
+
+@overload(_all_finite_words, jit_options=JIT_OPTIONS)
+def _all_finite_words_compiled(x):
+    if isinstance(x, types.Array) and x.layout == "C":
+        # a contiguous array read as its 64-bit words: the test is integer
+        # arithmetic without a branch, which LLVM vectorises (0.08 against
+        # 0.28 µs for a 21 × 21 matrix tested entry by entry)
+        def contiguous(x):
+            words = x.reshape(-1).view(np.int64)
+            bad = 0
+            for i in range(words.shape[0]):
+                bad |= (words[i] & _EXPONENT) == _EXPONENT
+            return bad == 0
+        return contiguous
+
+    def strided(x):
+        if x.ndim == 1:
+            for i in range(x.shape[0]):
+                if not math.isfinite(x[i]):
+                    return False
+            return True
+        for i in range(x.shape[0]):
+            for j in range(x.shape[1]):
+                if not math.isfinite(x[i, j]):
+                    return False
+        return True
+    return strided
 
 
 @njit(**JIT_OPTIONS)
 def all_finite(x):
-    """Whether every entry of ``x`` (N,) or (N, M) is finite (index loops: an
-    iterator over ``x.ravel()`` costs more than the test for small arrays)."""
-    if x.ndim == 1:
-        for i in range(x.shape[0]):
-            if not math.isfinite(x[i]):
-                return False
-        return True
-    for i in range(x.shape[0]):
-        for j in range(x.shape[1]):
-            if not math.isfinite(x[i, j]):
-                return False
-    return True
+    """Whether every entry of ``x`` (N,) or (N, M) is finite (no inf, no NaN)."""
+    return _all_finite_words(x)
 
 
 @njit(**JIT_OPTIONS)
 def work_arrays(n):
-    """``(lu (N, N), pivots (N,) int32, ints (4,) int32)`` for the routines below."""
-    ints = np.zeros(4, np.int32)
+    """``(lu (N, N), pivots (N,) int32, ints (INTS,) int32)`` for the routines below."""
+    ints = np.zeros(INTS, np.int32)
     ints[_TRANS] = 0x4E4E4E4E          # "NNNN": dgetrs reads the first byte, N
+    ints[_UPLO] = 0x4C4C4C4C           # "LLLL": dpotrf and dpotrs, the lower triangle
     return np.empty((n, n)), np.empty(n, np.int32), ints
 
 
@@ -94,6 +131,45 @@ def gesv(A, x, lu, pivots, ints):
     _dgesv(ints.ctypes, ints[_NRHS:].ctypes, lu.ctypes, ints.ctypes, pivots.ctypes, x.ctypes,
            ints.ctypes, ints[_INFO:].ctypes)
     return ints[_INFO] == 0
+
+
+@njit(**JIT_OPTIONS)
+def symmetric(A):
+    """:func:`hfdi.linalg.is_symmetric` for a finite ``A`` (N, N), N ≥ 1: the
+    largest ``|A_ij − A_ji|`` against the tolerance times the largest
+    ``|A_ij|``, both maxima exact, so that the two paths decide alike. The
+    largest ``|A_ij|`` is taken on the words: a finite non-negative float64
+    orders as its bits do, and the integer maximum is vectorised."""
+    n = A.shape[0]
+    words = A.reshape(-1).view(np.int64)
+    top = 0
+    for i in range(words.shape[0]):
+        top = max(top, words[i] & _MAGNITUDE)
+    limit = _SYMMETRY_TOLERANCE * np.int64(top).view(np.float64)
+    for i in range(n):
+        for j in range(i):
+            if abs(A[i, j] - A[j, i]) > limit:
+                return False
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def solve(A, x, lu, pivots, ints):
+    """``x ← A⁻¹ x`` as :func:`hfdi.linalg.solve` solves a dense system:
+    Cholesky (``dpotrf``/``dpotrs``, lower triangle) when ``A`` is symmetric
+    to rounding and positive definite, else :func:`gesv`; false when ``A`` is
+    singular or not finite, ``x`` then undefined."""
+    if not all_finite(A):
+        return False
+    if A.shape[0] and symmetric(A):
+        _transpose_into(A, lu)
+        ints[_N], ints[_NRHS], ints[_INFO] = A.shape[0], 1, 0
+        _dpotrf(ints[_UPLO:].ctypes, ints.ctypes, lu.ctypes, ints.ctypes, ints[_INFO:].ctypes)
+        if ints[_INFO] == 0:
+            _dpotrs(ints[_UPLO:].ctypes, ints.ctypes, ints[_NRHS:].ctypes, lu.ctypes,
+                    ints.ctypes, x.ctypes, ints.ctypes, ints[_INFO:].ctypes)
+            return ints[_INFO] == 0
+    return gesv(A, x, lu, pivots, ints)
 
 
 @njit(**JIT_OPTIONS)

@@ -1,0 +1,158 @@
+"""Dense Newton solves: Cholesky for tangents symmetric to rounding, LU otherwise.
+
+hfdi.linalg.solve and the compiled attempt's hfdi.compiled.lapack.solve must
+take the same route (the same LAPACK routine on the same triangle) and give
+the same solution bit for bit, whatever the matrix: symmetric positive
+definite, symmetric to rounding, symmetric but indefinite (Cholesky fails,
+LU follows), not symmetric, singular, not finite.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hfdi import linalg
+
+
+def _spd(n, rng, scale=1.0):
+    x = rng.standard_normal((n, n))
+    return scale * (x @ x.T + n * np.eye(n))
+
+
+def _indefinite(n, rng):
+    a = _spd(n, rng)
+    a[n // 2, n // 2] = -10.0 * n * n          # a negative pivot: not positive definite
+    return a
+
+
+def _cases():
+    rng = np.random.default_rng(7)
+    spd = _spd(21, rng)
+    rounded = spd.copy()
+    rounded[3, 5] *= 1.0 + 1e-14                # symmetric to rounding
+    skewed = spd.copy()
+    skewed[3, 5] *= 1.0 + 1e-9                  # not symmetric
+    return {
+        "spd": (spd, "potrf"),
+        "spd_tiny": (_spd(6, rng, 1e-200), "potrf"),
+        "spd_huge": (_spd(6, rng, 1e200), "potrf"),
+        "one": (np.array([[4.0]]), "potrf"),
+        "symmetric_to_rounding": (rounded, "potrf"),
+        "indefinite": (_indefinite(12, rng), "potrf+gesv"),
+        "not_symmetric": (skewed, "gesv"),
+        "general": (rng.standard_normal((9, 9)), "gesv"),
+        "overflowing_difference": (np.array([[1.0, 1.5e308], [-1.5e308, 1.0]]), "gesv"),
+    }
+
+
+CASES = _cases()
+
+
+def _routes(monkeypatch):
+    """Record which LAPACK routines hfdi.linalg.solve calls."""
+    called = []
+    for name in ("_potrf", "_gesv"):
+        routine = getattr(linalg, name)
+
+        def spy(*args, _routine=routine, _name=name, **kwargs):
+            called.append(_name[1:])
+            return _routine(*args, **kwargs)
+        monkeypatch.setattr(linalg, name, spy)
+    return called
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_the_route_follows_symmetry_and_definiteness(name, monkeypatch):
+    a, route = CASES[name]
+    b = np.arange(1.0, a.shape[0] + 1.0)
+    called = _routes(monkeypatch)
+    x = linalg.solve(a, b)
+    assert "+".join(called) == route
+    want = np.linalg.solve(a, b)
+    # backward error at the level of rounding, whichever route
+    residual = np.abs(a @ x - b).max() / (np.abs(a).max() * np.abs(x).max())
+    assert residual < 1e-14
+    np.testing.assert_allclose(x, want, rtol=1e-9 * np.linalg.cond(a), atol=0)
+
+
+def test_is_symmetric_is_relative_to_the_largest_entry():
+    a = np.array([[1.0, 2.0], [2.0, 3.0]])
+    assert linalg.is_symmetric(a)
+    for delta, expected in ((2.9e-12, True), (3.1e-12, False)):
+        b = a.copy()
+        b[0, 1] += delta                       # largest entry 3: limit 3e-12
+        assert linalg.is_symmetric(b) is expected
+    assert linalg.is_symmetric(np.zeros((3, 3)))
+    for bad in (np.nan, np.inf):
+        b = a.copy()
+        b[0, 1] = b[1, 0] = bad
+        assert not linalg.is_symmetric(b)
+
+
+def test_singular_symmetric_matrices_still_fail():
+    with pytest.raises(linalg.SingularMatrixError):
+        linalg.solve(np.zeros((3, 3)), np.ones(3))
+    with pytest.raises(linalg.SingularMatrixError):
+        linalg.solve(np.ones((4, 4)), np.ones(4))   # symmetric, rank one
+
+
+# -- the compiled path --------------------------------------------------------------------
+
+numba = pytest.importorskip("numba")
+
+
+def _compiled_solve(a, b):
+    from hfdi.compiled.lapack import solve, work_arrays
+    lu, pivots, ints = work_arrays(a.shape[0])
+    x = np.array(b, dtype=float)
+    return x if solve(np.ascontiguousarray(a), x, lu, pivots, ints) else None
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_the_compiled_solve_is_the_python_solve_bit_for_bit(name):
+    a, _ = CASES[name]
+    b = np.linspace(-1.0, 2.0, a.shape[0])
+    np.testing.assert_array_equal(_compiled_solve(a, b), linalg.solve(a, b))
+
+
+def test_the_compiled_symmetry_test_decides_as_the_python_one():
+    from hfdi.compiled.lapack import symmetric
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 21):
+        for _ in range(300):
+            a = rng.standard_normal((n, n)) * 10.0 ** rng.integers(-300, 300)
+            a = a + a.T
+            i, j = rng.integers(0, n, 2)
+            a[i, j] *= 1.0 + rng.choice([0.0, 1e-13, 9.9e-13, 1.01e-12, 1e-11, 1e-3, -2.0])
+            assert symmetric(a) == linalg.is_symmetric(a)
+
+
+def test_the_compiled_solve_fails_where_the_python_one_raises():
+    for a in (np.zeros((3, 3)), np.ones((4, 4)), np.array([[1.0, np.nan], [np.nan, 1.0]]),
+              np.array([[np.inf, 0.0], [0.0, 1.0]])):
+        assert _compiled_solve(a, np.ones(a.shape[0])) is None
+
+
+def test_the_compiled_finiteness_test_reads_every_layout():
+    from hfdi.compiled.lapack import all_finite
+    rng = np.random.default_rng(5)
+    base = rng.standard_normal((9, 14))
+    for bad in (None, np.nan, np.inf, -np.inf):
+        for where in range(0, base.size, 11):
+            a = base.copy()
+            if bad is not None:
+                a.flat[where] = bad
+            views = (a, a[:, ::2], a[::3], a.T, a[2], a[:, 3], a.reshape(-1), a.reshape(-1)[1:])
+            for view in views:
+                assert all_finite(view) == bool(np.all(np.isfinite(view))), (bad, where)
+    assert all_finite(np.array([1.7976931348623157e308, -5e-324, -0.0]))
+    assert all_finite(np.empty(0)) and all_finite(np.empty((0, 4)))
+
+
+def test_a_difference_that_overflows_is_not_symmetric_and_warns_nothing():
+    import warnings
+    a = np.array([[1.0, 1.5e308], [-1.5e308, 1.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert not linalg.is_symmetric(a)
+        assert not linalg.is_symmetric(np.array([[1.0, np.inf], [np.inf, 1.0]]))
