@@ -395,24 +395,17 @@ def articulated_kernels(model) -> CompiledKernels:
                            hat_load_params(6, [(1, model.load_amplitude, model.load_time)]))
 
 
-# -- toss rule: params = (N_el, EA, GA, EJ, h_e, 1/h_e, α̂_e) -------------------
+# -- toss rule: params = (N_el, EA, GA, EJ, h_e, 1/h_e, cos α̂_e, sin α̂_e) -------------------
 # Element e joins nodes e and e + 1 (DOFs 3e … 3e + 5). Its reduced
 # coordinates y = (u_ξ, v_ξ, α_o, χ) = L_e d_e with L_e = D_e B (see the
 # model's notes); f_e = h_e L_eᵀ ∇W, K_e = h_e L_eᵀ ∇²W L_e and
 # T_e = h_e L_eᵀ ∇³W[L_e w_e] L_e, the reduced derivatives of
 # W = ½ (EA ε² + GA γ² + EJ χ²) from ∂ε/∂α_o = γ, ∂γ/∂α_o = −(1 + ε).
 
-# L_e has two non-zero entries at most per column a: v1[a] in row r1[a], and
-# v2[a] in row 3 (χ) for the rotations; the kernels use it through these
-# tuples instead of a (4, 6) array, so that an element allocates nothing.
-_R1 = (0, 1, 2, 0, 1, 2)
-
-
-@njit(**JIT_OPTIONS)
-def _beam_columns(inv_h):
-    """``(v1, v2)``: the entries of ``L_e``'s columns in rows ``_R1`` and 3."""
-    return ((-inv_h, -inv_h, 0.5, inv_h, inv_h, 0.5),
-            (0.0, 0.0, -inv_h, 0.0, 0.0, inv_h))
+# L_e = D_e B has two non-zero entries at most per column: ∓1/h_e (u_ξ, v_ξ)
+# for the translations of nodes i and j, and 1/2 (α_o) and ∓1/h_e (χ) for
+# their rotations. With h_e/h_e² = 1/h_e and h_e/h_e = 1, the products below
+# are h_e L_eᵀ (·) written out entry by entry: 36 entries from seven numbers.
 
 
 @njit(**JIT_OPTIONS)
@@ -424,13 +417,22 @@ def _beam_reduced(x, e, inv_h):
 
 
 @njit(**JIT_OPTIONS)
-def _beam_strains(p, q, a, alpha_hat):
+def _element(params, e):
+    """``(h_e, 1/h_e, cos α̂_e, sin α̂_e)`` of element ``e``."""
+    n_el = int(params[0])
+    return (params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e],
+            params[4 + 3 * n_el + e])
+
+
+@njit(**JIT_OPTIONS)
+def _beam_strains(p, q, a, cos_hat, sin_hat):
     """``ε``, ``γ`` and their gradients ``∇ε = (cb, sb, γ)``, ``∇γ = (−sb, cb, −(1 + ε))``
-    (tuples)."""
-    beta = a + alpha_hat
-    cb, sb = math.cos(beta), math.sin(beta)
-    eps = math.cos(a) - 1.0 + cb * p + sb * q
-    gam = -math.sin(a) - sb * p + cb * q
+    (tuples), ``cb``, ``sb`` the cosine and sine of ``β = α_o + α̂`` by the
+    addition theorem: one sine and cosine per element, not two."""
+    ca, sa = math.cos(a), math.sin(a)
+    cb, sb = ca * cos_hat - sa * sin_hat, sa * cos_hat + ca * sin_hat
+    eps = ca - 1.0 + cb * p + sb * q
+    gam = -sa - sb * p + cb * q
     return eps, gam, (cb, sb, gam), (-sb, cb, -(1.0 + eps))
 
 
@@ -446,21 +448,34 @@ def _alpha_entry(r, i, j):
 
 
 @njit(**JIT_OPTIONS)
-def _beam_entry(v1, v2, red, a, b):
-    """Entry ``(a, b)`` of ``L_eᵀ red L_e`` (columns of ``L_e`` as in :func:`_beam_columns`)."""
-    ra, rb = _R1[a], _R1[b]
-    return v1[a] * (red[ra, rb] * v1[b] + red[ra, 3] * v2[b]) \
-        + v2[a] * (red[3, rb] * v1[b] + red[3, 3] * v2[b])
+def _beam_block(block, h, inv_h, red):
+    """``block`` (6, 6) ``= h L_eᵀ red L_e`` for a symmetric reduced ``red``
+    (4, 4) whose χ row and column are zero but for ``red[3, 3]``; symmetric
+    bit for bit (each value is written to both of its places)."""
+    for t in range(2):
+        for s in range(2):
+            x = inv_h * red[t, s]
+            block[t, s] = x
+            block[3 + t, 3 + s] = x
+            block[t, 3 + s] = -x
+            block[3 + t, s] = -x
+        # translation t of node i (sign −) or j (+) against either rotation
+        y = 0.5 * red[t, 2]
+        block[t, 2] = block[t, 5] = block[2, t] = block[5, t] = -y
+        block[3 + t, 2] = block[3 + t, 5] = block[2, 3 + t] = block[5, 3 + t] = y
+    q, r = 0.25 * h * red[2, 2], inv_h * red[3, 3]
+    block[2, 2] = block[5, 5] = q + r
+    block[2, 5] = block[5, 2] = q - r
 
 
 @njit(**JIT_OPTIONS)
-def _beam_add(out, e, h, inv_h, red):
-    """``out[dofs_e, dofs_e] += h L_eᵀ red L_e`` for a reduced (4, 4) ``red``."""
-    v1, v2 = _beam_columns(inv_h)
+def _beam_add(out, e, h, inv_h, red, block):
+    """``out[dofs_e, dofs_e] += h L_eᵀ red L_e`` (``block`` (6, 6) is scratch)."""
+    _beam_block(block, h, inv_h, red)
     base = 3 * e
     for a in range(6):
         for b in range(6):
-            out[base + a, base + b] += h * _beam_entry(v1, v2, red, a, b)
+            out[base + a, base + b] += block[a, b]
 
 
 @njit(FORCE, **JIT_OPTIONS)
@@ -469,37 +484,43 @@ def toss_rule_force(u, params):
     EA, GA, EJ = params[1], params[2], params[3]
     f = np.zeros(3 * (n_el + 1))
     for e in range(n_el):
-        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+        h, inv_h, cos_hat, sin_hat = _element(params, e)
         p, q, a, chi = _beam_reduced(u, e, inv_h)
-        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+        eps, gam, g_eps, g_gam = _beam_strains(p, q, a, cos_hat, sin_hat)
         EA_eps, GA_gam = EA * eps, GA * gam
         grad = (EA_eps * g_eps[0] + GA_gam * g_gam[0], EA_eps * g_eps[1] + GA_gam * g_gam[1],
                 EA_eps * g_eps[2] + GA_gam * g_gam[2])
-        v1, v2 = _beam_columns(inv_h)
-        for k in range(6):
-            f[3 * e + k] += h * (v1[k] * grad[_R1[k]] + v2[k] * (EJ * chi))
+        # h L_eᵀ (∇W, EJ χ): ∓∇W_t on the translations of nodes i and j,
+        # h/2 ∂W/∂α_o ∓ EJ χ on their rotations
+        base = 3 * e
+        half, bend = 0.5 * h * grad[2], EJ * chi
+        f[base] -= grad[0]
+        f[base + 1] -= grad[1]
+        f[base + 3] += grad[0]
+        f[base + 4] += grad[1]
+        f[base + 2] += half - bend
+        f[base + 5] += half + bend
     return f
 
 
 @njit(**JIT_OPTIONS)
-def _beam_add_data(data, slots, e, h, inv_h, red):
+def _beam_add_data(data, slots, e, h, inv_h, red, block):
     """``data[slots[e, 6a + b]] += h (L_eᵀ red L_e)[a, b]``: :func:`_beam_add` into the
     data array of a CSR matrix whose pattern holds every element coupling."""
-    v1, v2 = _beam_columns(inv_h)
+    _beam_block(block, h, inv_h, red)
     for a in range(6):
         for b in range(6):
-            data[slots[e, 6 * a + b]] += h * _beam_entry(v1, v2, red, a, b)
+            data[slots[e, 6 * a + b]] += block[a, b]
 
 
 @njit(**JIT_OPTIONS)
 def _toss_stiffness_reduced(u, e, params, red):
     """``red[:3, :3] = ∇²W`` of element ``e`` in ``(u_ξ, v_ξ, α_o)`` (``red[3, 3]`` is EJ);
     returns ``(h_e, 1/h_e)``."""
-    n_el = int(params[0])
     EA, GA = params[1], params[2]
-    h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+    h, inv_h, cos_hat, sin_hat = _element(params, e)
     p, q, a, chi = _beam_reduced(u, e, inv_h)
-    eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+    eps, gam, g_eps, g_gam = _beam_strains(p, q, a, cos_hat, sin_hat)
     # ∇²ε has the α_o row ∇γ, ∇²γ the row −∇ε
     m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
     for i in range(3):
@@ -513,13 +534,12 @@ def _toss_stiffness_reduced(u, e, params, red):
 def _toss_derivative_reduced(u, w, e, params, red):
     """``red[:3, :3] = ∇³W[z]`` of element ``e``, ``z`` the reduced image of ``w``
     (the curvature term is quadratic: no third derivative); returns ``(h_e, 1/h_e)``."""
-    n_el = int(params[0])
     EA, GA = params[1], params[2]
-    h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+    h, inv_h, cos_hat, sin_hat = _element(params, e)
     p, q, a, _ = _beam_reduced(u, e, inv_h)
     zp, zq, za, _ = _beam_reduced(w, e, inv_h)
     z = (zp, zq, za)
-    eps, gam, g_eps, g_gam = _beam_strains(p, q, a, alpha_hat)
+    eps, gam, g_eps, g_gam = _beam_strains(p, q, a, cos_hat, sin_hat)
     m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
     m_gam = (-g_gam[0], -g_gam[1], -g_gam[2])
     for i in range(3):
@@ -549,10 +569,11 @@ def toss_rule_stiffness(u, params):
     n = 3 * (n_el + 1)
     K = np.zeros((n, n))
     red = np.zeros((4, 4))
+    block = np.empty((6, 6))
     red[3, 3] = params[3]
     for e in range(n_el):
         h, inv_h = _toss_stiffness_reduced(u, e, params, red)
-        _beam_add(K, e, h, inv_h, red)
+        _beam_add(K, e, h, inv_h, red, block)
     return K
 
 
@@ -562,9 +583,10 @@ def toss_rule_stiffness_derivative(u, w, params):
     n = 3 * (n_el + 1)
     T = np.zeros((n, n))
     red = np.zeros((4, 4))
+    block = np.empty((6, 6))
     for e in range(n_el):
         h, inv_h = _toss_derivative_reduced(u, w, e, params, red)
-        _beam_add(T, e, h, inv_h, red)
+        _beam_add(T, e, h, inv_h, red, block)
     return T
 
 
@@ -574,10 +596,11 @@ def toss_rule_stiffness_data(u, params, slots, nnz):
     gives for each element's 6 × 6 couplings."""
     data = np.zeros(nnz)
     red = np.zeros((4, 4))
+    block = np.empty((6, 6))
     red[3, 3] = params[3]
     for e in range(int(params[0])):
         h, inv_h = _toss_stiffness_reduced(u, e, params, red)
-        _beam_add_data(data, slots, e, h, inv_h, red)
+        _beam_add_data(data, slots, e, h, inv_h, red, block)
     return data
 
 
@@ -586,9 +609,10 @@ def toss_rule_stiffness_derivative_data(u, w, params, slots, nnz):
     """The data array (nnz,) of ``T(u)[w]`` in the pattern of :func:`toss_rule_stiffness_data`."""
     data = np.zeros(nnz)
     red = np.zeros((4, 4))
+    block = np.empty((6, 6))
     for e in range(int(params[0])):
         h, inv_h = _toss_derivative_reduced(u, w, e, params, red)
-        _beam_add_data(data, slots, e, h, inv_h, red)
+        _beam_add_data(data, slots, e, h, inv_h, red, block)
     return data
 
 
@@ -598,23 +622,25 @@ def toss_rule_potential_energy(u, params):
     EA, GA, EJ = params[1], params[2], params[3]
     V = 0.0
     for e in range(n_el):
-        h, inv_h, alpha_hat = params[4 + e], params[4 + n_el + e], params[4 + 2 * n_el + e]
+        h, inv_h, cos_hat, sin_hat = _element(params, e)
         p, q, a, chi = _beam_reduced(u, e, inv_h)
-        eps, gam, _, _ = _beam_strains(p, q, a, alpha_hat)
+        eps, gam, _, _ = _beam_strains(p, q, a, cos_hat, sin_hat)
         V += h * (EA * eps ** 2 + GA * gam ** 2 + EJ * chi ** 2)
     return 0.5 * V
 
 
 def _toss_rule_params(model):
-    """``(N_el, EA, GA, EJ, h_e …, 1/h_e …, α̂_e …)`` (4 + 3 N_el entries)."""
+    """``(N_el, EA, GA, EJ, h_e …, 1/h_e …, cos α̂_e …, sin α̂_e …)`` (4 + 4 N_el entries)."""
     params = np.concatenate([[model.n_elements, model.EA, model.GA, model.EJ],
-                             model._h, model._inv_h, model._alpha_hat])
+                             model._h, model._inv_h, np.cos(model._alpha_hat),
+                             np.sin(model._alpha_hat)])
     return np.ascontiguousarray(params, dtype=np.float64)
 
 
 def toss_rule_kernels(model) -> CompiledKernels:
     """Kernels of a :class:`~hfdi.models.toss_rule.TossRule` (dense ``K`` and ``T``);
-    ``params = (N_el, EA, GA, EJ, h_e …, 1/h_e …, α̂_e …)`` (4 + 3 N_el entries)."""
+    ``params = (N_el, EA, GA, EJ, h_e …, 1/h_e …, cos α̂_e …, sin α̂_e …)`` (4 + 4 N_el
+    entries)."""
     return CompiledKernels(toss_rule_force, toss_rule_stiffness,
                            toss_rule_stiffness_derivative, toss_rule_potential_energy,
                            _toss_rule_params(model), hat_load,
