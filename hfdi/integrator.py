@@ -1703,12 +1703,16 @@ class Result:
 
 
 class _Rows:
-    """Per-step records in arrays that grow by doubling: a step costs a copy of
-    its numbers, not a Python object per array."""
+    """Per-step records in blocks of arrays: a step of the Python driver costs a
+    copy of its numbers into the open block (grown by doubling), a call of the
+    compiled driver hands over its own block whole (no copy), and
+    :meth:`arrays` joins the blocks once."""
 
     def __init__(self, n: int):
-        self.size = 0
         self.n = n
+        self.size = 0                 # rows in all blocks
+        self._blocks = []             # sealed blocks: dicts of arrays of equal length
+        self._open = 0                # rows in the open block
         self._alloc(64)
 
     def _alloc(self, capacity):
@@ -1720,12 +1724,12 @@ class _Rows:
                      "external_work": np.empty(capacity)}
         if old is not None:
             for key, arr in old.items():
-                self.data[key][:self.size] = arr[:self.size]
+                self.data[key][:self._open] = arr[:self._open]
 
     def append(self, state: State, h, iterations, increment, energy, work):
-        if self.size == self.data["t"].shape[0]:
-            self._alloc(2 * self.size)
-        i = self.size
+        if self._open == self.data["t"].shape[0]:
+            self._alloc(2 * self._open)
+        i = self._open
         d = self.data
         d["t"][i] = state.t
         d["u"][i] = state.u
@@ -1736,20 +1740,28 @@ class _Rows:
         d["energy_increment"][i] = increment
         d["total_energy"][i] = energy
         d["external_work"][i] = work
+        self._open += 1
         self.size += 1
 
+    def _seal(self):
+        if self._open:
+            self._blocks.append({key: arr[:self._open] for key, arr in self.data.items()})
+            self._open = 0
+            self._alloc(64)
+
     def extend(self, arrays: dict):
-        """Append the rows of ``arrays`` (the keys of :meth:`arrays`), in bulk."""
-        k = arrays["t"].shape[0]
-        capacity = self.data["t"].shape[0]
-        if self.size + k > capacity:
-            self._alloc(max(2 * capacity, self.size + k))
-        for key, arr in self.data.items():
-            arr[self.size:self.size + k] = arrays[key]
-        self.size += k
+        """Append the rows of ``arrays`` (the keys of :meth:`arrays`), kept as
+        they are: the caller gives up the arrays."""
+        self._seal()
+        self._blocks.append(arrays)
+        self.size += arrays["t"].shape[0]
 
     def arrays(self) -> dict:
-        return {key: arr[:self.size].copy() for key, arr in self.data.items()}
+        blocks = self._blocks + ([{key: arr[:self._open] for key, arr in self.data.items()}]
+                                 if self._open or not self._blocks else [])
+        if len(blocks) == 1:
+            return {key: np.array(arr) for key, arr in blocks[0].items()}
+        return {key: np.concatenate([block[key] for block in blocks]) for key in self.data}
 
 
 def _time_value(name, value) -> float:

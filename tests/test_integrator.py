@@ -528,3 +528,43 @@ def test_first_step_trials_is_the_bound_of_the_first_step(scheme):
     r = hfdi.integrate(picky, scheme, 1.0, rtol=1e-6, first_step=1.0, first_step_trials=20,
                        max_halvings=2, check_stiffness=False)
     assert r.stats.first_step_trials > 3 and r.stats.accepted >= 1, r.message
+
+
+def test_rows_join_single_steps_and_driver_blocks_in_order():
+    """integrate()'s records: rows appended one by one (the Python driver) and
+    blocks handed over whole (the compiled driver), in any order, come out
+    as one array per field in the order they came."""
+    from hfdi.integrator import _Rows
+    n = 2
+    rows = _Rows(n)
+    expected = []
+
+    def one(k):
+        state = State(float(k), np.full(n, k), np.full(n, -k), np.full(n, 2.0 * k), None, None)
+        rows.append(state, 0.5 * k, k, 0.1 * k, 10.0 * k, 100.0 * k)
+        expected.append(k)
+
+    def block(ks):
+        ks = np.asarray(ks, dtype=float)
+        rows.extend({"t": ks, "u": np.repeat(ks[:, None], n, 1), "v": -np.repeat(ks[:, None], n, 1),
+                     "a": 2.0 * np.repeat(ks[:, None], n, 1), "step_size": 0.5 * ks,
+                     "iterations": ks.astype(int), "energy_increment": 0.1 * ks,
+                     "total_energy": 10.0 * ks, "external_work": 100.0 * ks})
+        expected.extend(int(k) for k in ks)
+
+    one(0)
+    block(range(1, 40))
+    for k in range(40, 140):          # past the open block's first capacity
+        one(k)
+    block(range(140, 150))
+    block(range(150, 151))
+    one(151)
+    got = rows.arrays()
+    ks = np.array(expected, dtype=float)
+    assert rows.size == ks.size
+    np.testing.assert_array_equal(got["t"], ks)
+    np.testing.assert_array_equal(got["u"], np.repeat(ks[:, None], n, 1))
+    np.testing.assert_array_equal(got["a"][:, 1], 2.0 * ks)
+    np.testing.assert_array_equal(got["iterations"], ks.astype(int))
+    np.testing.assert_array_equal(got["external_work"], 100.0 * ks)
+    assert all(arr.flags.c_contiguous and arr.flags.owndata for arr in got.values())

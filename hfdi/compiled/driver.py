@@ -730,13 +730,15 @@ class CompiledDriver:
         rejections = self.store(integrator, scalars, counters, taken)
         rows = None
         if save_rows:
-            rows = {"t": row_scalars[:taken, R_T].copy(), "u": row_states[:taken, 0].copy(),
-                    "v": row_states[:taken, 1].copy(), "a": row_states[:taken, 2].copy(),
-                    "step_size": row_scalars[:taken, R_H].copy(),
+            # views of this call's own buffers (made above, for this call only):
+            # the caller keeps them and copies the rows once, at the end of a run
+            rows = {"t": row_scalars[:taken, R_T], "u": row_states[:taken, 0],
+                    "v": row_states[:taken, 1], "a": row_states[:taken, 2],
+                    "step_size": row_scalars[:taken, R_H],
                     "iterations": row_scalars[:taken, R_ITERATIONS].astype(int),
-                    "energy_increment": row_scalars[:taken, R_INCREMENT].copy(),
-                    "total_energy": row_scalars[:taken, R_ENERGY].copy(),
-                    "external_work": row_scalars[:taken, R_WORK].copy()}
+                    "energy_increment": row_scalars[:taken, R_INCREMENT],
+                    "total_energy": row_scalars[:taken, R_ENERGY],
+                    "external_work": row_scalars[:taken, R_WORK]}
         return int(reason), taken, rows, rejections
 
     def load(self, integrator):
