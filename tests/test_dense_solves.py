@@ -1,4 +1,5 @@
-"""Dense Newton solves: Cholesky for tangents symmetric to rounding, LU otherwise.
+"""Dense Newton solves: Cholesky for tangents symmetric to rounding (from
+CHOLESKY_FROM rows on), LU otherwise.
 
 hfdi.linalg.solve and the compiled attempt's hfdi.compiled.lapack.solve must
 take the same route (the same LAPACK routine on the same triangle) and give
@@ -34,9 +35,10 @@ def _cases():
     skewed[3, 5] *= 1.0 + 1e-9                  # not symmetric
     return {
         "spd": (spd, "potrf"),
-        "spd_tiny": (_spd(6, rng, 1e-200), "potrf"),
-        "spd_huge": (_spd(6, rng, 1e200), "potrf"),
-        "one": (np.array([[4.0]]), "potrf"),
+        "spd_tiny": (_spd(10, rng, 1e-200), "potrf"),
+        "spd_huge": (_spd(10, rng, 1e200), "potrf"),
+        "spd_below_the_cholesky_size": (_spd(linalg.CHOLESKY_FROM - 1, rng), "gesv"),
+        "one": (np.array([[4.0]]), "gesv"),
         "symmetric_to_rounding": (rounded, "potrf"),
         "indefinite": (_indefinite(12, rng), "potrf+gesv"),
         "not_symmetric": (skewed, "gesv"),
@@ -93,7 +95,7 @@ def test_singular_symmetric_matrices_still_fail():
     with pytest.raises(linalg.SingularMatrixError):
         linalg.solve(np.zeros((3, 3)), np.ones(3))
     with pytest.raises(linalg.SingularMatrixError):
-        linalg.solve(np.ones((4, 4)), np.ones(4))   # symmetric, rank one
+        linalg.solve(np.ones((12, 12)), np.ones(12))   # symmetric, rank one
 
 
 # -- the compiled path --------------------------------------------------------------------
@@ -128,7 +130,7 @@ def test_the_compiled_symmetry_test_decides_as_the_python_one():
 
 
 def test_the_compiled_solve_fails_where_the_python_one_raises():
-    for a in (np.zeros((3, 3)), np.ones((4, 4)), np.array([[1.0, np.nan], [np.nan, 1.0]]),
+    for a in (np.zeros((3, 3)), np.ones((12, 12)), np.array([[1.0, np.nan], [np.nan, 1.0]]),
               np.array([[np.inf, 0.0], [0.0, 1.0]])):
         assert _compiled_solve(a, np.ones(a.shape[0])) is None
 
