@@ -3,7 +3,9 @@
 A fixed-step run of one scheme written as plainly as compiled code allows, for
 a diagonal ``M`` and no damping (the four paper models): the model's own
 compiled kernels passed as arguments (numba specialises the loop on them and
-may inline them), LAPACK's ``gesv`` as the compiled attempt calls it, work
+may inline them), LAPACK as the compiled attempt calls it
+(:func:`hfdi.compiled.lapack.solve`: Cholesky for a tangent symmetric to
+rounding, else LU), work
 arrays allocated once, a linear predictor, the convergence test of Eq. 38 and
 nothing else: no error estimate, no controller, no energy balance, no checks
 of the model's values, no statistics. What the library's compiled path costs
@@ -33,12 +35,12 @@ def _loops():
         return _LOOPS
     from numba import njit
 
-    from hfdi.compiled.lapack import gesv, work_arrays
+    from hfdi.compiled.lapack import solve, work_arrays
 
     @njit
     def correct(tangent, du, u, lu, pivots, ints, tol):
         """``u += tangent⁻¹ du`` (``du`` holds ``−residual``); converged by Eq. 38."""
-        gesv(tangent, du, lu, pivots, ints)
+        solve(tangent, du, lu, pivots, ints)
         step2, size2 = 0.0, 0.0
         for i in range(u.shape[0]):
             u[i] += du[i]

@@ -377,7 +377,11 @@ def _mark_inaccurate(records, factor=INACCURATE_FACTOR):
 
 
 def _label(method, setting):
-    return f"N̄={setting:g}" if method in SCHEMES else f"rtol={setting:.0e}"
+    if method in SCHEMES:
+        return f"N̄={setting:g}"
+    # up to three digits, none that is a trailing zero: 1e-08, 1.2e-08, 3.16e-06
+    mantissa, exponent = f"{setting:.2e}".split("e")
+    return f"rtol={mantissa.rstrip('0').rstrip('.')}e{exponent}"
 
 
 def _skipped(problem, method, setting, why):

@@ -185,14 +185,14 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
 def compiled_unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
     """µs per call, in compiled loops, of the model's kernels at ``u`` (``f``, ``K``,
     ``T[w]``, ``V``) and of the dense linear algebra of one Newton correction
-    (a solve with an (N, N) matrix, LAPACK's gesv as the attempt calls it
-    (:func:`hfdi.compiled.lapack.gesv`), and
+    (a solve with an (N, N) matrix, symmetric when ``K`` is, as the attempt
+    solves it (:func:`hfdi.compiled.lapack.solve`), and
     an (N, N) product, HFDI's ``S B⁻¹ S``); best of ``repeats``."""
     import numpy as np
     from numba import njit
 
     from hfdi.compiled import kernels_of
-    from hfdi.compiled.lapack import gesv, work_arrays
+    from hfdi.compiled.lapack import solve, work_arrays
 
     kernels, why = kernels_of(model)
     if kernels is None:
@@ -233,7 +233,7 @@ def compiled_unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
         total = 0.0
         for _ in range(n):
             x[:] = b
-            gesv(A, x, lu, pivots, ints)
+            solve(A, x, lu, pivots, ints)
             total += x[0]
         return total
 
