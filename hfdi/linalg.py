@@ -31,15 +31,15 @@ _F64 = np.empty(1)
 _gesv, _getrf, _getrs, _gbsv, _gtsv, _potrf, _potrs = sla.get_lapack_funcs(
     ("gesv", "getrf", "getrs", "gbsv", "gtsv", "potrf", "potrs"), (_F64,))
 
-#: A dense matrix whose entries differ from its transpose's by at most this
-#: fraction of its largest entry is symmetric to rounding, and :func:`solve`
+#: A dense matrix whose entries ``a_ij`` differ from ``a_ji`` by at most this
+#: fraction of ``√|a_ii| · √|a_jj|`` is symmetric to rounding, and :func:`solve`
 #: tries Cholesky on its lower triangle first. The tangents of models with a
 #: potential (K a Hessian, T its derivative) are symmetric in exact arithmetic
-#: and differ from their transposes by rounding only (at most 2e-16 of their
-#: largest entry on the paper's four models, every scheme); a perturbation of
-#: 1e-12 of the tangent changes a Newton correction by 1e-12 times the
-#: tangent's condition number, not where the corrector converges (the
-#: residual is unchanged). docs/algorithm.md, "Linear solves".
+#: and differ from their transposes by rounding only (at most 4e-16 of that
+#: scale on the paper's models, every scheme); a perturbation of 1e-12 of the
+#: tangent changes a Newton correction by 1e-12 times the tangent's condition
+#: number, not where the corrector converges (the residual is unchanged).
+#: docs/algorithm.md, "Linear solves".
 SYMMETRY_TOLERANCE = 1e-12
 #: The smallest dense system :func:`solve` tries Cholesky on. Below it
 #: LAPACK's call overhead outweighs the halved arithmetic, and ``gesv``'s one
@@ -304,17 +304,21 @@ def solve_band(ab, lower, upper, b):
 
 def is_symmetric(a) -> bool:
     """Whether the dense, non-empty ``a`` (N, N) is symmetric to rounding:
-    ``max |a − aᵀ| ≤`` :data:`SYMMETRY_TOLERANCE` ``· max |a|`` (false for
-    entries that are not finite). The compiled attempt's test
-    (:func:`hfdi.compiled.lapack.symmetric`) decides alike, operation for
-    operation."""
+    ``|a_ij − a_ji| ≤`` :data:`SYMMETRY_TOLERANCE` ``· √|a_ii| · √|a_jj|`` for
+    every pair (false for entries that are not finite). Each pair is held to
+    the scale of its own rows, not to the largest entry: a stiff entry must
+    not let a soft coupling's true asymmetry pass. The compiled attempt's
+    test (:func:`hfdi.compiled.lapack.symmetric`) decides alike, operation
+    for operation."""
     scale = np.abs(a).max()
     if not _isfinite(scale):
         return False
+    roots = np.sqrt(np.abs(np.diagonal(a)))
+    bound = SYMMETRY_TOLERANCE * np.multiply.outer(roots, roots)
     if scale > _HALF_MAX:       # a − aᵀ may overflow (to inf: not symmetric)
         with np.errstate(over="ignore"):
-            return bool(np.abs(a - a.T).max() <= SYMMETRY_TOLERANCE * scale)
-    return bool(np.abs(a - a.T).max() <= SYMMETRY_TOLERANCE * scale)
+            return bool((np.abs(a - a.T) <= bound).all())
+    return bool((np.abs(a - a.T) <= bound).all())
 
 
 def solve(a, b):

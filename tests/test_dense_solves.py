@@ -26,6 +26,28 @@ def _indefinite(n, rng):
     return a
 
 
+def _overflowing(n):
+    """Finite, its difference from its transpose not (inf: not symmetric)."""
+    a = np.eye(n)
+    a[0, 1], a[1, 0] = 1.5e308, -1.5e308
+    return a
+
+
+def _at_tolerance(rng, n, past):
+    """Symmetric positive definite but for one pair, which differs by the
+    limit of :func:`hfdi.linalg.is_symmetric` (the largest float difference
+    within it), or ``past`` it by the least step of a float."""
+    a = _spd(n, rng)
+    limit = linalg.SYMMETRY_TOLERANCE * (np.sqrt(abs(a[4, 4])) * np.sqrt(abs(a[2, 2])))
+    a[4, 2] = a[2, 4] + limit
+    while abs(a[4, 2] - a[2, 4]) > limit:
+        a[4, 2] = np.nextafter(a[4, 2], -np.inf)
+    if past:
+        while abs(a[4, 2] - a[2, 4]) <= limit:
+            a[4, 2] = np.nextafter(a[4, 2], np.inf)
+    return a
+
+
 def _cases():
     rng = np.random.default_rng(7)
     spd = _spd(21, rng)
@@ -43,7 +65,9 @@ def _cases():
         "indefinite": (_indefinite(12, rng), "potrf+gesv"),
         "not_symmetric": (skewed, "gesv"),
         "general": (rng.standard_normal((9, 9)), "gesv"),
-        "overflowing_difference": (np.array([[1.0, 1.5e308], [-1.5e308, 1.0]]), "gesv"),
+        "overflowing_difference": (_overflowing(12), "gesv"),
+        "at_the_tolerance": (_at_tolerance(rng, 12, False), "potrf"),
+        "just_past_the_tolerance": (_at_tolerance(rng, 12, True), "gesv"),
     }
 
 
@@ -71,24 +95,43 @@ def test_the_route_follows_symmetry_and_definiteness(name, monkeypatch):
     x = linalg.solve(a, b)
     assert "+".join(called) == route
     want = np.linalg.solve(a, b)
-    # backward error at the level of rounding, whichever route
-    residual = np.abs(a @ x - b).max() / (np.abs(a).max() * np.abs(x).max())
-    assert residual < 1e-14
+    # backward error at the level of rounding, whichever route; Cholesky
+    # solves with the lower triangle, which differs from a by its asymmetry
+    with np.errstate(over="ignore", invalid="ignore"):
+        asymmetry = np.abs(a - a.T).max() / np.abs(a).max() if route == "potrf" else 0.0
+    residual = np.abs(a @ x - b).max() / np.abs(a).max() / np.abs(x).max()
+    assert residual < 1e-14 + 2.0 * asymmetry
     np.testing.assert_allclose(x, want, rtol=1e-9 * np.linalg.cond(a), atol=0)
 
 
-def test_is_symmetric_is_relative_to_the_largest_entry():
-    a = np.array([[1.0, 2.0], [2.0, 3.0]])
+def test_is_symmetric_holds_each_pair_to_its_own_rows():
+    a = np.array([[1.0, 2.0], [2.0, 9.0]])
     assert linalg.is_symmetric(a)
     for delta, expected in ((2.9e-12, True), (3.1e-12, False)):
         b = a.copy()
-        b[0, 1] += delta                       # largest entry 3: limit 3e-12
+        b[0, 1] += delta                       # √1 · √9 = 3: limit 3e-12
         assert linalg.is_symmetric(b) is expected
+    # a stiff entry does not widen the limit of a soft coupling
+    stiff = np.eye(10)
+    stiff[0, 0] = 1e10
+    stiff[1, 2] = 1e-9
+    assert not linalg.is_symmetric(stiff)
+    stiff[1, 2] = stiff[2, 1] = 0.5
+    stiff[2, 1] += 1e-13
+    assert linalg.is_symmetric(stiff)
     assert linalg.is_symmetric(np.zeros((3, 3)))
     for bad in (np.nan, np.inf):
         b = a.copy()
         b[0, 1] = b[1, 0] = bad
         assert not linalg.is_symmetric(b)
+
+
+def test_a_soft_asymmetry_beside_a_stiff_entry_is_solved_exactly():
+    a = np.eye(10)
+    a[0, 0] = 1e10
+    a[1, 2] = 0.009                            # a true asymmetry, not rounding
+    b = np.arange(1.0, 11.0)
+    np.testing.assert_allclose(linalg.solve(a, b), np.linalg.solve(a, b), rtol=1e-14)
 
 
 def test_singular_symmetric_matrices_still_fail():
@@ -124,9 +167,12 @@ def test_the_compiled_symmetry_test_decides_as_the_python_one():
         for _ in range(300):
             a = rng.standard_normal((n, n)) * 10.0 ** rng.integers(-300, 300)
             a = a + a.T
+            a[np.diag_indices(n)] *= 10.0 ** rng.integers(-8, 9, n)   # rows of other scales
             i, j = rng.integers(0, n, 2)
             a[i, j] *= 1.0 + rng.choice([0.0, 1e-13, 9.9e-13, 1.01e-12, 1e-11, 1e-3, -2.0])
-            assert symmetric(a) == linalg.is_symmetric(a)
+            assert symmetric(a, np.empty(n)) == linalg.is_symmetric(a)
+    for a in (_overflowing(12), _at_tolerance(rng, 12, False), _at_tolerance(rng, 12, True)):
+        assert symmetric(a, np.empty(12)) == linalg.is_symmetric(a)
 
 
 def test_the_compiled_solve_fails_where_the_python_one_raises():
@@ -144,7 +190,8 @@ def test_the_compiled_finiteness_test_reads_every_layout():
             a = base.copy()
             if bad is not None:
                 a.flat[where] = bad
-            views = (a, a[:, ::2], a[::3], a.T, a[2], a[:, 3], a.reshape(-1), a.reshape(-1)[1:])
+            views = (a, a[:, ::2], a[::3], a.T, a[2], a[:, 3], a.reshape(-1), a.reshape(-1)[1:],
+                     a[:, 1:], a.reshape(-1)[::2])    # the last two: strided, over 64 entries
             for view in views:
                 assert all_finite(view) == bool(np.all(np.isfinite(view))), (bad, where)
     assert all_finite(np.array([1.7976931348623157e308, -5e-324, -0.0]))

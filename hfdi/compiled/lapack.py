@@ -61,7 +61,6 @@ _CHOLESKY_FROM = CHOLESKY_FROM
 
 
 _EXPONENT = 0x7FF0000000000000       # the exponent bits of a float64: all set for inf and NaN
-_MAGNITUDE = 0x7FFFFFFFFFFFFFFF      # all but the sign bit: the word of |x|
 # up to this many entries the test entry by entry is the faster
 _SMALL = 64
 
@@ -155,22 +154,16 @@ def _gesv_finite(A, x, lu, pivots, ints):
 
 
 @njit(**JIT_OPTIONS)
-def symmetric(A):
-    """:func:`hfdi.linalg.is_symmetric` for a finite ``A`` (N, N), N ≥ 1: the
-    largest ``|A_ij − A_ji|`` against the tolerance times the largest
-    ``|A_ij|``, both maxima exact, so that the two paths decide alike. The
-    largest ``|A_ij|`` is taken on the words: a finite non-negative float64
-    orders as its bits do, and the integer maximum is vectorised."""
+def symmetric(A, roots):
+    """:func:`hfdi.linalg.is_symmetric` for a finite ``A`` (N, N), N ≥ 1, with
+    the same operations (``roots`` (N,) is scratch for ``√|A_ii|``), so that
+    the two paths decide alike."""
     n = A.shape[0]
-    words = A.view(np.int64)
-    top = 0
     for i in range(n):
-        for j in range(n):
-            top = max(top, words[i, j] & _MAGNITUDE)
-    limit = _SYMMETRY_TOLERANCE * np.int64(top).view(np.float64)
+        roots[i] = math.sqrt(abs(A[i, i]))
     for i in range(n):
         for j in range(i):
-            if abs(A[i, j] - A[j, i]) > limit:
+            if not abs(A[i, j] - A[j, i]) <= _SYMMETRY_TOLERANCE * (roots[i] * roots[j]):
                 return False
     return True
 
@@ -184,7 +177,7 @@ def solve(A, x, lu, pivots, ints):
     singular or not finite, ``x`` then undefined."""
     if not all_finite(A):
         return False
-    if A.shape[0] >= _CHOLESKY_FROM and symmetric(A):
+    if A.shape[0] >= _CHOLESKY_FROM and symmetric(A, lu[0]):
         _transpose_into(A, lu)
         ints[_N], ints[_NRHS], ints[_INFO] = A.shape[0], 1, 0
         _dpotrf(ints[_UPLO:].ctypes, ints.ctypes, lu.ctypes, ints.ctypes, ints[_INFO:].ctypes)
