@@ -1705,8 +1705,9 @@ class Result:
 class _Rows:
     """Per-step records in blocks of arrays: a step of the Python driver costs a
     copy of its numbers into the open block (grown by doubling), a call of the
-    compiled driver hands over its own block whole (no copy), and
-    :meth:`arrays` joins the blocks once."""
+    compiled driver hands over its own rows as a block (views of its buffers,
+    or a copy when it filled less than half of them), and :meth:`arrays`
+    joins the blocks once."""
 
     def __init__(self, n: int):
         self.n = n
@@ -1745,9 +1746,10 @@ class _Rows:
 
     def _seal(self):
         if self._open:
-            self._blocks.append({key: arr[:self._open] for key, arr in self.data.items()})
+            # a copy of the rows, not a view that would keep the whole open
+            # block; the open block is then written again from its start
+            self._blocks.append({key: arr[:self._open].copy() for key, arr in self.data.items()})
             self._open = 0
-            self._alloc(64)
 
     def extend(self, arrays: dict):
         """Append the rows of ``arrays`` (the keys of :meth:`arrays`), kept as

@@ -695,3 +695,23 @@ def test_a_reason_is_said_again_in_another_situation(monkeypatch):
     assert [str(w.message) for w in caught] == [
         "hfdi: the compiled step is not used (the reason); the Python path runs",
         "hfdi: after the model changed: the reason"]
+
+
+def test_a_run_of_many_short_calls_keeps_only_its_rows():
+    """A call of the driver ends at every breakpoint: the rows a run keeps
+    are its rows (at most about twice them), not a full buffer per call."""
+    import tracemalloc
+    model = toss_rule()
+    hfdi.integrate(model, "hfdi", 0.012, rtol=1e-6, compiled=True)      # compiled, loaded
+    breakpoints = np.linspace(0.0, 0.1, 401)[1:-1]
+    tracemalloc.start()
+    try:
+        result = hfdi.integrate(model, "hfdi", 0.1, rtol=1e-6, compiled=True,
+                                breakpoints=breakpoints)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert result.success and result.stats.steps > 1000
+    kept = sum(arr.nbytes for arr in (result.t, result.u, result.v, result.a))
+    # a buffer per call (399 calls × 2048 rows) would be about 470 MB
+    assert peak < 6 * kept + 20e6, (peak, kept)

@@ -730,8 +730,13 @@ class CompiledDriver:
         rejections = self.store(integrator, scalars, counters, taken)
         rows = None
         if save_rows:
-            # views of this call's own buffers (made above, for this call only):
-            # the caller keeps them and copies the rows once, at the end of a run
+            # views of this call's own buffers (made above, for this call
+            # only), which the caller keeps and joins once at the end of a
+            # run; copies when the call took less than half of them, so that
+            # what a run keeps is at most twice its rows (a call ends at
+            # every breakpoint)
+            if 2 * taken < STEPS_PER_CALL:
+                row_scalars, row_states = row_scalars[:taken].copy(), row_states[:taken].copy()
             rows = {"t": row_scalars[:taken, R_T], "u": row_states[:taken, 0],
                     "v": row_states[:taken, 1], "a": row_states[:taken, 2],
                     "step_size": row_scalars[:taken, R_H],
