@@ -134,13 +134,6 @@ def _two_masses(stiff_amplitude):
                              initial_displacement=[1.0, 1.0 + stiff_amplitude])
 
 
-def _exact_two_masses(stiff_amplitude, t):
-    """``u(t)`` of :func:`_two_masses` by its modes (started at rest)."""
-    omega2, modes = np.linalg.eigh(K_STIFF)
-    u0 = np.array([1.0, 1.0 + stiff_amplitude])
-    return modes @ (np.cos(np.sqrt(omega2) * t) * (modes.T @ u0))
-
-
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_a_short_step_past_a_stiff_mode_leaves_it_alone(scheme):
     """Proposed steps of 0.1–1 s step over a mode of ω = 1.4e5 (unresolved; Newmark
@@ -166,12 +159,7 @@ def test_a_short_step_past_a_stiff_mode_leaves_it_alone(scheme):
     # dissipation depends on the steps taken, which the short step shifts
     assert abs(interrupted.energy_error - plain.energy_error) <= \
         0.5 * abs(plain.energy_error) + 1e-8 * plain.total_energy
-    # the short step moves the soft motion by far less than the run's own
-    # error against the exact flow (the paper's mode sizes the steps by
-    # Newton's work, here 4–35 steps over 3 s: an error of 6e-6 to 6e-2)
-    exact = _exact_two_masses(amplitude, 3.0)
-    own_error = np.abs(plain.state.u - exact).max()
-    assert np.abs(interrupted.state.u - plain.state.u).max() <= 1e-5 + 0.01 * own_error
+    assert np.abs(interrupted.state.u - plain.state.u).max() <= 1e-5
 
 
 def test_the_fastest_rate_bounds_the_linearised_motion():
