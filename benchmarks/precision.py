@@ -379,9 +379,9 @@ def _mark_inaccurate(records, factor=INACCURATE_FACTOR):
 def _label(method, setting):
     if method in SCHEMES:
         return f"N̄={setting:g}"
-    # up to three digits, none that is a trailing zero: 1e-08, 1.2e-08, 3.16e-06
-    mantissa, exponent = f"{setting:.2e}".split("e")
-    return f"rtol={mantissa.rstrip('0').rstrip('.')}e{exponent}"
+    # the shortest digits that give the number back (labels are keys):
+    # 1e-08, 1.2e-08, 3.16e-06
+    return f"rtol={np.format_float_scientific(setting, trim='-', exp_digits=2)}"
 
 
 def _skipped(problem, method, setting, why):
