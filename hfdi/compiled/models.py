@@ -632,8 +632,7 @@ def toss_rule_potential_energy(u, params):
 def _toss_rule_params(model):
     """``(N_el, EA, GA, EJ, h_e …, 1/h_e …, cos α̂_e …, sin α̂_e …)`` (4 + 4 N_el entries)."""
     params = np.concatenate([[model.n_elements, model.EA, model.GA, model.EJ],
-                             model._h, model._inv_h, np.cos(model._alpha_hat),
-                             np.sin(model._alpha_hat)])
+                             model._h, model._inv_h, model._C, model._S])
     return np.ascontiguousarray(params, dtype=np.float64)
 
 
