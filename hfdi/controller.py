@@ -35,6 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import checks
+from .core import control
+from .core.estimate import weighted_rms
+from .core.state import COMBINED, CONFIG, CUSTOM, ERROR, FIXED, ITERATION, RUN
 
 __all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
            "FixedStep", "IterationCountController", "TARGET_ITERATIONS_RANGE",
@@ -155,6 +158,9 @@ class Controller:
         scheme of order ``order``; the integrator calls it on its own copy,
         before the first step. Refuses what does not fit (``ValueError``)."""
 
+    #: The kind the core's rules know this controller by (``CUSTOM``: none).
+    kind = CUSTOM
+
     def landing(self, h: float, remaining: float) -> float:
         """The size to take when ``remaining`` is left to the next time to reach
         and ``h`` is proposed: ``remaining`` itself to land on it.
@@ -164,28 +170,33 @@ class Controller:
         evenly, so that no sliver of a step (whose velocity ``Δu/h`` would
         lose digits) is ever taken.
         """
-        if remaining <= 1.1 * h:
-            return remaining
-        if remaining < 2.0 * h:
-            return 0.5 * remaining
-        return h
+        return control.landing(self.config(), h, remaining)
 
-    def _clamp(self, h):
-        return min(max(h, self.min_step), self.max_step)
+    def settings(self) -> dict:
+        """The ``CONFIG`` fields of this controller (:mod:`hfdi.core.state`)."""
+        return dict(controller=self.kind, min_step=self.min_step, max_step=self.max_step,
+                    first_step_trials=self.first_step_trials)
 
-    def _retry(self, attempt: Attempt, rejections: int, h_next: float, why: str) -> Decision:
-        """Reject ``attempt``; retry with ``h_next`` unless a guard stops the run."""
+    def config(self):
+        """A ``CONFIG`` record with this controller's settings, for the core's rules."""
+        cached = self.__dict__.get("_config")
+        if cached is None:
+            cached = self.__dict__["_config"] = CONFIG.new(**self.settings())
+        return cached
+
+    def _decision(self, attempt, accepted, h_next, stop, why):
+        """A :class:`Decision` from a core rule's verdict (``stop``: its guard)."""
+        if stop == control.STOP_NONE:
+            return Decision(accepted, h_next)
         tried = f"h = {attempt.h:.6g}"
-        if rejections + 1 > self.max_rejections:
+        if stop == control.STOP_HALVINGS:
             what = f"diverged after {self.max_rejections} halvings" if not attempt.converged \
                 else f"rejected {self.max_rejections} times in a row"
             return Decision(False, h_next, "HALVINGS_EXHAUSTED",
                             f"step {what} (last attempt {tried}): {why}")
-        if h_next < self.min_step:
-            return Decision(False, h_next, "STEP_BELOW_MINIMUM",
-                            f"step {h_next:.6g} below min_step = {self.min_step:.6g} after "
-                            f"the attempt with {tried} was rejected: {why}")
-        return Decision(False, h_next)
+        return Decision(False, h_next, "STEP_BELOW_MINIMUM",
+                        f"step {h_next:.6g} below min_step = {self.min_step:.6g} after "
+                        f"the attempt with {tried} was rejected: {why}")
 
 
 class FixedStep(Controller):
@@ -195,9 +206,14 @@ class FixedStep(Controller):
     had to be shortened, so that ``t_end/n`` takes exactly ``n`` steps.
     """
 
+    kind = FIXED
+
     def __init__(self, step: float, **limits):
         self.step = checks.positive("step", step)
         super().__init__(**limits)
+
+    def settings(self):
+        return {**super().settings(), "fixed_step": self.step}
 
     def init(self, trial, h0):
         attempt = trial(self.step)
@@ -229,6 +245,8 @@ class IterationCount(Controller):
     about the size the controller proposed: when it converged within the
     target, the proposal is kept; when it needed more, the rule applies to the
     step actually taken. A diverged attempt is retried with the step halved.
+    The rules are :func:`hfdi.core.control.iteration_adapt` and
+    :func:`~hfdi.core.control.iteration_search`.
 
     Parameters
     ----------
@@ -239,6 +257,8 @@ class IterationCount(Controller):
         Stages of the scheme (2 for Bathe): the step's target is
         ``n_stages · target``.
     """
+
+    kind = ITERATION
 
     def __init__(self, target: float, n_stages: int = 1, **limits):
         low, high = TARGET_ITERATIONS_RANGE
@@ -253,73 +273,41 @@ class IterationCount(Controller):
         self.max_iterations = max(1, int(math.floor(2.0 * target)))
         super().__init__(**limits)
 
-    def next_step(self, h, proposed, clipped, iterations):
-        if clipped and iterations <= self.target:
-            new = proposed
-        else:
-            new = h * math.sqrt(self.target / max(iterations, 1))
-        return self._clamp(new)
-
-    def landing(self, h, remaining):
-        # the paper's tables were made with this rule: keep it
-        if h >= remaining or remaining - h <= 0.01 * h:
-            return remaining
-        return h
+    def settings(self):
+        return {**super().settings(), "target": self.target, "it_min_step": self.min_step,
+                "it_max_step": self.max_step, "it_max_rejections": self.max_rejections}
 
     def adapt(self, attempt, rejections):
-        if attempt.converged:
-            return Decision(True, self.next_step(attempt.h, attempt.proposed, attempt.clipped,
-                                                 attempt.iterations))
-        return self._retry(attempt, rejections, 0.5 * attempt.h, attempt.message)
+        accepted, h_next, stop = control.iteration_adapt(
+            self.config(), attempt.h, attempt.proposed, attempt.clipped, attempt.converged,
+            attempt.iterations, rejections)
+        return self._decision(attempt, accepted, h_next, stop, attempt.message)
 
     def init(self, trial, h0):
         """``Δt₀`` such that the first step converges in ``N̄`` iterations
-        (Section 5): bracket ``h`` between a size that needs too few
-        corrections and one that needs too many (or diverges), doubling or
-        halving until bracketed and bisecting geometrically after."""
-        target = self.target
-        h = h0
-        low = high = None
-        best = None            # (distance to target, attempt)
-        message = ""
-        smallest = math.inf
-        trials = 0
+        (Section 5), by :func:`hfdi.core.control.iteration_search`."""
+        search = RUN.new(search_low=math.nan, search_high=math.nan, search_best=math.inf)
+        h, best, message, smallest, trials = h0, None, "", math.inf, 0
         for _ in range(self.first_step_trials):
             attempt = trial(h)
             if attempt is None:            # below the resolution of time at t
                 break
             trials += 1
             smallest = min(smallest, attempt.h)
-            if attempt.converged:
-                n = attempt.iterations
-                if best is None or abs(n - target) < best[0]:
-                    best = (abs(n - target), attempt)
-                if abs(n - target) <= 0.5 or (n < target and (attempt.clipped
-                                                              or attempt.h >= self.max_step)):
-                    break
-                if n < target:
-                    low = attempt.h
-                else:
-                    high = attempt.h
-            else:
+            if not attempt.converged:
                 message = attempt.message
-                high = attempt.h
-            if low is not None and high is not None:
-                if high / low < 1.0 + 1e-3:
-                    break
-                h = math.sqrt(low * high)
-            elif low is not None:
-                h = min(2.0 * low, self.max_step)
-            else:
-                h = 0.5 * high
-            if h < self.min_step:
+            better, done, h = control.iteration_search(self.config(), search, attempt.converged,
+                                                       attempt.iterations, attempt.h,
+                                                       attempt.clipped)
+            if better:
+                best = attempt
+            if done:
                 break
         if best is None:
             return None, Decision(False, h, "FIRST_STEP_FAILED",
                                   f"no first step converged in {trials} trials down to h = "
                                   f"{smallest:.6g}: {message}")
-        attempt = best[1]
-        return attempt, self.adapt(attempt, 0)
+        return best, self.adapt(best, 0)
 
     def __repr__(self):
         return f"IterationCount(target={self.per_stage})"
@@ -327,7 +315,6 @@ class IterationCount(Controller):
 
 #: The former name of :class:`IterationCount`.
 IterationCountController = IterationCount
-
 
 class ErrorControl(Controller):
     """Step size from the local error estimate (docs/algorithm.md, "Error control").
@@ -361,6 +348,7 @@ class ErrorControl(Controller):
 
     uses_error_estimate = True
     max_iterations = 10
+    kind = ERROR
 
     def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, u_scale=1.0, order: int | None = None,
                  safety=0.9, grow=5.0, shrink=0.2, **limits):
@@ -381,6 +369,7 @@ class ErrorControl(Controller):
         """Take the scheme's order unless one was given; see :meth:`check_size`."""
         if self.order is None:
             self.order = order
+        self.__dict__.pop("_config", None)
         self.check_size(n)
 
     def check_size(self, n: int):
@@ -396,45 +385,32 @@ class ErrorControl(Controller):
                 setattr(self, name, np.concatenate([value, value]))
 
     def error_norm(self, attempt: Attempt) -> float:
-        """The weighted RMS norm of the attempt's error estimate."""
-        scale = self.atol + self.rtol * np.maximum(np.abs(attempt.y_start), np.abs(attempt.y_end))
-        if attempt.velocity_noise:
-            n = scale.size // 2
-            scale[n:] += attempt.velocity_noise
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = attempt.error / scale
-        ratio = np.where(attempt.error == 0.0, 0.0, ratio)
-        return float(np.sqrt(np.mean(ratio * ratio)))
+        """The weighted RMS norm of the attempt's error estimate
+        (:func:`hfdi.core.estimate.weighted_rms`)."""
+        n = attempt.y_start.size // 2
+        y0, y1 = attempt.y_start, attempt.y_end
+        rtol = np.broadcast_to(self.rtol, (2 * n,)).astype(float)
+        atol = np.broadcast_to(self.atol, (2 * n,)).astype(float)
+        return weighted_rms(attempt.error, y0[:n], y0[n:], y1[:n], y1[n:], rtol, atol,
+                            attempt.velocity_noise, np.empty(2 * n))
 
-    def _factor(self, err, exponent):
-        if err == 0.0:
-            return self.grow
-        return min(self.grow, max(self.shrink, self.safety * err ** -exponent))
+    def settings(self):
+        return {**super().settings(), "order": self.order or 0, "er_min_step": self.min_step,
+                "er_max_step": self.max_step, "er_max_rejections": self.max_rejections,
+                "safety": self.safety, "grow": self.grow, "shrink": self.shrink}
 
-    def _exponent(self, attempt):
+    def adapt(self, attempt, rejections):
         if self.order is None:
             raise ValueError("ErrorControl has no order: give order=p, or let an integrator "
                              "fit it to its scheme (prepare)")
-        # without history the estimate is the Taylor predictor's O(h³) error
-        return 1.0 / (self.order + 1) if attempt.history else 1.0 / 3.0
-
-    def adapt(self, attempt, rejections):
-        if not attempt.converged:
-            return self._retry(attempt, rejections, 0.5 * attempt.h, attempt.message)
-        err = self.error_norm(attempt)
-        if not math.isfinite(err):
-            return self._retry(attempt, rejections, 0.5 * attempt.h,
-                               "error estimate is not finite")
-        factor = self._factor(err, self._exponent(attempt))
-        if err <= 1.0:
-            if rejections:
-                factor = min(factor, 1.0)
-            h_next = attempt.h * factor
-            if attempt.clipped:
-                h_next = max(h_next, min(attempt.proposed, attempt.h * self.grow))
-            return Decision(True, self._clamp(h_next))
-        return self._retry(attempt, rejections, attempt.h * factor,
-                           f"local error {err:.3g} times the tolerance")
+        err = self.error_norm(attempt) if attempt.converged else math.nan
+        accepted, h_next, stop = control.error_adapt(
+            self.config(), attempt.h, attempt.proposed, attempt.clipped, attempt.converged, err,
+            attempt.history, rejections)
+        why = attempt.message if not attempt.converged else (
+            "error estimate is not finite" if not math.isfinite(err) else
+            f"local error {err:.3g} times the tolerance")
+        return self._decision(attempt, accepted, h_next, stop, why)
 
     def init(self, trial, h0):
         """The first step by the same estimate, from the Taylor predictor
@@ -452,8 +428,7 @@ class ErrorControl(Controller):
                 return attempt, decision
             message = decision.message
             # first_step_trials bounds this loop; max_halvings is the bound
-            # of a later step's rejections (it had capped the trials at 31),
-            # min_step bounds both
+            # of a later step's rejections; min_step bounds both
             if decision.status == "HALVINGS_EXHAUSTED":
                 if decision.next_step < self.min_step:
                     message = (f"step {decision.next_step:.6g} below min_step = "
@@ -477,6 +452,7 @@ class Combined(Controller):
     accepted when both accept it, and the smaller proposal wins."""
 
     uses_error_estimate = True
+    kind = COMBINED
 
     def __init__(self, iteration: IterationCount, error: ErrorControl):
         self.iteration, self.error = iteration, error
@@ -490,6 +466,11 @@ class Combined(Controller):
     def prepare(self, n, order):
         self.iteration.prepare(n, order)
         self.error.prepare(n, order)
+
+    def settings(self):
+        return {**self.iteration.settings(), **self.error.settings(), "controller": COMBINED,
+                "min_step": self.min_step, "max_step": self.max_step,
+                "first_step_trials": self.first_step_trials}
 
     def adapt(self, attempt, rejections):
         a = self.iteration.adapt(attempt, rejections)
@@ -511,6 +492,17 @@ class Combined(Controller):
 
     def __repr__(self):
         return f"Combined({self.iteration!r}, {self.error!r})"
+
+
+def core_kind(controller) -> int:
+    """The kind the core's rules know ``controller`` by: a built-in controller's
+    own, ``CUSTOM`` for any other (a subclass too: its methods may differ)."""
+    if type(controller) is Combined:
+        parts = (type(controller.iteration), type(controller.error))
+        return COMBINED if parts == (IterationCount, ErrorControl) else CUSTOM
+    if type(controller) in (FixedStep, IterationCount, ErrorControl):
+        return controller.kind
+    return CUSTOM
 
 
 def _exact(value) -> str:

@@ -1,8 +1,19 @@
-"""A checked, counting view of a model, used by the schemes and the driver.
+"""The one checked gateway to a model.
 
-Wrapping the user's functions keeps the counters (``nfev``, ``njev``,
-``ntev``, ``nlu``) in one place, as ``scipy.integrate`` does, and normalises
-the matrices once (see :mod:`hfdi.linalg`).
+:class:`Evaluator` wraps a :class:`~hfdi.system.SecondOrderSystem`: it
+normalises and checks its mass and damping once, and every value of the
+model it hands out is checked for its shape (a wrong one is a mistake in the
+model: :class:`ModelError`) and for being finite (NaN at some trial state is a
+failed attempt that a shorter step may avoid: :class:`NonFiniteError`).
+
+The stepping code (:mod:`hfdi.stepping`) calls a model through functions of
+the compiled kernels' signatures (:data:`hfdi.core.state.FUNCTIONS`);
+:meth:`Evaluator.functions` gives them for a Python model. They never raise
+into the stepping code for a fault that a shorter step may avoid: they record
+the fault (:attr:`Evaluator.fault`, for the message) and return a value that
+is not finite, or, for a mistake in the model, a value of a wrong shape,
+which the stepping code turns into a failed attempt or a stop with
+``MODEL_ERROR`` as it does for compiled kernels.
 """
 from __future__ import annotations
 
@@ -14,15 +25,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import checks
-from .linalg import Factorization, all_finite, normalise_matrix, solve
+from .core.arrays import DENSE, DIAGONAL, NONE, SPARSE
+from .linsolve.sparse import DENSE_BELOW, Factorization
 from .system import SecondOrderSystem
 
-__all__ = ["State", "Evaluator", "ModelError", "NonFiniteError", "DENSE_BELOW"]
-
-#: Sparse matrices of models with fewer DOFs than this are handled as dense
-#: arrays: below about a hundred unknowns a dense LU costs microseconds, while
-#: every scipy.sparse operation costs tens of microseconds of overhead.
-DENSE_BELOW = 128
+__all__ = ["State", "Evaluator", "ModelError", "NonFiniteError", "ModelFault", "DENSE_BELOW",
+           "brief", "normalise_matrix"]
 
 
 class ModelError(ValueError):
@@ -39,6 +47,11 @@ class NonFiniteError(ArithmeticError):
     """
 
 
+class ModelFault(Exception):
+    """The model failed where no shorter step helps (its potential energy at an
+    accepted state): the run stops with ``MODEL_ERROR``, this message."""
+
+
 def brief(x) -> str:
     """A short text of a vector for messages (long vectors are elided)."""
     x = np.asarray(x, dtype=float).ravel()
@@ -48,8 +61,15 @@ def brief(x) -> str:
     return "[" + ", ".join(parts) + "]"
 
 
+
 _ndarray = np.ndarray
 _float64 = np.dtype(np.float64)
+_isfinite = np.isfinite
+
+
+def all_finite(x) -> bool:
+    """Whether every entry of the float array ``x`` is finite (no NaN, no infinity)."""
+    return _isfinite(x).all()
 
 
 def _at_u(u) -> str:
@@ -83,21 +103,35 @@ def _first_bad(values) -> str:
     return f"{float(value)!r} at {index}"
 
 
-def energy_overflows(kinetic: float, work: float, potential: float) -> bool:
-    """Whether a step's energy terms (Eqs. 40–41) are beyond floating point:
-    an infinite or NaN kinetic energy or work (both computed here from finite
-    values, so a NaN is an ``inf − inf``), or an infinite potential energy (a
-    NaN one is the model's "unknown")."""
-    return not (math.isfinite(kinetic) and math.isfinite(work)) or math.isinf(potential)
+def normalise_matrix(a, n: int, name: str):
+    """Return ``a`` as a 1-D diagonal, a 2-D ndarray or CSR sparse, checked to be ``n``×``n``.
+
+    ``None`` stays ``None``. The checks (real, finite, the shape) and their
+    messages naming ``name`` are :func:`hfdi.checks.square_matrix`'s. A sparse
+    or dense matrix that is exactly diagonal is stored as its diagonal.
+    """
+    if a is None:
+        return None
+    a = checks.square_matrix(name, a, n)
+    if sp.issparse(a):
+        a = sp.csr_matrix(a, dtype=float)
+        if a.nnz == 0 or (a - sp.diags(a.diagonal())).count_nonzero() == 0:
+            return np.asarray(a.diagonal(), dtype=float)
+        return a
+    if a.ndim == 1:
+        return a.copy()
+    if np.count_nonzero(a - np.diag(np.diag(a))) == 0:
+        return np.diag(a).copy()
+    return np.ascontiguousarray(a)
 
 
-def potential_lost(potential: float, initial_potential: float) -> bool:
-    """Whether the model's potential energy is NaN (its "unknown") at the end
-    of a step while it was known at the start of the run: a model knows its
-    ``V`` everywhere or nowhere, so this is a fault of the model at that
-    state, and the energy balance (and ``energy_limit``) would be NaN from
-    there on."""
-    return math.isnan(potential) and not math.isnan(initial_potential)
+def matrix_kind(a) -> int:
+    """The kind (:mod:`hfdi.core.arrays`) of a normalised matrix."""
+    if a is None:
+        return NONE
+    if sp.issparse(a):
+        return SPARSE
+    return DIAGONAL if a.ndim == 1 else DENSE
 
 
 @dataclass(frozen=True, init=False)
@@ -137,13 +171,18 @@ class State:
 
 
 class Evaluator:
-    """Counting wrapper around a :class:`~hfdi.system.SecondOrderSystem`.
+    """Checking wrapper around a :class:`~hfdi.system.SecondOrderSystem`.
 
     Parameters
     ----------
     system : SecondOrderSystem
     extra_load : callable ``t -> (N,)``, optional
         Added to the model's load (used for inputs of a co-simulation).
+
+    The methods :meth:`force`, :meth:`stiffness`, :meth:`stiffness_derivative`,
+    :meth:`load`, :meth:`load_rate` and :meth:`potential_energy` raise on a
+    fault (and count the evaluations in ``nfev``, ``njev``, ``ntev``,
+    ``npev``); :meth:`functions` are the stepping code's, which signal it.
     """
 
     def __init__(self, system: SecondOrderSystem, extra_load=None):
@@ -173,23 +212,28 @@ class Evaluator:
             self.mass, self.damping = (a.toarray() if sp.issparse(a) else a
                                        for a in (self.mass, self.damping))
         self.extra_load = extra_load
-        self.nfev = self.njev = self.ntev = self.nlu = self.npev = 0
+        self.nfev = self.njev = self.ntev = self.npev = 0
         self._mass_factor = None
         self._mass_floor = None
-        self.mass_is_diagonal = self.mass.ndim == 1
-        self.damping_is_diagonal = self.damping is None or (
-            isinstance(self.damping, np.ndarray) and self.damping.ndim == 1)
         self._vector_shape = (n,)
         self._matrix_shape = (n, n)
-        #: A load breakpoint that the step being attempted ends on: the load
-        #: and its rate there are the limits from the left (see load()).
-        self.left_limit_at = None
         #: Compiled f, K and T called instead of the model's methods
         #: (:class:`hfdi.compiled.SparseKernels`, see :meth:`use_kernels`).
         self.kernels = None
-        #: :mod:`hfdi.compiled.band` with them: the schemes' sparse tangents
-        #: go into band storage in compiled code.
+        #: :mod:`hfdi.compiled.band` with them: the sparse tangents go into
+        #: band storage in compiled code.
         self.bands = None
+        #: The last fault a function of :meth:`functions` met: ``(message,
+        #: mistake)``, ``mistake`` true for a :class:`ModelError`.
+        self.fault = None
+
+    @property
+    def mass_kind(self) -> int:
+        return matrix_kind(self.mass)
+
+    @property
+    def damping_kind(self) -> int:
+        return matrix_kind(self.damping)
 
     def mass_floor(self) -> float:
         """A lower bound of the smallest eigenvalue of ``M`` (> 0; 0 where only a
@@ -198,7 +242,7 @@ class Evaluator:
         bound of a sparse one."""
         if self._mass_floor is None:
             m = self.mass
-            if self.mass_is_diagonal:
+            if m.ndim == 1:
                 floor = float(m.min())
             elif isinstance(m, np.ndarray):
                 floor = float(np.linalg.eigvalsh(m)[0])
@@ -209,13 +253,22 @@ class Evaluator:
             self._mass_floor = max(floor, 0.0)
         return self._mass_floor
 
+    def damping_rate(self) -> float:
+        """``‖C‖_∞ / λ_min(M)`` (a bound of the fastest damping rate; 0 without C,
+        inf without a positive bound of ``λ_min(M)``)."""
+        C = self.damping
+        if C is None:
+            return 0.0
+        rows = np.abs(C) if C.ndim == 1 else np.asarray(abs(C).sum(axis=1))
+        floor = self.mass_floor()
+        return float(rows.max()) / floor if floor > 0 else math.inf
+
     def use_kernels(self, kernels) -> None:
         """Call ``kernels.force``, ``.stiffness`` and ``.stiffness_derivative``
         (:class:`hfdi.compiled.SparseKernels`, checked against the model by
         the caller) instead of the model's methods, and build the sparse
         tangents' bands compiled (:mod:`hfdi.compiled.band`); ``None`` goes
-        back to the Python model and builders. The values pass the same
-        checks and counters; the bands are the Python builders' bit for bit."""
+        back to the Python model and builders."""
         self.kernels = kernels
         if kernels is None:
             self.bands = None
@@ -276,33 +329,33 @@ class Evaluator:
 
     def force(self, u):
         self.nfev += 1
+        return self._force(u)
+
+    def _force(self, u):
         k = self.kernels
         f = self.system.internal_force(u) if k is None else k.force(u)
         return self._vector(f, "internal_force", _at_u, u)
 
     def stiffness(self, u):
         self.njev += 1
+        return self._stiffness(u)
+
+    def _stiffness(self, u):
         k = self.kernels
         K = self.system.stiffness(u) if k is None else k.stiffness(u)
         return self._matrix(K, "stiffness", _at_u, u)
 
     def stiffness_derivative(self, u, w):
         self.ntev += 1
+        return self._stiffness_derivative(u, w)
+
+    def _stiffness_derivative(self, u, w):
         k = self.kernels
         T = self.system.stiffness_derivative(u, w) if k is None else \
             k.stiffness_derivative(u, w)
         return self._matrix(T, "stiffness_derivative", _at_u_w, u, w)
 
-    def _one_sided(self, t):
-        # At a breakpoint where p or p' jumps, the step that ends there needs
-        # the limits from the left. Loads are written piecewise (``t < t1``
-        # ...); evaluating them one rounding unit before the breakpoint picks
-        # the left branch, and the value differs from the left limit by
-        # O(ulp(t)·p').
-        return np.nextafter(t, -np.inf) if t == self.left_limit_at else t
-
     def load(self, t):
-        t = self._one_sided(t)
         p = self._vector(self.system.load(t), "load", _at_t, t)
         if self.extra_load is not None:
             p = p + self._vector(self.extra_load(t), "extra_load", _at_t, t)
@@ -313,7 +366,6 @@ class Evaluator:
         return self.system.load_rate is not None and self.extra_load is None
 
     def load_rate(self, t):
-        t = self._one_sided(t)
         return self._vector(self.system.load_rate(t), "load_rate", _at_t, t)
 
     def potential_energy(self, u):
@@ -322,6 +374,9 @@ class Evaluator:
         string is refused (numpy would read ``None`` as NaN and ``"1.0"`` as
         1)."""
         self.npev += 1
+        return self._potential_energy(u)
+
+    def _potential_energy(self, u):
         value = self.system.potential_energy(u)
         _refuse_complex(value, "potential_energy")
         if isinstance(value, float):                  # float and numpy's float64
@@ -339,12 +394,12 @@ class Evaluator:
 
     # -- mass and damping -----------------------------------------------------
     def mass_times(self, x):
-        return self.mass * x if self.mass_is_diagonal else self.mass @ x
+        return self.mass * x if self.mass.ndim == 1 else self.mass @ x
 
     def damping_times(self, x):
         if self.damping is None:
             return np.zeros_like(x)
-        return self.damping * x if self.damping_is_diagonal else self.damping @ x
+        return self.damping * x if self.damping.ndim == 1 else self.damping @ x
 
     def mass_solve(self, b):
         if self._mass_factor is None:
@@ -360,7 +415,47 @@ class Evaluator:
     def kinetic_energy(self, v):
         return 0.5 * float(v @ self.mass_times(v))
 
-    # -- linear algebra -------------------------------------------------------
-    def solve(self, a, b):
-        self.nlu += 1
-        return solve(a, b)
+    # -- the stepping code's functions --------------------------------------------
+    def functions(self, stage, exact_rate=False):
+        """The model as the stepping code calls it, with the scheme's ``stage``
+        function: :data:`hfdi.core.state.FUNCTIONS` of Python callables. A
+        fault is recorded in :attr:`fault` and signalled by a value of a wrong
+        shape (a :class:`ModelError`) or not finite (anything else);
+        ``potential_energy`` raises :class:`ModelFault`."""
+        from .core.state import FUNCTIONS
+        n = self.n
+        nan_vector = np.full(n, np.nan)
+        no_vector, no_matrix = np.empty(0), np.empty((0, 0))
+        nan_matrix = (np.full((n, n), np.nan) if n < DENSE_BELOW else
+                      sp.csr_matrix(([np.nan], ([0], [0])), shape=(n, n)))
+
+        def guarded(evaluate, missing, failed):
+            def call(*args):
+                try:
+                    return evaluate(*args)
+                except ModelError as exc:
+                    self.fault = (str(exc), True)
+                    return missing
+                except NonFiniteError as exc:
+                    self.fault = (str(exc), False)
+                except Exception as exc:   # the model failed at some state: an attempt fails
+                    self.fault = (f"model raised {type(exc).__name__}: {exc}", False)
+                return failed.copy() if isinstance(failed, np.ndarray) else failed
+            return call
+
+        def potential_energy(u, params):
+            try:
+                return self._potential_energy(u)
+            except Exception as exc:
+                raise ModelFault(f"{type(exc).__name__}: {exc}") from None
+
+        return FUNCTIONS.new(
+            force=guarded(lambda u, params: self._force(u), no_vector, nan_vector),
+            stiffness=guarded(lambda u, params: self._stiffness(u), no_matrix, nan_matrix),
+            stiffness_derivative=guarded(lambda u, w, params: self._stiffness_derivative(u, w),
+                                         no_matrix, nan_matrix),
+            potential_energy=potential_energy,
+            load=guarded(lambda t, params: self.load(t), no_vector, nan_vector),
+            load_rate=guarded(lambda t, params: self.load_rate(t) if exact_rate else
+                              nan_vector, no_vector, nan_vector),
+            stage=stage)

@@ -1,12 +1,13 @@
-"""Compiled (numba) model kernels, a compiled step attempt and driver for dense
-systems, and compiled models and band assembly for sparse ones.
+"""Compiled (numba) models: the kernels protocol, their checks, and the choice of path.
 
-Nothing here imports numba until it is used: ``import hfdi`` stays light, and
-a model without compiled kernels, or a Python without numba, runs on the
-Python path. See docs/compiled.md for the protocol a model follows to provide
-compiled kernels (:meth:`compiled_kernels` returning :class:`CompiledKernels`;
-for large sparse systems :meth:`compiled_sparse_kernels` returning
-:class:`SparseKernels`) and for the measured speed.
+A model offers compiled kernels through ``compiled_kernels()`` returning
+:class:`CompiledKernels` (the paper's four models, every
+:class:`~hfdi.models.symbolic.EnergyModel`), or, for a large sparse system,
+``compiled_sparse_kernels()`` returning :class:`SparseKernels`. With them the
+integrator runs its whole loop compiled (:func:`hfdi.stepping.loop.advance_compiled`),
+calling the kernels through function pointers, after checking that they
+compute the model (:func:`kernel_mismatch`). docs/compiled.md describes the
+protocol and the measured speed.
 """
 from __future__ import annotations
 
@@ -18,15 +19,17 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 __all__ = ["CompiledKernels", "CompiledUnavailable", "InitialValues", "KERNEL_TOLERANCE",
-           "NativeAdvance", "SparseKernels", "compiled_driver", "compiled_step", "driver_reason",
-           "kernel_mismatch", "kernels_of", "library_kernels", "numba_available",
-           "sparse_kernels_of"]
+           "NativeAdvance", "SparseKernels", "compiled_reason", "kernel_mismatch",
+           "kernels_of", "library_kernels", "numba_available", "sparse_kernels_of",
+           "say_once", "function_struct", "follow_model", "zero_load", "zero_load_params"]
 
 _log = logging.getLogger("hfdi.compiled")
 
 
 def __getattr__(name):
     # NativeAdvance compiles (or loads) its C function on import: only when asked for
+    if name == "zero_load":
+        return _zero_load_kernel()
     if name == "NativeAdvance":
         from .native import NativeAdvance
         return NativeAdvance
@@ -379,51 +382,6 @@ def sparse_kernel_mismatch(system, kernels: SparseKernels, initial: InitialValue
     return _first_mismatch(type(system).__name__, checks)
 
 
-def compiled_driver(integrator):
-    """The compiled driver of ``integrator`` (:class:`hfdi.compiled.driver.CompiledDriver`),
-    or ``None`` when :func:`driver_reason` gives a reason or the driver's code
-    cannot be loaded (said once; the attempts stay compiled)."""
-    if driver_reason(integrator):
-        return None
-    try:
-        from .driver import CompiledDriver
-        return CompiledDriver(integrator)
-    except Exception as exc:               # numba cannot compile or load the driver
-        say_once(f"{type(exc).__name__}: {exc}", "the compiled driver cannot be loaded "
-                 "({reason}); the steps run in the Python driver, their attempts compiled")
-        return None
-
-
-def driver_reason(integrator) -> str:
-    """Why ``integrator``'s steps cannot run in the compiled driver
-    (:mod:`hfdi.compiled.driver`), or ``""`` when they can.
-
-    The driver needs the compiled attempt, a compiled load (``CompiledKernels.load``),
-    no ``extra_load`` other than a :class:`~hfdi.HeldLoad`, a compiled load rate where
-    HFDI takes the model's exact one, and one of the built-in controllers.
-    """
-    from ..controller import Combined, ErrorControl, FixedStep, IterationCount
-    step = integrator._compiled
-    if step is None:
-        return "the attempt is not compiled"
-    if step.kernels.load is None:
-        return f"model {type(integrator.system).__name__} has no compiled load"
-    from ..system import HeldLoad
-    extra = integrator.ev.extra_load
-    if extra is not None and not isinstance(extra, HeldLoad):
-        return "an extra_load is given that is not a hfdi.HeldLoad"
-    if step.exact_rate and step.kernels.load_rate is None:
-        return "HFDI takes the model's exact load rate, which has no compiled form"
-    c = integrator.controller
-    parts = (c.iteration, c.error) if type(c) is Combined else (c,)
-    if type(c) is Combined and not (type(parts[0]) is IterationCount
-                                    and type(parts[1]) is ErrorControl):
-        return f"controller {c!r} is not built from IterationCount and ErrorControl"
-    if type(c) not in (FixedStep, IterationCount, ErrorControl, Combined):
-        return f"controller {type(c).__name__} is not one of the built-in controllers"
-    return ""
-
-
 _SAID = set()
 
 
@@ -440,61 +398,53 @@ def say_once(reason: str, message: str = "the compiled step is not used ({reason
     warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
-def compiled_step(ev, scheme, compiled=None, initial: InitialValues | None = None):
-    """The compiled attempt for an :class:`~hfdi.evaluation.Evaluator` and scheme,
-    or ``None`` for the Python path.
 
-    Parameters
-    ----------
-    ev : Evaluator
-    scheme : Scheme
-    compiled : {None, True, False}
-        ``None`` (auto): compiled when the model has kernels, numba imports,
-        the system is dense (``N < DENSE_BELOW``) and the scheme is
-        :class:`~hfdi.Newmark`, :class:`~hfdi.Bathe` or :class:`~hfdi.HFDI`;
-        the Python path otherwise, with a warning (once) when only numba is
-        missing. For a sparse system (``N ≥ DENSE_BELOW``) the steps run in
-        Python and the model's f, K and T compiled when it has
-        :class:`SparseKernels` (installed in ``ev``; ``None`` is returned).
-        ``True``: compiled (for a sparse system, its model) or
-        :class:`CompiledUnavailable`. ``False``: the Python path.
-
-    Returns
-    -------
-    hfdi.compiled.attempt.CompiledStep or None
-    """
-    if compiled is False:
-        return None
-    if compiled not in (None, True):
-        raise ValueError(f"compiled must be None (auto), True or False, got {compiled!r}")
-    from ..evaluation import DENSE_BELOW
-    from ..schemes import HFDI, Bathe, Newmark
-    reason = ""
-    if ev.n >= DENSE_BELOW:
-        return _sparse_model(ev, compiled, initial)
-    if type(scheme) not in (Newmark, Bathe, HFDI):
-        reason = f"scheme {scheme!r} is not one of Newmark, Bathe and HFDI"
-    kernels = None
-    if not reason:
-        kernels, reason = kernels_of(ev.system)
-    if not reason and initial is not None:
-        reason = "" if library_kernels(ev.system, kernels) else \
-            kernel_mismatch(ev.system, kernels, initial)
-    step = None
-    if not reason:
-        try:
-            from .attempt import CompiledStep
-            step = CompiledStep(ev, scheme, kernels)
-        except Exception as exc:           # numba cannot compile or load the attempt
-            reason = _Fault(f"the compiled attempt cannot be loaded: "
-                            f"{type(exc).__name__}: {exc}")
-    if reason:
-        _refused(compiled, reason, "the compiled step cannot run")
-        return None
-    return step
+#: The model's methods whose instance attributes (``m.load = ...``) would make
+#: the model another one than its class's compiled kernels compute.
+_SHADOWED = frozenset({"internal_force", "stiffness", "stiffness_derivative", "load",
+                       "load_rate", "load_breakpoints", "potential_energy"})
 
 
-def _refused(compiled, reason, what):
+def shadowed(system) -> str:
+    """The first of the model's methods replaced by an instance attribute, or ``""``."""
+    names = _SHADOWED.intersection(getattr(system, "__dict__", {}))
+    return min(names) if names else ""
+
+
+def compiled_reason(integrator, initial: InitialValues):
+    """``("", kernels)`` when ``integrator``'s run can be compiled with the model's
+    kernels, else ``(why, None)``: a custom controller, an ``extra_load`` other
+    than a :class:`~hfdi.HeldLoad`, no kernels (or numba missing), a method
+    replaced on the instance, a Python load without a compiled one, an exact
+    load rate without a compiled one, or kernels that compute another model."""
+    from ..controller import core_kind
+    from ..core.state import CUSTOM
+    from ..system import HeldLoad, SecondOrderSystem
+    system, ev = integrator.system, integrator.ev
+    if core_kind(integrator.controller) == CUSTOM:
+        return (f"controller {type(integrator.controller).__name__} is not one of the built-in "
+                f"controllers"), None
+    if ev.extra_load is not None and not isinstance(ev.extra_load, HeldLoad):
+        return "an extra_load is given that is not a hfdi.HeldLoad", None
+    name = shadowed(system)
+    if name:
+        return (f"{type(system).__name__}.{name} is replaced on the instance, which its "
+                f"compiled kernels do not compute"), None
+    kernels, why = kernels_of(system)
+    if why:
+        return why, None
+    if kernels.load is None and type(system).load is not SecondOrderSystem.load:
+        return f"model {type(system).__name__} has no compiled load", None
+    if integrator._cfg.exact_rate and kernels.load_rate is None:
+        return "HFDI takes the model's exact load rate, which has no compiled form", None
+    if not library_kernels(system, kernels):
+        reason = kernel_mismatch(system, kernels, initial)
+        if reason:
+            return reason, None
+    return "", kernels
+
+
+def refused(compiled, reason, what):
     """Raise for ``compiled=True``; else say a fault (or a missing numba) once."""
     if compiled:
         raise CompiledUnavailable(f"compiled=True, but {what}: {reason}")
@@ -503,18 +453,96 @@ def _refused(compiled, reason, what):
         say_once(reason)
 
 
-def _sparse_model(ev, compiled, initial):
+def use_sparse_kernels(ev, compiled, initial):
     """A sparse system (``N ≥ DENSE_BELOW``): the steps stay in Python, its
     model's f, K and T run compiled (:class:`SparseKernels`) when it has them
-    and they match it at the initial state; returns ``None``."""
+    and they match it at the initial state."""
     kernels, reason = sparse_kernels_of(ev.system)
     if not reason and initial is not None:
         reason = "" if library_kernels(ev.system, kernels) else \
             sparse_kernel_mismatch(ev.system, kernels, initial)
     if reason:
         from ..evaluation import DENSE_BELOW
-        _refused(compiled, reason, f"the system has {ev.n} degrees of freedom (N ≥ "
-                 f"{DENSE_BELOW}, the steps run in Python) and its model cannot run compiled")
-        return None
+        refused(compiled, reason, f"the system has {ev.n} degrees of freedom (N ≥ "
+                f"{DENSE_BELOW}, the steps run in Python) and its model cannot run compiled")
+        return
     ev.use_kernels(kernels)
-    return None
+
+
+def function_struct(functions):
+    """The compiled struct of :data:`hfdi.core.state.FUNCTIONS` (named tuple of
+    numba dispatchers), each compiled for its signature first (loaded from
+    the disk cache, or compiled and said once)."""
+    from ..core.state import FUNCTIONS, NEW_FUNCTIONS_SIGNATURE, new_functions
+    for (name, kind), dispatcher in zip(FUNCTIONS.fields, functions):
+        if kind.signature.args not in dispatcher.overloads:
+            compile_for_signature(dispatcher, kind.signature)
+    if NEW_FUNCTIONS_SIGNATURE.args not in new_functions.overloads:
+        new_functions.compile(NEW_FUNCTIONS_SIGNATURE)
+    # the overload of the declared signature itself: each dispatcher unboxed as a
+    # first-class function (a call through the dispatcher would compile another)
+    return new_functions.overloads[NEW_FUNCTIONS_SIGNATURE.args].entry_point(*functions)
+
+
+def compile_for_signature(dispatcher, signature):
+    """``dispatcher`` compiled for ``signature`` (from the disk cache when there)."""
+    import time
+    start = time.perf_counter()
+    dispatcher.compile(signature.args)
+    elapsed = time.perf_counter() - start
+    if elapsed > 1.0:
+        _log.warning("hfdi: compiled %s in %.1f s (once: kept on disk)",
+                     getattr(dispatcher, "__qualname__", dispatcher), elapsed)
+
+
+def follow_model(integrator) -> None:
+    """After ``integrator.model_changed()`` on a compiled run: the kernels' data
+    from the model now, and the kernels checked against it again at the
+    current state (kernels that agreed under the old parameters may not under
+    the new ones). Where they differ, the rest of the run is the Python
+    path, said once."""
+    from ..schemes import HFDI
+    system = integrator.system
+    kernels, why = kernels_of(system)
+    if not why and shadowed(system):
+        why = f"{type(system).__name__}.{shadowed(system)} is replaced on the instance"
+    if not why and not library_kernels(system, kernels):
+        state = integrator.state
+        try:
+            K = system.stiffness(state.u)
+            T = system.stiffness_derivative(state.u, state.v) if isinstance(
+                integrator.scheme, HFDI) else None
+        except Exception:       # not compared; the next step meets it
+            K = T = None
+        if K is not None:
+            initial = InitialValues(state.t, state.u, state.v, state.f, K, T,
+                                    integrator.potential_energy,
+                                    math.inf if integrator.t_bound is None else
+                                    integrator.t_bound)
+            why = kernel_mismatch(system, kernels, initial)
+    if why:
+        say_once(str(why), "after the model changed: {reason}; the rest of the run takes its "
+                 "steps in Python")
+        integrator._compiled_call = None
+        return
+    params = np.ascontiguousarray(kernels.params, dtype=float)
+    data = integrator._data
+    if params.shape == data.params.shape:
+        data.params[:] = params
+    else:
+        integrator._data = data._replace(params=params)
+        integrator._refresh_compiled()
+    if kernels.load_params is not None and kernels.load_params is kernels.params:
+        if data.load_params.shape == params.shape:
+            integrator._data.load_params[:] = params
+
+
+def _zero_load_kernel():
+    from .loads import hat_load
+    return hat_load
+
+
+def zero_load_params(n):
+    """The data of the zero load (:func:`hfdi.compiled.loads.hat_load` without pulses)."""
+    from .loads import hat_load_params
+    return hat_load_params(n)

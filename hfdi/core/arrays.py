@@ -1,0 +1,297 @@
+"""Array primitives of the core: each a numpy body (Python) and a loop (compiled).
+
+The loops make one pass without temporaries (compiled code allocates nothing
+per step); the numpy bodies are the fewest calls. Both compute every entry
+with the same operations in the same order (``a * x[i] + b * y[i]`` is the
+same number either way), so the two speeds round alike. Products with
+matrices and dot products are ``np.dot`` in both, which is BLAS in both.
+
+Matrix arguments are described by a *kind* (:data:`NONE`, :data:`DIAGONAL`,
+:data:`DENSE`, :data:`SPARSE`) with the diagonal in one array and the full
+matrix in another, so that one compiled code serves every model; sparse
+matrices (scipy) occur in Python only.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from numba.extending import overload
+
+from .jit import JIT_OPTIONS, jitable, primitive
+
+__all__ = ["NONE", "DIAGONAL", "DENSE", "SPARSE", "copy", "fill", "lincomb", "axpy", "scale", "times",
+           "add_times", "divide", "divide_by", "matvec", "scaled_into", "add_scaled", "add_kind", "add_diagonal",
+           "divide_rows", "max_abs", "all_finite", "row_sum_max", "kinetic"]
+
+#: Kinds of a matrix of the model (mass, damping).
+NONE, DIAGONAL, DENSE, SPARSE = 0, 1, 2, 3
+
+
+# -- vectors -------------------------------------------------------------------------
+
+def _lincomb_loop(out, a, x, b, y):
+    for i in range(out.shape[0]):
+        out[i] = a * x[i] + b * y[i]
+
+
+@primitive(_lincomb_loop)
+def lincomb(out, a, x, b, y):
+    """``out = a x + b y``."""
+    np.multiply(x, a, out)
+    out += b * y
+
+
+def _copy_vector(out, x):
+    for i in range(out.shape[0]):
+        out[i] = x[i]
+
+
+def _copy_matrix(out, x):
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = x[i, j]
+
+
+def copy(out, x):
+    """``out[...] = x`` (a vector or a matrix of the same shape; compiled, no
+    check of the shapes, whose error paths cost seconds of compiling)."""
+    out[...] = x
+
+
+@overload(copy, jit_options=JIT_OPTIONS)
+def _copy_compiled(out, x):
+    return _copy_vector if out.ndim == 1 else _copy_matrix
+
+
+def _fill_vector(out, value):
+    for i in range(out.shape[0]):
+        out[i] = value
+
+
+def _fill_matrix(out, value):
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = value
+
+
+def fill(out, value):
+    """``out[...] = value``."""
+    out[...] = value
+
+
+@overload(fill, jit_options=JIT_OPTIONS)
+def _fill_compiled(out, value):
+    return _fill_vector if out.ndim == 1 else _fill_matrix
+
+
+def _axpy_loop(y, a, x):
+    for i in range(y.shape[0]):
+        y[i] = y[i] + a * x[i]
+
+
+@primitive(_axpy_loop)
+def axpy(y, a, x):
+    """``y += a x``."""
+    y += a * x
+
+
+def _scale_loop(out, a, x):
+    for i in range(out.shape[0]):
+        out[i] = a * x[i]
+
+
+@primitive(_scale_loop)
+def scale(out, a, x):
+    """``out = a x``."""
+    np.multiply(x, a, out)
+
+
+def _times_compiled(kind, diagonal, full, x, out):
+    if kind == DIAGONAL:
+        for i in range(x.shape[0]):
+            out[i] = diagonal[i] * x[i]
+    elif kind == DENSE:
+        np.dot(full, x, out)
+    else:
+        for i in range(x.shape[0]):
+            out[i] = 0.0
+
+
+@primitive(_times_compiled)
+def times(kind, diagonal, full, x, out):
+    """``out = A x`` for the matrix ``A`` of ``kind`` (zero for :data:`NONE`)."""
+    if kind == DIAGONAL:
+        np.multiply(diagonal, x, out)
+    elif kind == DENSE:
+        np.dot(full, x, out)
+    elif kind == SPARSE:
+        out[:] = full @ x
+    else:
+        out[:] = 0.0
+
+
+def _divide_loop(x, d):
+    for i in range(x.shape[0]):
+        x[i] = x[i] / d[i]
+
+
+@primitive(_divide_loop)
+def divide(x, d):
+    """``x /= d`` entry by entry."""
+    np.divide(x, d, out=x)
+
+
+def _divide_by_loop(x, s):
+    for i in range(x.shape[0]):
+        x[i] = x[i] / s
+
+
+@primitive(_divide_by_loop)
+def divide_by(x, s):
+    """``x /= s`` for a number ``s``."""
+    np.divide(x, s, out=x)
+
+
+def _matvec_compiled(A, x, out):
+    np.dot(A, x, out)
+
+
+@primitive(_matvec_compiled)
+def matvec(A, x, out):
+    """``out = A x`` for a dense or (Python only) sparse ``A``."""
+    if isinstance(A, np.ndarray):
+        np.dot(A, x, out)
+    else:
+        out[:] = A @ x
+
+
+@jitable
+def add_times(kind, diagonal, full, x, out, work):
+    """``out += A x`` (nothing for :data:`NONE`); ``work`` holds ``A x``."""
+    if kind != NONE:
+        times(kind, diagonal, full, x, work)
+        axpy(out, 1.0, work)
+
+
+def _max_abs_loop(x):
+    largest = 0.0
+    for i in range(x.shape[0]):
+        largest = max(largest, abs(x[i]))
+    return largest
+
+
+@primitive(_max_abs_loop)
+def max_abs(x):
+    """``max |x_i|`` (0 for an empty ``x``; NaN entries are skipped)."""
+    return float(np.abs(x).max(initial=0.0))
+
+
+def _finite_vector(x):
+    # a product of a NaN or an infinity with 0 is NaN: one branch-free pass,
+    # which LLVM vectorises
+    total = 0.0
+    for i in range(x.shape[0]):
+        total += 0.0 * x[i]
+    return total == 0.0
+
+
+def _finite_matrix(x):
+    total = 0.0
+    for i in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            total += 0.0 * x[i, j]
+    return total == 0.0
+
+
+def all_finite(x):
+    """Whether no entry of ``x`` (an array, or a sparse matrix's data) is inf or NaN."""
+    data = x.data if hasattr(x, "tocsr") else x
+    return bool(np.isfinite(data).all())
+
+
+@overload(all_finite, jit_options=JIT_OPTIONS)
+def _all_finite_compiled(x):
+    return _finite_vector if x.ndim == 1 else _finite_matrix
+
+
+# -- matrices ------------------------------------------------------------------------
+
+def _scaled_into_loop(out, c, A):
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = c * A[i, j]
+
+
+@primitive(_scaled_into_loop)
+def scaled_into(out, c, A):
+    """``out = c A`` (dense)."""
+    np.multiply(A, c, out)
+
+
+def _add_scaled_loop(out, c, A):
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = out[i, j] + c * A[i, j]
+
+
+@primitive(_add_scaled_loop)
+def add_scaled(out, c, A):
+    """``out += c A`` (dense)."""
+    out += c * A
+
+
+def _add_diagonal_loop(out, c, d):
+    for i in range(d.shape[0]):
+        out[i, i] = out[i, i] + c * d[i]
+
+
+@primitive(_add_diagonal_loop)
+def add_diagonal(out, c, d):
+    """``out += c diag(d)``."""
+    out.reshape(-1)[::out.shape[1] + 1] += c * d
+
+
+@jitable
+def add_kind(out, c, kind, diagonal, full):
+    """``out += c A`` for the matrix ``A`` of ``kind`` (dense ``out``)."""
+    if kind == DENSE:
+        add_scaled(out, c, full)
+    elif kind == DIAGONAL:
+        add_diagonal(out, c, diagonal)
+
+
+def _divide_rows_loop(out, A, d):
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = A[i, j] / d[i]
+
+
+@primitive(_divide_rows_loop)
+def divide_rows(out, A, d):
+    """``out = diag(d)⁻¹ A``."""
+    np.divide(A, d[:, None], out)
+
+
+def _row_sum_max_loop(A):
+    largest = 0.0
+    for i in range(A.shape[0]):
+        total = 0.0
+        for j in range(A.shape[1]):
+            total += abs(A[i, j])
+        largest = max(largest, total)
+    return largest
+
+
+@primitive(_row_sum_max_loop)
+def row_sum_max(A):
+    """``‖A‖_∞ = max_i Σ_j |A_ij|`` (dense or sparse)."""
+    return float(np.asarray(abs(A).sum(axis=1)).max())
+
+
+@jitable
+def kinetic(kind, diagonal, full, v, work):
+    """``½ vᵀ M v`` (``work`` holds ``M v``)."""
+    times(kind, diagonal, full, v, work)
+    return 0.5 * float(np.dot(v, work))

@@ -1,0 +1,147 @@
+"""Predictor (Eqs. 36–37), local error estimate and its weighted norm.
+
+docs/algorithm.md, "Predictor" and "Error control", derives each formula.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .arrays import axpy, lincomb, max_abs
+from .jit import jitable, primitive
+
+__all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
+           "velocity_noise", "SHORT_STEP", "is_short"]
+
+#: A step shorter than this fraction of the one proposed is a *short step*,
+#: taken by Taylor's expansion (or the scheme past a stiff component) and not
+#: kept as the history (docs/algorithm.md, "Short steps").
+SHORT_STEP = 1e-3
+
+_EPS = float(np.finfo(float).eps)
+
+
+@jitable(inline=True)
+def is_short(h, proposed):
+    """Whether a step of size ``h`` where ``proposed`` was proposed is a short step."""
+    return h < SHORT_STEP * proposed
+
+
+@jitable
+def predict(run, vec, s, out):
+    """The corrector's initial guess ``s`` after ``t`` into ``out`` (Eqs. 36–37):
+    ``u + s v`` without history, else the quartic ``P`` with ``P(−H) = u_{n−1}``,
+    ``P'(−H) = v_{n−1}``, ``P(0) = u``, ``P'(0) = v``, ``P''(0) = a``:
+    ``P(s) = u + s v + a s²/2 − (4σ³ + 3σ⁴) r1 − H(σ³ + σ⁴) r2``, ``σ = s/H``,
+    ``r1 = u_{n−1} − u + H v − H² a/2``, ``r2 = v_{n−1} − v + H a``."""
+    lincomb(out, 1.0, vec.u, s, vec.v)
+    if not run.has_previous:
+        return
+    H = run.t - run.t_previous
+    r1, r2 = vec.tmp, vec.work
+    lincomb(r1, 1.0, vec.u_previous, -1.0, vec.u)
+    axpy(r1, H, vec.v)
+    axpy(r1, -(0.5 * H * H), vec.a)
+    lincomb(r2, 1.0, vec.v_previous, -1.0, vec.v)
+    axpy(r2, H, vec.a)
+    sigma = s / H
+    s3 = sigma * sigma * sigma
+    s4 = s3 * sigma
+    axpy(out, 0.5 * s * s, vec.a)
+    axpy(out, -(4.0 * s3 + 3.0 * s4), r1)
+    axpy(out, -(H * (s3 + s4)), r2)
+
+
+@jitable
+def velocity_history_factor(sigma, order):
+    """``c_v(σ) = 1 + (3σ² + 2σ³)/σ^{p+1}``: ``v_{n+1} − Q'(h)`` over the local
+    error of ``v`` in a run (the previous step's error enters through
+    ``v_{n−1}``)."""
+    return 1.0 + (3.0 + 2.0 * sigma) * sigma ** float(1 - order)
+
+
+@jitable
+def local_error(run, vec, h, order):
+    """The estimate of the local error of ``u`` and ``v`` of the step from the
+    current state to ``VECTORS.*_new`` into ``VECTORS.error`` (2N): the new
+    state minus the quartic ``Q`` with ``Q(0) = u``, ``Q'(0) = v``,
+    ``Q''(0) = a``, ``Q'(−H) = v_{n−1}``, ``Q''(−H) = a_{n−1}`` (Milne's
+    device, no extra evaluation); the velocity's difference divided by
+    :func:`velocity_history_factor`. Without history the Taylor polynomial
+    ``u + h v + h² a/2`` (and ``v + h a``), erring on the safe side."""
+    n = vec.u.shape[0]
+    eu, ev = vec.error[:n], vec.error[n:]
+    Q, dQ = vec.tmp, vec.work
+    lincomb(Q, 1.0, vec.u, h, vec.v)
+    axpy(Q, 0.5 * h * h, vec.a)
+    lincomb(dQ, 1.0, vec.v, h, vec.a)
+    factor = 1.0
+    if run.has_previous:
+        H = run.t - run.t_previous
+        r2, r3 = vec.rhs, vec.residual
+        lincomb(r2, 1.0, vec.v_previous, -1.0, vec.v)
+        axpy(r2, H, vec.a)
+        lincomb(r3, 1.0, vec.a_previous, -1.0, vec.a)
+        s2 = h * h
+        # Q += s³ c3 + s⁴ c4, dQ += 3 s² c3 + 4 s³ c4, with
+        # c3 = r2/H² + r3/(3H), c4 = (2 r2 + H r3)/(4 H³)
+        c3, c4 = vec.kv, vec.vd
+        lincomb(c3, 1.0 / (H * H), r2, 1.0 / (3.0 * H), r3)
+        lincomb(c4, 2.0 / (4.0 * H * H * H), r2, H / (4.0 * H * H * H), r3)
+        axpy(Q, s2 * h, c3)
+        axpy(Q, s2 * s2, c4)
+        axpy(dQ, 3.0 * s2, c3)
+        axpy(dQ, 4.0 * s2 * h, c4)
+        factor = velocity_history_factor(h / H, order)
+    lincomb(eu, 1.0, vec.u_new, -1.0, Q)
+    lincomb(ev, 1.0 / factor, vec.v_new, -1.0 / factor, dQ)
+
+
+def _ratio_loop(ratio, error, u0, v0, u1, v1, rtol, atol, noise):
+    n = u0.shape[0]
+    for i in range(2 * n):
+        if error[i] == 0.0:
+            ratio[i] = 0.0
+            continue
+        if i < n:
+            scale = atol[i] + rtol[i] * max(abs(u0[i]), abs(u1[i]))
+        else:
+            scale = atol[i] + rtol[i] * max(abs(v0[i - n]), abs(v1[i - n])) + noise
+        ratio[i] = error[i] / scale
+
+
+@primitive(_ratio_loop)
+def _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise):
+    n = u0.shape[0]
+    scale = atol + rtol * np.maximum(np.abs(np.concatenate((u0, v0))),
+                                     np.abs(np.concatenate((u1, v1))))
+    scale[n:] += noise
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.divide(error, scale, out=ratio)
+    ratio[error == 0.0] = 0.0
+
+
+@jitable
+def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise, ratio):
+    """``‖e / (atol + rtol·max(|y_0|, |y_1|))‖_RMS`` over ``y = (u, v)``, with
+    ``noise`` added to the weights of ``v`` (:func:`velocity_noise`); entries
+    of ``e`` that are 0 count 0 (``ratio`` (2N,) is scratch)."""
+    _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise)
+    return math.sqrt(float(np.dot(ratio, ratio)) / ratio.shape[0])
+
+
+@jitable
+def error_norm(data, vec, noise):
+    """The error norm of the estimate in ``VECTORS.error`` of the step from the
+    current state to ``VECTORS.*_new`` (:func:`weighted_rms`)."""
+    return weighted_rms(vec.error, vec.u, vec.v, vec.u_new, vec.v_new, data.rtol, data.atol,
+                        noise, vec.ratio)
+
+
+@jitable
+def velocity_noise(velocity_gain, newton_error, vec, h):
+    """The uncertainty of ``v`` the corrector's remaining error and rounding
+    leave, ``g (error + ε‖u‖_∞)/h`` (``g`` the scheme's velocity gain): below it
+    the velocity's error can be neither told nor controlled."""
+    return velocity_gain * (newton_error + _EPS * max_abs(vec.u_new)) / h

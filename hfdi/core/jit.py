@@ -1,0 +1,312 @@
+"""One source, two speeds: how the core's functions run compiled and as plain Python.
+
+The core (:mod:`hfdi.core`) is written as plain functions on arrays, numbers
+and small records, in numpy's ``out=`` style, with status codes instead of
+exceptions. Each such function is declared :func:`jitable`: called from
+Python it *is* the plain function; called from compiled code numba compiles
+it into the caller. A run on a model with compiled kernels enters the core
+through a few :func:`entry` points compiled as a whole (the loop, one attempt,
+one accepted step); a run on a Python model calls the very same functions as
+Python. The two speeds therefore share every line of the algorithm, and
+``tests/test_one_implementation.py`` runs both on the same problems.
+
+Where the two differ on purpose, the difference is one small function with two
+bodies, never the algorithm:
+
+- :func:`primitive` — a numpy body for Python and a loop body for numba
+  (elementwise array arithmetic in one pass without temporaries, LAPACK
+  bound by name); both compute the same operations in the same order, so
+  the two speeds round alike.
+- :func:`python_only` — a branch that only Python-mode runs take (sparse and
+  banded linear algebra, a model's Python-side faults); compiled code gets a
+  stub that is never reached there.
+
+Compiled code is cached on disk (:func:`entry`), keyed on the source of the
+modules it compiles in (their syntax trees without docstrings), not on file
+times: a comment or docstring edit recompiles nothing, any change of code
+recompiles what depends on it. The cache lives in ``$HFDI_CACHE_DIR/numba``
+(``~/.cache/hfdi/numba``), a directory that must belong to the user and be
+writable by nobody else, checked as ssh checks its files: numba's index
+files are pickles, so a cache others can write would run their code.
+Where the check fails the code is compiled in memory, and that is said once.
+"""
+from __future__ import annotations
+
+import ast
+import functools
+import hashlib
+import logging
+import os
+import stat
+import time
+import types
+import warnings
+from pathlib import Path
+
+import numba
+from numba.core import caching
+from numba.core.errors import NumbaExperimentalFeatureWarning
+
+from ..files import cache_dir
+
+__all__ = ["jitable", "twin", "primitive", "python_only", "entry", "JIT_OPTIONS", "compile_for",
+           "numba_cache_dir", "cache_trusted"]
+
+_log = logging.getLogger("hfdi")
+
+# the first-class functions the compiled loop calls the model's kernels through
+# are "experimental" to numba since 0.49; the tests hold what they do here
+warnings.filterwarnings("ignore", category=NumbaExperimentalFeatureWarning,
+                        module=r"numba\..*|hfdi\..*")
+
+#: Options of every compiled entry point: division by zero gives inf/NaN as
+#: in numpy (a non-finite value fails an attempt, as on the Python path);
+#: no GIL, so that an FMU's native layer and threads can run it.
+JIT_OPTIONS = dict(error_model="numpy", nogil=True)
+
+#: The core's functions and how compiled code takes each: the plain function
+#: (Python's) to ``(kind, the function numba compiles)``.
+_CORE = {}
+#: Their compiled twins, made on demand (:func:`twin`).
+_TWINS = {}
+
+
+def jitable(function=None, *, inline=False):
+    """Declare a core function: plain Python when called from Python; in
+    compiled code its twin (:func:`twin`), the same code with the core
+    functions it calls replaced by theirs. ``inline``: compiled into each
+    caller at numba's level rather than as a function of its own — numba
+    compiles each function of its own into a module that it then optimises
+    again in every caller's module, once per level of the call tree, so the
+    layers that only orchestrate (the loop's) are inlined."""
+    def declare(fn):
+        _CORE[fn] = ("inline" if inline else "function", fn)
+        return fn
+    return declare if function is None else declare(function)
+
+
+def primitive(compiled_body):
+    """Declare a primitive with two bodies: the decorated function (numpy, for
+    Python) and ``compiled_body`` (for numba, usually a loop). Both must give
+    the same numbers."""
+    def declare(python_body):
+        _CORE[python_body] = ("function", compiled_body)
+        return python_body
+    return declare
+
+
+def python_only(stub):
+    """Declare a function that only Python-mode runs call (sparse systems,
+    Python models): compiled code gets ``stub``, which has its signature and
+    returns a value of the same type, and is never reached there."""
+    return primitive(stub)
+
+
+def twin(function):
+    """The compiled twin of a core function: a numba dispatcher of the code
+    it declared for compiled code, whose globals name the twins of the core
+    functions it calls. Made once; compiled when first called (an entry) or
+    inlined into its callers."""
+    made = _TWINS.get(function)
+    if made is not None:
+        return made
+    kind, source = _CORE[function]
+    options = dict(JIT_OPTIONS)
+    if kind == "inline":
+        options["inline"] = "always"
+    clone = _clone(source)
+    made = _TWINS[function] = numba.njit(**options)(clone)
+    _link(clone, source)
+    return made
+
+
+def _clone(source):
+    """``source`` with globals of its own (for :func:`_link`)."""
+    clone = types.FunctionType(source.__code__, dict(source.__globals__), source.__name__,
+                               source.__defaults__, source.__closure__)
+    clone.__qualname__, clone.__module__ = source.__qualname__, source.__module__
+    clone.__doc__ = source.__doc__
+    return clone
+
+
+def _link(clone, source):
+    """The core functions ``clone``'s code names, their twins in its globals
+    (after the twin of ``clone`` exists, so that functions may name each other)."""
+    for name, value in source.__globals__.items():
+        if _is_core(value):
+            clone.__globals__[name] = twin(value)
+
+
+def _is_core(value) -> bool:
+    return isinstance(value, types.FunctionType) and value in _CORE
+
+
+# -- the disk cache ---------------------------------------------------------------
+
+def numba_cache_dir() -> Path:
+    """Where compiled code is cached: ``cache_dir()/numba``."""
+    return cache_dir() / "numba"
+
+
+def _safe_directory(path: Path) -> bool:
+    """Whether ``path`` is a directory of this user that nobody else can write
+    (``st_uid`` ours, no group or world write bit), as ssh checks ``~/.ssh``."""
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    if not stat.S_ISDIR(info.st_mode):
+        return False
+    if hasattr(os, "getuid") and info.st_uid != os.getuid():
+        return False
+    return not info.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+
+
+@functools.lru_cache(maxsize=None)
+def cache_trusted() -> tuple[bool, str]:
+    """``(True, "")`` when the numba cache directory exists (made ``0o700``
+    here if missing) and it and its parent are safe (:func:`_safe_directory`);
+    else ``(False, why)``. Decided once per process."""
+    if os.environ.get("HFDI_NO_DISK_CACHE"):
+        return False, "HFDI_NO_DISK_CACHE is set"
+    path = numba_cache_dir()
+    try:
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        path.mkdir(mode=0o700, exist_ok=True)
+    except OSError as exc:
+        return False, f"{path} cannot be made ({exc.strerror})"
+    for directory in (path, path.parent):
+        if not _safe_directory(directory):
+            return False, (f"{directory} is not a directory of this user that only this "
+                           f"user can write")
+    return True, ""
+
+
+@functools.lru_cache(maxsize=None)
+def _module_digest(path: str, mtime_ns: int, size: int) -> tuple[str, tuple]:
+    """The digest of one module's code (its syntax tree without docstrings)
+    and the package-relative modules it imports."""
+    source = Path(path).read_text(encoding="utf-8")
+    tree = ast.parse(source)
+    imports = []
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(node, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)) \
+                and body and isinstance(body[0], ast.Expr) \
+                and isinstance(getattr(body[0], "value", None), ast.Constant) \
+                and isinstance(body[0].value.value, str):
+            node.body = body[1:] or [ast.Pass()]
+        if isinstance(node, ast.ImportFrom) and node.level:
+            imports.append((node.level, node.module or "", tuple(a.name for a in node.names)))
+    digest = hashlib.sha256(ast.dump(tree, annotate_fields=False).encode()).hexdigest()
+    return digest, tuple(imports)
+
+
+def _resolve(path: Path, level: int, module: str, names: tuple) -> list[Path]:
+    """The files a relative import ``from <level dots><module> import names`` of
+    ``path`` reads (the module, or the submodules named)."""
+    base = path.parent
+    for _ in range(level - 1):
+        base = base.parent
+    target = base.joinpath(*module.split(".")) if module else base
+    found = []
+    if target.with_suffix(".py").is_file():
+        found.append(target.with_suffix(".py"))
+    elif target.is_dir():
+        if (target / "__init__.py").is_file():
+            found.append(target / "__init__.py")
+        found += [target / f"{name}.py" for name in names if (target / f"{name}.py").is_file()]
+    return found
+
+
+def source_digest(path) -> str:
+    """The digest of ``path``'s code and of every module of the package it
+    imports, recursively: what compiled code from ``path`` depends on."""
+    seen, todo, parts = set(), [Path(path).resolve()], []
+    while todo:
+        current = todo.pop()
+        if current in seen:
+            continue
+        seen.add(current)
+        info = current.stat()
+        digest, imports = _module_digest(str(current), info.st_mtime_ns, info.st_size)
+        parts.append(f"{current.name}:{digest}")
+        for level, module, names in imports:
+            todo += _resolve(current, level, module, names)
+    return hashlib.sha256("\n".join(sorted(parts)).encode()).hexdigest()[:20]
+
+
+class _SourceKeyedLocator(caching._CacheLocator):
+    """numba's cache of this package's functions: in :func:`numba_cache_dir`,
+    stamped with :func:`source_digest` of the function's module."""
+
+    def __init__(self, py_file):
+        self._digest = source_digest(py_file)
+        self._path = numba_cache_dir()
+
+    def ensure_cache_path(self):
+        # made and checked by cache_trusted(); entry() asks for a cache only then
+        pass
+
+    def get_cache_path(self):
+        return str(self._path)
+
+    def get_source_stamp(self):
+        return self._digest
+
+    def get_disambiguator(self):
+        return self._digest
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        module = getattr(py_func, "__module__", "") or ""
+        if not module.startswith("hfdi") or not os.path.isfile(py_file):
+            return None
+        return cls(py_file)
+
+
+if _SourceKeyedLocator not in caching.CacheImpl._locator_classes:
+    caching.CacheImpl._locator_classes.insert(0, _SourceKeyedLocator)
+
+
+def entry(function=None, **options):
+    """Compile ``function`` as an entry point of compiled code (``numba.njit``
+    with :data:`JIT_OPTIONS`), cached on disk where :func:`cache_trusted`; the
+    core functions it calls are their twins (:func:`twin`). Compiled lazily,
+    at the first call with new argument types; see :func:`compile_for` for
+    the notice of a first compilation."""
+    def wrap(fn):
+        trusted, why = cache_trusted()
+        if not trusted:
+            _say_uncached(why)
+        clone = _clone(fn)
+        dispatcher = numba.njit(cache=trusted, **JIT_OPTIONS, **options)(clone)
+        _link(clone, fn)
+        return dispatcher
+    return wrap if function is None else wrap(function)
+
+
+_SAID = set()
+
+
+def _say_uncached(why):
+    if why not in _SAID:
+        _SAID.add(why)
+        _log.warning("hfdi: compiled code is not cached on disk (%s); it is compiled in "
+                     "every process", why)
+
+
+def compile_for(dispatcher, *args, what="the integrator's compiled loop") -> None:
+    """Make sure ``dispatcher`` has code for ``args`` (loaded from the disk cache,
+    or compiled) before a run calls it; a compilation is said once per process
+    on stderr (a log record at WARNING), with the time it took."""
+    types = tuple(numba.typeof(a) for a in args)
+    if types in dispatcher.overloads:
+        return
+    start = time.perf_counter()
+    dispatcher.compile(types)
+    elapsed = time.perf_counter() - start
+    if not dispatcher.stats.cache_hits.get(types) and what not in _SAID:
+        _SAID.add(what)
+        _log.warning("hfdi: compiled %s in %.1f s (once: kept in %s)", what, elapsed,
+                     numba_cache_dir() if cache_trusted()[0] else "memory only")

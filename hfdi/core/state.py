@@ -1,0 +1,315 @@
+"""The records of a run, by name: what the core reads and writes.
+
+- ``CONFIG`` (numbers, read only): the scheme's shape, the model's matrix
+  kinds, the corrector's and the controller's settings, the guards.
+- ``DATA`` (arrays, read only during a run): ``M``, ``C``, the kernels' data,
+  the tolerances, the load breakpoints, the scheme's parameters.
+- ``RUN`` (numbers, read and written): time, history flags, the proposed step,
+  status, Newton's memory, the energy balance, the statistics, and what the
+  last attempt and a stop left for the message.
+- ``VECTORS`` (arrays, read and written): the current, previous and new
+  states, the work arrays of an attempt, and the rows of accepted steps.
+- ``FUNCTIONS``: the model's kernels and the scheme's stage function, of the
+  signatures below.
+
+A scheme describes each of its stages by a :class:`Stage` (its coefficients),
+returned by its stage function ``stage(h, index, params) -> Stage``.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from numba import types
+from numba.experimental import structref
+
+import numba
+
+from .jit import JIT_OPTIONS
+from .records import (INT32_VECTOR, INT64_VECTOR, MATRIX, VECTOR, Arrays, Scalars, Struct)
+
+__all__ = ["CONFIG", "RUN", "DATA", "VECTORS", "FUNCTIONS", "Stage", "STAGE", "AFFINE", "HFDI",
+           "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE", "POTENTIAL_ENERGY", "LOAD",
+           "STAGE_FUNCTION", "FIXED", "ITERATION", "ERROR", "COMBINED", "CUSTOM", "MAX_STAGES"]
+
+# -- controllers ------------------------------------------------------------------------
+#: Kinds of step-size controller (``CONFIG.controller``); ``CUSTOM`` is a Python
+#: object, whose rules the core never calls.
+FIXED, ITERATION, ERROR, COMBINED, CUSTOM = range(5)
+
+# -- stages -------------------------------------------------------------------------------
+#: Kinds of stage: affine in the unknown ``u`` (the Newmark family, Bathe's
+#: sub-steps, generalized-α), or HFDI's (Eq. 21 in ``u`` alone).
+AFFINE, HFDI = 0.0, 1.0
+#: The most stages a scheme may have (Bathe's two).
+MAX_STAGES = 2
+
+
+class Stage(NamedTuple):
+    """One stage of a step of size ``h``, as its scheme's stage function gives it.
+
+    An affine stage has one unknown ``u`` at ``t_n + time·h`` with
+    ``a(u) = ca u + a0`` and ``v(u) = cv u + v0``, where ``a0`` and ``v0``
+    combine the step's start ``(u_n, v_n, a_n)`` and the first stage's end
+    ``(u_1, v_1, a_1)`` with the coefficients ``a_*`` and ``v_*``; its
+    equation is
+
+        m_new M a(u) + m_old M a_n + f_new (C v(u) + f(u)) + f_old (C v_n + f_n)
+            = p(t_n + load_time·h),
+
+    (1, 0, 1, 0 for Newmark and Bathe; generalized-α weighs both ends). An
+    HFDI stage (``kind = HFDI``) uses only ``time`` and ``load_time`` (1).
+    All entries are floats (one tuple type for every scheme).
+    """
+
+    kind: float
+    time: float
+    load_time: float
+    ca: float
+    cv: float
+    m_new: float
+    m_old: float
+    f_new: float
+    f_old: float
+    a_u: float
+    a_v: float
+    a_a: float
+    a_u1: float
+    a_v1: float
+    a_a1: float
+    v_u: float
+    v_v: float
+    v_a: float
+    v_u1: float
+    v_v1: float
+    v_a1: float
+
+
+STAGE = types.NamedUniTuple(types.float64, len(Stage._fields), Stage)
+
+# -- the compiled functions a run calls ---------------------------------------------------
+#: ``force(u, params) -> f (N,)``
+FORCE = VECTOR(VECTOR, VECTOR)
+#: ``stiffness(u, params) -> K (N, N)``
+STIFFNESS = MATRIX(VECTOR, VECTOR)
+#: ``stiffness_derivative(u, w, params) -> T(u)[w] (N, N)``
+STIFFNESS_DERIVATIVE = MATRIX(VECTOR, VECTOR, VECTOR)
+#: ``potential_energy(u, params) -> V``
+POTENTIAL_ENERGY = types.float64(VECTOR, VECTOR)
+#: ``load(t, load_params) -> p (N,)`` (also the load rate's)
+LOAD = VECTOR(types.float64, VECTOR)
+#: ``stage(h, index, scheme_params) -> Stage``
+STAGE_FUNCTION = STAGE(types.float64, types.int64, VECTOR)
+
+
+@structref.register
+class FunctionsType(Struct):
+    pass
+
+
+class CompiledFunctions(structref.StructRefProxy):
+    __slots__ = ()
+
+
+FUNCTIONS = Arrays("Functions", FunctionsType, CompiledFunctions, [
+    ("force", types.FunctionType(FORCE)),
+    ("stiffness", types.FunctionType(STIFFNESS)),
+    ("stiffness_derivative", types.FunctionType(STIFFNESS_DERIVATIVE)),
+    ("potential_energy", types.FunctionType(POTENTIAL_ENERGY)),
+    ("load", types.FunctionType(LOAD)),
+    ("load_rate", types.FunctionType(LOAD)),
+    ("stage", types.FunctionType(STAGE_FUNCTION)),
+])
+
+
+_FUNCTIONS_TYPE = FUNCTIONS.type
+
+
+def _new_functions(force, stiffness, stiffness_derivative, potential_energy, load, load_rate,
+                   stage):
+    functions = structref.new(_FUNCTIONS_TYPE)
+    functions.force = force
+    functions.stiffness = stiffness
+    functions.stiffness_derivative = stiffness_derivative
+    functions.potential_energy = potential_energy
+    functions.load = load
+    functions.load_rate = load_rate
+    functions.stage = stage
+    return functions
+
+
+#: The compiled struct of FUNCTIONS from dispatchers compiled for their
+#: signatures, declared with the signature so that numba takes each dispatcher
+#: as a first-class function (an address). Not cached on disk: numba's index
+#: of it would pickle the dispatchers of the first call, and loading it
+#: would compile those again (0.1 s to compile it, once per process).
+new_functions = numba.njit(**JIT_OPTIONS)(_new_functions)
+NEW_FUNCTIONS_SIGNATURE = FUNCTIONS.type(*(kind for _, kind in FUNCTIONS.fields))
+
+# -- numbers ---------------------------------------------------------------------------
+_INF, _NAN = math.inf, math.nan
+
+CONFIG = Scalars("Config", [
+    ("n", "i8", 0),                     # degrees of freedom
+    ("stages", "i8", 1),                # stages of the scheme
+    ("order", "i8", 2),                 # its order (the error rule's exponent)
+    ("velocity_gain", "f8", 3.0),       # h Σ|coefficients of u in v| (docs/algorithm.md)
+    ("keeps_force", "b1", False),       # the state keeps f(u) (HFDI, generalized-α)
+    ("m_kind", "i8", 1),                # kinds of M and C (hfdi.core.arrays)
+    ("c_kind", "i8", 0),
+    ("sparse", "b1", False),            # sparse tangents (Python only)
+    ("exact_rate", "b1", False),        # HFDI takes the model's load rate
+    ("has_held", "b1", False),          # DATA.held is added to the load
+    ("tol", "f8", 1e-8),                # Newton: Eq. 38's η, its floor, N_max
+    ("floor", "f8", 1.0),
+    ("max_iterations", "i8", 10),
+    ("estimated", "b1", False),         # Newton stops on its estimated error too
+    ("controller", "i8", ERROR),
+    ("fixed_step", "f8", 0.0),
+    ("target", "f8", 0.0),              # N̄ of the whole step (iteration count)
+    ("it_min_step", "f8", 0.0),
+    ("it_max_step", "f8", _INF),
+    ("it_max_rejections", "i8", 30),
+    ("er_min_step", "f8", 0.0),
+    ("er_max_step", "f8", _INF),
+    ("er_max_rejections", "i8", 30),
+    ("safety", "f8", 0.9),
+    ("grow", "f8", 5.0),
+    ("shrink", "f8", 0.2),
+    ("first_step_trials", "i8", 40),
+    ("min_step", "f8", 0.0),
+    ("max_step", "f8", _INF),
+    ("energy_limit", "f8", _INF),       # inf: no limit
+    ("max_steps", "i8", 1_000_000),
+    ("t_bound", "f8", _INF),            # inf: none
+    ("mass_floor", "f8", 0.0),          # a lower bound of λ_min(M) (0: none known)
+    ("damping_rate", "f8", 0.0),        # ‖C‖_∞ / mass_floor
+])
+
+RUN = Scalars("Run", [
+    ("t", "f8", 0.0),
+    ("t_previous", "f8", 0.0),
+    ("has_previous", "b1", False),      # the predictor's history (u, v, a at t_previous)
+    ("has_force", "b1", False),         # VECTORS.f is f(u) at t
+    ("proposed", "f8", 0.0),            # the size proposed for the next step
+    ("first_step_pending", "b1", True),
+    ("status", "i8", 1),                # hfdi.Status: 1 running, 0 success, < 0 failed
+    ("newton_constant", "f8", _INF),    # the corrector's carried constant and its guard
+    ("newton_guard", "f8", _INF),
+    ("potential", "f8", 0.0),           # the energy balance (Eqs. 40-41)
+    ("initial_potential", "f8", 0.0),
+    ("work", "f8", 0.0),
+    ("energy_error", "f8", 0.0),
+    ("energy_scale", "f8", 0.0),
+    ("last_step", "f8", _NAN),
+    ("last_iterations", "i8", 0),
+    ("last_energy_increment", "f8", 0.0),
+    ("grid_origin", "f8", 0.0),         # the fixed step's grid origin + k h
+    ("grid_steps", "i8", 0),
+    ("steps", "i8", 0),                 # statistics (hfdi.Statistics)
+    ("accepted", "i8", 0),
+    ("rejected", "i8", 0),
+    ("newton_iterations", "i8", 0),
+    ("error_test_failures", "i8", 0),
+    ("first_step_trials", "i8", 0),
+    ("first_step_trial_iterations", "i8", 0),
+    ("nfev", "i8", 0),
+    ("njev", "i8", 0),
+    ("ntev", "i8", 0),
+    ("npev", "i8", 0),
+    ("nlu", "i8", 0),
+    ("t_start", "f8", 0.0),
+    ("t_reached", "f8", 0.0),
+    ("rejections", "i8", 0),            # rejected attempts of the step being taken
+    ("rows", "i8", 0),                  # rows written into VECTORS.row_* by this call
+    ("restarted", "b1", False),         # the last step ended on a breakpoint where a jumped
+    ("a_h", "f8", 0.0),                 # the last attempt: its size, end, proposal
+    ("a_t_end", "f8", 0.0),
+    ("a_proposed", "f8", 0.0),
+    ("a_clipped", "b1", False),
+    ("a_taylor", "b1", False),          # it was a short step by Taylor's expansion
+    ("a_outcome", "i8", 0),             # hfdi.core.codes: OK or why it failed
+    ("a_stage", "i8", 0),               # the stage that failed
+    ("a_iterations", "i8", 0),          # its Newton corrections, all stages
+    ("a_newton_error", "f8", 0.0),      # the corrector's estimated remaining error
+    ("a_err", "f8", _NAN),              # the error norm (error control)
+    ("bad_rows", "i8", 0),              # a kernel's value of a wrong shape
+    ("bad_columns", "i8", 0),
+    ("stop", "i8", 0),                  # hfdi.core.codes: which guard stopped the run
+    ("stop_next", "f8", 0.0),           # the size proposed when it stopped
+    ("stop_t", "f8", 0.0),              # a time the message names
+    ("stop_kinetic", "f8", 0.0),        # the energies of an overflowing step
+    ("stop_work", "f8", 0.0),
+    ("stop_potential", "f8", 0.0),
+    ("trials_smallest", "f8", _INF),    # the first step's smallest trial
+    ("trials", "i8", 0),                # the first step's trials in this search
+    ("trial_failure", "i8", 0),         # the outcome of its last failed trial
+    ("trial_guard", "i8", 0),           # the guard of its last rejection (error rule)
+    ("search_low", "f8", _NAN),         # the first step's bracket (NaN: none yet)
+    ("search_high", "f8", _NAN),
+    ("search_best", "f8", _INF),        # the best trial's |N − N̄| so far
+    ("saved_h", "f8", 0.0),             # an attempt kept aside (the first step's best)
+    ("saved_t_end", "f8", 0.0),
+    ("saved_proposed", "f8", 0.0),
+    ("saved_clipped", "b1", False),
+    ("saved_iterations", "i8", 0),
+    ("saved_newton_error", "f8", 0.0),
+    ("saved_err", "f8", _NAN),
+])
+
+# -- arrays ---------------------------------------------------------------------------
+
+@structref.register
+class DataType(Struct):
+    pass
+
+
+class CompiledData(structref.StructRefProxy):
+    __slots__ = ()
+
+
+DATA = Arrays("Data", DataType, CompiledData, [
+    ("Md", VECTOR), ("Mf", MATRIX),             # M: diagonal or full (CONFIG.m_kind)
+    ("Cd", VECTOR), ("Cf", MATRIX),             # C likewise (CONFIG.c_kind)
+    ("params", VECTOR),                         # the model kernels' data
+    ("load_params", VECTOR),                    # the load's
+    ("held", VECTOR),                           # a held extra load (CONFIG.has_held)
+    ("rtol", VECTOR), ("atol", VECTOR),         # over (u, v), 2N each
+    ("breakpoints", VECTOR),                    # sorted
+    ("scheme_params", VECTOR),                  # the scheme's stage function's data
+])
+
+
+@structref.register
+class VectorsType(Struct):
+    pass
+
+
+class CompiledVectors(structref.StructRefProxy):
+    __slots__ = ()
+
+
+_STATE = ("u", "v", "a", "f", "p")
+VECTORS = Arrays("Vectors", VectorsType, CompiledVectors, [
+    *[(name, VECTOR) for name in _STATE],                       # at t
+    *[(f"{name}_previous", VECTOR) for name in _STATE],         # at t_previous
+    *[(f"{name}_new", VECTOR) for name in _STATE],              # the attempt's end
+    ("u_mid", VECTOR), ("v_mid", VECTOR), ("a_mid", VECTOR),    # the first stage's end
+    ("p_mid", VECTOR),
+    *[(f"{name}_saved", VECTOR) for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid")],
+    ("p_stage", VECTOR),            # the load at the stage's load time
+    ("p_rate", VECTOR),             # HFDI's p' at the step's end
+    ("trial", VECTOR),              # the Newton iterate
+    *[(name, VECTOR) for name in ("rhs", "residual", "du", "g", "vd", "kv", "tmp", "work",
+                                  "q0", "f0", "a0", "v0", "b_diagonal", "shift")],
+    ("error", VECTOR), ("ratio", VECTOR),                       # 2N: the error estimate
+    *[(name, MATRIX) for name in ("J", "lu", "S", "SB", "product", "B", "B_lu",
+                                  "columns")],
+    ("pivots", INT32_VECTOR), ("b_pivots", INT32_VECTOR),
+    ("ints", INT32_VECTOR), ("b_ints", INT32_VECTOR),
+    ("stage_iterations", INT64_VECTOR),                         # MAX_STAGES
+    ("row_t", VECTOR), ("row_h", VECTOR), ("row_iterations", INT64_VECTOR),
+    ("row_increment", VECTOR), ("row_energy", VECTOR), ("row_work", VECTOR),
+    ("row_u", MATRIX), ("row_v", MATRIX), ("row_a", MATRIX),
+    ("sparse", VECTOR),             # Python only: the sparse solvers' cache (empty here)
+])

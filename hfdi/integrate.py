@@ -1,0 +1,170 @@
+"""``integrate``: a whole run of an :class:`~hfdi.Integrator` to ``t_end``, as a
+:class:`~hfdi.Result` with every accepted step (or only the outputs asked for)."""
+from __future__ import annotations
+
+import inspect
+import math
+import time
+
+import numpy as np
+
+from . import checks
+from .dense import interpolate_state
+from .evaluation import State
+from .integrator import Integrator
+from .messages import Status
+from .options import times as _times
+from .result import Result, Rows
+from .system import SecondOrderSystem
+
+__all__ = ["integrate", "PROGRESS_INTERVAL"]
+
+
+#: Wall-clock seconds between two calls of integrate's progress callback.
+PROGRESS_INTERVAL = 0.5
+
+
+def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
+              target_iterations=None, step=None, u0=None, v0=None, t0=0.0, t_eval=None,
+              save_steps=True, progress=None, tol=None, **options) -> Result:
+    """Integrate ``M u'' + C u' + f(u) = p(t)`` from ``t0`` to ``t_end``.
+
+    The mode follows the arguments (see :class:`Integrator`): error control
+    with ``rtol``/``atol`` — the default, at ``rtol = 1e-4`` —, the paper's
+    iteration count with ``target_iterations`` alone (it does not control the
+    error), both combined, or a fixed ``step``.
+
+    Parameters
+    ----------
+    system : SecondOrderSystem
+    scheme : {"newmark", "bathe", "hfdi"} or Scheme
+    t_end : float
+    rtol, atol : float or array_like (N,), optional
+        Tolerances of the local error of ``u``; see :class:`Integrator`.
+    target_iterations : float, optional
+        ``N̄`` per (sub-)step; see :class:`Integrator`.
+    step : float, optional
+        Fixed step size.
+    u0, v0 : array_like (N,), optional
+    t0 : float
+    t_eval : array_like (m,), optional
+        Output times in ``[t0, t_end]``, at most ``max_steps`` of them; ``u``
+        and ``v`` there come from the dense output (``u_eval``,
+        ``v_eval``). They do not change the steps.
+    save_steps : bool
+        Keep every accepted step (``t``, ``u``, ..., and ``sol``). With
+        ``False`` only the initial and last states and the ``t_eval``
+        outputs are kept: memory independent of the number of steps.
+    progress : callable ``progress(t, statistics)``, optional
+        Called every half second of wall-clock time with the time reached and
+        the run's :class:`Statistics`, and once at the end, so that a long or
+        stalled run shows.
+    tol : float, optional
+        Newton tolerance ``η`` (Eq. 38); see :class:`Integrator`.
+    **options
+        Passed to :class:`Integrator` (``first_step``, ``min_step``,
+        ``max_step``, ``max_halvings``, ``max_steps``, ``max_iterations``,
+        ``energy_limit``, ``controller``, ``breakpoints``, ...).
+
+    Returns
+    -------
+    Result
+        ``status`` and ``message`` say how the run ended; on failure the
+        arrays end at the last good state and the message starts with its
+        time (``"t = ...: "``).
+
+    Raises
+    ------
+    ValueError
+        For bad input, naming the parameter, its value and what is allowed;
+        :class:`~hfdi.ModelError` (a ``ValueError``) for a model that fails at
+        the initial state (see :class:`Integrator`). Faults during the run
+        do not raise; they end it with a failed ``status``.
+    """
+    t0 = checks.real("t0", t0)
+    try:
+        if isinstance(t_end, (str, bytes, bool, np.bool_)) or np.ndim(t_end) != 0:
+            raise TypeError
+        t_end = float(t_end)
+    except (TypeError, ValueError):
+        raise ValueError(f"t_end must be a number > t0 = {t0}, got {t_end!r}") from None
+    if not (math.isfinite(t_end) and t_end > t0):
+        raise ValueError(f"t_end must be finite and > t0 = {t0}, got {t_end!r}")
+    if t_eval is not None:
+        t_eval = _times("t_eval", t_eval, t0, t_end)
+        max_steps = options.get("max_steps", inspect.signature(Integrator).parameters[
+            "max_steps"].default)
+        if t_eval.size > max_steps:
+            raise ValueError(f"t_eval has {t_eval.size} points, more than max_steps = "
+                             f"{max_steps}; give fewer output times or raise max_steps")
+    if not isinstance(save_steps, (bool, np.bool_)):
+        raise ValueError(f"save_steps must be True or False, got {save_steps!r}")
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress must be callable as progress(t, statistics), got "
+                         f"{progress!r}")
+    allowed = [name for name in inspect.signature(Integrator).parameters
+               if name not in ("system", "scheme", "rtol", "atol", "target_iterations", "step",
+                               "t0", "u0", "v0", "tol", "t_bound")]
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise ValueError(f"unknown option(s) {', '.join(unknown)} of integrate; allowed: "
+                         f"{', '.join(allowed)}")
+    integrator = Integrator(system, scheme, rtol=rtol, atol=atol,
+                            target_iterations=target_iterations, step=step, t0=t0, u0=u0, v0=v0,
+                            tol=tol, t_bound=t_end, **options)
+    s0 = integrator.state
+    rows = Rows(integrator.ev.n)
+    rows.append(s0, math.nan, 0, 0.0, integrator.total_energy, 0.0)
+    last = [s0, math.nan, 0, 0.0, integrator.total_energy, 0.0]
+    if t_eval is not None:
+        u_eval = np.full((t_eval.size, integrator.ev.n), np.nan)
+        v_eval = np.full_like(u_eval, np.nan)
+        at_start = t_eval == t0
+        u_eval[at_start], v_eval[at_start] = s0.u, s0.v
+        pending = [int(np.count_nonzero(at_start))]   # index of the next t_eval point
+    clock = [time.monotonic()]
+
+    def outputs(t, u, v, a):
+        """The t_eval points up to ``t[-1]``, from the steps that start at the
+        last one recorded and end at ``t`` (K,), with ``u, v, a`` (K, N) there."""
+        if t_eval is not None and pending[0] < t_eval.size:
+            stop = int(np.searchsorted(t_eval, t[-1], side="right"))
+            if stop > pending[0]:
+                old = last[0]          # where the first of these steps started
+                ue, ve = interpolate_state(np.concatenate([[old.t], t]),
+                                           np.vstack([old.u[None], u]),
+                                           np.vstack([old.v[None], v]),
+                                           np.vstack([old.a[None], a]), t_eval[pending[0]:stop])
+                u_eval[pending[0]:stop], v_eval[pending[0]:stop] = ue, ve
+                pending[0] = stop
+
+    def report(t):
+        if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
+            clock[0] = time.monotonic()
+            progress(t, integrator.statistics)
+
+    def record_rows(arrays: dict):
+        """The accepted steps of a call of the stepping code, in bulk."""
+        t = arrays["t"]
+        outputs(t, arrays["u"], arrays["v"], arrays["a"])
+        if save_steps:
+            rows.extend(arrays)
+        last[:] = [State(float(t[-1]), arrays["u"][-1], arrays["v"][-1], arrays["a"][-1], None,
+                         None), float(arrays["step_size"][-1]), int(arrays["iterations"][-1]),
+                   float(arrays["energy_increment"][-1]), float(arrays["total_energy"][-1]),
+                   float(arrays["external_work"][-1])]
+        report(float(t[-1]))
+
+    ok = integrator.advance(t_end, rows=record_rows)
+    if progress is not None:
+        progress(integrator.t, integrator.statistics)
+    if not save_steps and rows.size == 1 and integrator.statistics.accepted:
+        rows.append(*last)
+    status = integrator.status if not ok else Status.SUCCESS
+    message = integrator.message if not ok else "reached t_end"
+    result = Result(**rows.arrays(), status=status, message=message,
+                    stats=integrator.statistics, scheme=integrator.scheme.name,
+                    t_eval=t_eval, u_eval=None if t_eval is None else u_eval,
+                    v_eval=None if t_eval is None else v_eval, system=system,
+                    steps_saved=save_steps)
+    return result

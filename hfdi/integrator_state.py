@@ -1,0 +1,174 @@
+"""The integrator's state, to copy and restore it, and its bytes.
+
+:class:`IntegratorState` holds everything that determines the continuation of
+a run (:meth:`hfdi.Integrator.get_state`); :meth:`IntegratorState.to_bytes`
+and :meth:`~IntegratorState.from_bytes` carry it across processes as data
+only (:mod:`hfdi.serial`), bit for bit.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import serial
+from .evaluation import State
+from .result import Statistics
+
+__all__ = ["IntegratorState", "STATE_FORMAT"]
+
+
+def _clone(obj):
+    """``copy.copy`` of a plain dataclass instance (its fields in its ``__dict__``)."""
+    new = object.__new__(type(obj))
+    new.__dict__.update(obj.__dict__)
+    return new
+
+
+@dataclass
+class IntegratorState:
+    """Everything that determines the continuation of a run (see
+    :meth:`Integrator.get_state`).
+
+    :meth:`to_bytes` and :meth:`from_bytes` write and read it as data only
+    (:mod:`hfdi.serial`), so that bytes from elsewhere can never run code;
+    the round trip is bit-exact.
+    """
+
+    current: State
+    previous: State | None
+    proposed_step: float
+    first_step_pending: bool
+    status: int
+    message: str
+    statistics: Statistics
+    potential: float
+    initial_potential: float
+    work: float
+    energy_error: float
+    energy_scale: float
+    last_step: float
+    last_iterations: int
+    last_energy_increment: float
+    grid_origin: float
+    grid_steps: int
+    newton_constant: float
+    newton_guard: float
+    controller: str
+    n_dof: int
+    #: ``repr`` of the scheme (with its parameters) that made the state.
+    scheme: str = ""
+    #: The model's ``parameter_version`` the state was computed with (-1: a
+    #: model that does not count parameter changes).
+    model_version: int = -1
+
+    def copy(self, copy_arrays: bool = True) -> IntegratorState:
+        """A deep copy, field by field: a co-simulation step saves one before
+        every communication step, where ``copy.deepcopy``'s generic walk cost
+        more than the step (and ``copy.copy`` of each dataclass, 1.4 µs, as
+        much as the arrays). With ``copy_arrays=False`` the states (and their
+        arrays) are shared; see :meth:`Integrator.get_state`."""
+        new = _clone(self)
+        if copy_arrays:
+            new.current = self.current.copy()
+            new.previous = None if self.previous is None else self.previous.copy()
+        new.statistics = _clone(self.statistics)
+        return new
+
+    def to_bytes(self) -> bytes:
+        """The state as bytes: arrays in binary, everything else in a JSON header."""
+        arrays = {}
+
+        def one(label, st):
+            if st is None:
+                return None
+            for name in _STATE_ARRAYS:
+                value = getattr(st, name)
+                if value is not None:
+                    arrays[f"{label}.{name}"] = np.asarray(value, dtype=np.float64)
+            return {"t": float(st.t), "f": st.f is not None}
+
+        header = {name: kind(getattr(self, name)) for name, kind in _STATE_SCALARS.items()}
+        header.update(format=STATE_FORMAT, current=one("current", self.current),
+                      previous=one("previous", self.previous),
+                      statistics={k: type(getattr(Statistics, k))(getattr(self.statistics, k))
+                                  for k in _STATISTICS_FIELDS})
+        return serial.pack(header, arrays)
+
+    @classmethod
+    def from_bytes(cls, data) -> IntegratorState:
+        """Read :meth:`to_bytes`' bytes, checking every field's type and shape.
+
+        Raises
+        ------
+        ValueError
+            For bytes that are not such a state (corrupt, truncated, of
+            another format version, or with a field of the wrong type).
+        """
+        try:
+            header, arrays = serial.unpack(data)
+        except ValueError:
+            raise ValueError("not a serialized integrator state") from None
+        if header.get("format") != STATE_FORMAT:
+            raise ValueError(f"not a serialized integrator state of format {STATE_FORMAT!r}")
+        n = _field(header, "n_dof", int)
+
+        def one(label):
+            entry = header.get(label)
+            if entry is None and label == "previous":
+                return None
+            if not isinstance(entry, dict):
+                raise ValueError(f"serialized state: {label} is missing")
+            values = {}
+            for name in _STATE_ARRAYS:
+                key = f"{label}.{name}"
+                if name == "f" and not _field(entry, "f", bool):
+                    values[name] = None
+                    continue
+                value = arrays.pop(key, None)
+                if not (isinstance(value, np.ndarray) and value.dtype == np.float64
+                        and value.shape == (n,)):
+                    raise ValueError(f"serialized state: {key} must be a float64 array of "
+                                     f"shape ({n},)")
+                values[name] = value
+            return State(_field(entry, "t", float), **values)
+
+        current, previous = one("current"), one("previous")
+        if arrays:
+            raise ValueError(f"serialized state: unexpected entries {sorted(arrays)}")
+        counts = header.get("statistics")
+        if not isinstance(counts, dict) or set(counts) != set(_STATISTICS_FIELDS):
+            raise ValueError("serialized state: statistics malformed")
+        statistics = Statistics(**{k: _field(counts, k, type(getattr(Statistics, k)))
+                                   for k in _STATISTICS_FIELDS})
+        scalars = {k: _field(header, k, kind) for k, kind in _STATE_SCALARS.items()}
+        return cls(current=current, previous=previous, statistics=statistics, **scalars)
+
+
+#: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
+STATE_FORMAT = "hfdi-integrator-state/3"
+_STATE_ARRAYS = ("u", "v", "a", "f", "p")
+_STATE_SCALARS = {"proposed_step": float, "first_step_pending": bool, "status": int,
+                  "message": str, "potential": float, "initial_potential": float,
+                  "work": float, "energy_error": float, "energy_scale": float,
+                  "last_step": float, "last_iterations": int, "last_energy_increment": float,
+                  "grid_origin": float, "grid_steps": int, "newton_constant": float,
+                  "newton_guard": float, "controller": str, "n_dof": int, "scheme": str,
+                  "model_version": int}
+_STATISTICS_FIELDS = tuple(f.name for f in dataclasses.fields(Statistics))
+
+
+def _field(mapping, key, kind):
+    """``mapping[key]`` of type ``kind`` (an int is a float too; a bool is no int)."""
+    value = mapping.get(key)
+    ok = isinstance(value, bool) if kind is bool else (
+        isinstance(value, int) and not isinstance(value, bool) if kind is int else
+        isinstance(value, (int, float)) and not isinstance(value, bool) if kind is float else
+        isinstance(value, kind))
+    if not ok:
+        raise ValueError(f"serialized state: {key} must be of type {kind.__name__}, "
+                         f"got {type(value).__name__}")
+    return float(value) if kind is float else value
+
+

@@ -1,0 +1,178 @@
+"""The integrator's options: from the arguments of :class:`hfdi.Integrator` to a
+controller, tolerances, breakpoints and initial conditions, each checked with
+a message that names the argument."""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+
+from . import checks
+from .controller import (DEFAULT_RTOL, Combined, Controller, ErrorControl, FixedStep,
+                         IterationCount)
+from .evaluation import brief
+
+__all__ = ["make_controller", "newton_tolerance", "breakpoints_of", "initial_vector",
+           "optional_positive", "time_value", "times", "NEWTON_TESTS"]
+
+#: Values of ``Integrator(newton_test=...)``.
+NEWTON_TESTS = ("correction", "error")
+
+
+def optional_positive(name, value):
+    return None if value is None else checks.positive(name, value)
+
+
+def initial_vector(name, value, n, source):
+    """An initial condition as a finite float array of shape (n,)."""
+    label = name if source is None else f"{name} (from {source})"
+    if checks.complex_values(value):
+        raise ValueError(f"{label} must be real, got complex values {value!r:.80}")
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{label} must be an array of {n} finite numbers, "
+                         f"got {value!r}") from None
+    if arr.shape != (n,):
+        raise ValueError(f"{label} must have shape ({n},) (one entry per degree of freedom), "
+                         f"got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        i = int(np.flatnonzero(~np.isfinite(arr))[0])
+        raise ValueError(f"{label} must be finite, got {brief(arr)} (entry {i} is "
+                         f"{float(arr[i])!r})")
+    return arr
+
+
+def make_controller(controller, rtol, atol, target, step, span, min_step, max_step,
+                    max_halvings, first_step_trials, u_scale, scheme, t0, t_bound,
+                    max_steps) -> Controller:
+    """The controller of the mode the arguments ask for."""
+    given = {name: value for name, value in (("rtol", rtol), ("atol", atol),
+                                             ("target_iterations", target),
+                                             ("step", step)) if value is not None}
+    if controller is not None:
+        if given:
+            raise ValueError(f"controller replaces rtol, atol, target_iterations and step; "
+                             f"got controller and {', '.join(given)}")
+        if not isinstance(controller, Controller):
+            raise TypeError(f"controller must be a hfdi.controller.Controller, got "
+                            f"{type(controller).__name__}")
+        missing = [name for name in ("init", "adapt")
+                   if getattr(type(controller), name) is getattr(Controller, name)]
+        if missing:
+            raise TypeError(f"controller {type(controller).__name__} must define "
+                            f"{' and '.join(missing)} (see hfdi.controller)")
+        # its own copy: prepare() fits it to this system and scheme, and
+        # the caller's object stays usable for another integrator
+        return copy.deepcopy(controller)
+    if step is not None and len(given) > 1:
+        others = ", ".join(f"{name}={value!r}" for name, value in given.items()
+                           if name != "step")
+        raise ValueError(f"step (the fixed-step mode) excludes rtol, atol and "
+                         f"target_iterations, got step={step!r} and {others}")
+    if atol is not None and rtol is None and target is not None:
+        raise ValueError("atol needs error control: give rtol too (with target_iterations "
+                         "for the combined mode)")
+    given_max = max_step
+    max_step = optional_positive("max_step", max_step) \
+        or (span if span is not None else math.inf)
+    default_min = min_step is None
+    min_step = optional_positive("min_step", min_step) \
+        or 1e-12 * max(1.0, abs(t_bound if t_bound is not None else t0))
+    if min_step >= max_step:
+        hint = " (the default; give min_step for so short a run)" if default_min else ""
+        raise ValueError(f"min_step must be < max_step = {max_step}, got {min_step}{hint}")
+    limits = dict(min_step=min_step, max_step=max_step, max_rejections=max_halvings,
+                  first_step_trials=first_step_trials)
+    if step is not None:
+        h = checks.positive("step", step)
+        # in the fixed-step mode every step is h: a bound it breaks is a contradiction
+        if not default_min and h < min_step:
+            raise ValueError(f"step = {step!r} is below min_step = {min_step!r}; in the "
+                             f"fixed-step mode every step is step (allowed: step >= "
+                             f"min_step, or leave min_step out)")
+        if given_max is not None and h > max_step:
+            raise ValueError(f"step = {step!r} exceeds max_step = {max_step!r}; in the "
+                             f"fixed-step mode every step is step (allowed: step <= "
+                             f"max_step, or leave max_step out)")
+        if span is not None and span / h > max_steps * (1.0 + 1e-9):
+            needs = span / h            # inf for a step near the smallest float
+            count = math.ceil(needs) if math.isfinite(needs) else "more than 1e308"
+            raise ValueError(f"step = {step!r} needs {count} steps from t0 = "
+                             f"{t0:g} to t_bound = {t_bound:g}, more than "
+                             f"max_steps = {max_steps}; allowed: step >= "
+                             f"{span / max_steps:.6g}")
+        return FixedStep(h, **limits)
+    iteration = None if target is None else \
+        IterationCount(target, scheme.n_stages, **limits)
+    if iteration is not None and rtol is None:
+        return iteration
+    error = ErrorControl(DEFAULT_RTOL if rtol is None else rtol, atol, u_scale=u_scale,
+                         order=scheme.order, **limits)
+    return error if iteration is None else Combined(iteration, error)
+
+
+def newton_tolerance(tol, controller):
+    if tol is None:
+        tol = 1e-8
+        if controller.uses_error_estimate:
+            rtol = getattr(controller, "error", controller).rtol
+            tol = min(tol, max(1e-12, 1e-3 * float(np.min(rtol))))
+    try:
+        return checks.real("tol", tol, low=0.0, high=1.0)
+    except ValueError:
+        raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
+
+
+def breakpoints_of(system, extra):
+    """The sorted load breakpoints of the model and of ``extra``."""
+    own = system.load_breakpoints() if hasattr(system, "load_breakpoints") \
+        else ()
+    try:
+        times = np.concatenate([np.asarray(own, dtype=float).ravel(),
+                                np.asarray(() if extra is None else extra,
+                                           dtype=float).ravel()])
+    except (TypeError, ValueError):
+        raise ValueError(f"breakpoints must be an array of times, got {extra!r}") from None
+    if not np.all(np.isfinite(times)):
+        raise ValueError(f"breakpoints must be finite, got {times!r}")
+    return np.unique(times)
+
+
+def time_value(name, value) -> float:
+    """A time given to ``step`` or ``advance`` as a float (``inf`` allowed:
+    the callers say what range they take); a ``ValueError`` naming it for
+    anything that is not one real number."""
+    if isinstance(value, (bool, np.bool_, str, bytes)) or checks.complex_values(value) \
+            or np.ndim(value) != 0:
+        raise ValueError(f"{name} must be a real number (a time), got {value!r:.80}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number (a time), got {value!r:.80}") from None
+
+
+def times(name, value, t0, t_end):
+    """``value`` as a finite, strictly increasing float array inside ``[t0, t_end]``."""
+    times = checks.real_array(value)
+    if times is None:
+        raise ValueError(f"{name} must be an array of real times in [t0, t_end], "
+                         f"got {value!r:.80}")
+    if times.ndim > 1:
+        raise ValueError(f"{name} must be a 1-D array of times, got shape {times.shape}")
+    times = times.ravel()
+    if not np.all(np.isfinite(times)):
+        i = int(np.flatnonzero(~np.isfinite(times))[0])
+        raise ValueError(f"{name} must be finite, got {name}[{i}] = {float(times[i])!r}")
+    if np.any(np.diff(times) <= 0):
+        i = int(np.flatnonzero(np.diff(times) <= 0)[0])
+        raise ValueError(f"{name} must be strictly increasing, got {name}[{i}] = "
+                         f"{float(times[i])!r} followed by {name}[{i + 1}] = "
+                         f"{float(times[i + 1])!r}")
+    if times.size and (times[0] < t0 or times[-1] > t_end):
+        raise ValueError(f"{name} must lie in [t0, t_end] = [{t0}, {t_end}], "
+                         f"got [{times[0]}, {times[-1]}]")
+    return times
+
+

@@ -1,0 +1,189 @@
+"""What is checked before a run: the model at the initial state, its tangent
+against differences of its force, its load rate against differences of its
+load, and the first trial step."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .evaluation import ModelError, NonFiniteError, State, brief
+from .schemes import HFDI
+from .system import load_rate_error
+
+__all__ = ["initial_state", "check_stiffness_of", "check_load_rate", "default_first_step"]
+
+_EPS = float(np.finfo(float).eps)
+_SQRT_EPS = math.sqrt(_EPS)
+
+
+def initial_state(ev, scheme, t0, u0, v0, check_stiffness, floor, t_bound, breakpoints):
+    """The initial :class:`State`, ``K(u0)``, ``T(u0)[v0]`` (HFDI only, else
+    ``None``) and ``V(u0)``, every model function checked once.
+
+    A model is often wrong at first. Evaluating each function the run will
+    use at the initial state turns a wrong shape, a NaN or an exception
+    into a :class:`ModelError` that names the function, instead of a run
+    whose every step fails for a reason the user has to guess.
+    """
+    name = getattr(ev.system, "name", type(ev.system).__name__)
+    where = f"at the initial state (t0 = {t0:g}, u0 = {brief(u0)}, v0 = {brief(v0)})"
+
+    def call(function, fun, *args):
+        try:
+            return fun(*args)
+        except ModelError as exc:
+            raise ModelError(f"model {name!r}: {exc} {where}") from None
+        except NonFiniteError as exc:
+            raise ModelError(f"model {name!r}: {exc}, the initial state (t0 = {t0:g}); "
+                             f"the run cannot start there") from None
+        except NotImplementedError as exc:
+            raise ModelError(f"model {name!r}: scheme {scheme.name!r} needs "
+                             f"{function}, which raised NotImplementedError"
+                             f"{': ' + str(exc) if str(exc) else ''}") from exc
+        except Exception as exc:
+            raise ModelError(f"model {name!r}: {function} raised {type(exc).__name__}: "
+                             f"{exc} {where}") from exc
+
+    f = call("internal_force", ev.force, u0)
+    p = call("load", ev.load, t0)
+    K = call("stiffness", ev.stiffness, u0)
+    T = None
+    if check_stiffness:
+        check_stiffness_of(ev, u0, K, call, name, floor)
+    if scheme.name == "hfdi" or isinstance(scheme, HFDI):
+        T = call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
+        if scheme.load_rate == "exact" or (scheme.load_rate == "auto"
+                                                 and ev.has_load_rate):
+            call("load_rate", ev.load_rate, t0)
+            if check_stiffness:
+                check_load_rate(ev, call, name, t0, t_bound, breakpoints)
+    potential = call("potential_energy", ev.potential_energy, u0)
+    if math.isinf(potential):
+        raise ModelError(f"model {name!r}: potential_energy is {potential} {where}; the "
+                         f"energy balance (Eq. 40) cannot start there")
+    a = ev.acceleration(t0, u0, v0, f, p)
+    if not np.all(np.isfinite(a)):
+        raise ModelError(f"model {name!r}: the initial acceleration "
+                         f"M⁻¹(p − f − C v0) is not finite ({brief(a)}) {where}")
+    return State(t0, u0.copy(), v0.copy(), a, f, p), K, T, potential
+
+
+def check_stiffness_of(ev, u0, K, call, name, floor):
+    """``K(u0)`` against central differences of ``f`` along one direction.
+
+    HFDI uses ``K`` in its step equation (``g_t = p' − K v``), so a wrong
+    ``K`` gives wrong answers there, not only a slow Newton; in every
+    scheme it is a mistake in the model.
+
+    Each degree of freedom is perturbed relative to its own size,
+    ``d_i = s·√ε·max(|u0_i|, 1e-3·U) w_i`` (``U = max(max|u0|, u_scale)``,
+    ``w`` a fixed direction), so that a rotation beside translations in
+    mm is not perturbed by a large part of itself. At each scale ``s``
+    (1, 1e2, 1e4, 1e6) the mismatches of the central differences at
+    ``d`` and ``2d`` with ``K d`` and ``2 K d`` are Richardson-combined,
+    ``(8 m(d) − m(2d))/6``, which cancels the ``O(d³)`` of the
+    nonlinearity (a pure cubic spring at rest) and leaves ``(∂f/∂u − K) d``.
+    Row ``i`` counts at a scale where the rounding of ``f`` there is below
+    1e-4 of its terms ``Σ_j |K_ij d_j|`` (a large preload in ``f`` hides a
+    wrong ``K`` at small ``d``), and its error is the smallest over the
+    scales that count (rounding inside ``f``, large terms cancelling, is
+    gone at a larger ``d``; a kink near ``u0`` at a smaller one). A row
+    whose error is above 0.1 % of its terms is refused; a row that never
+    counts (``K`` zero there) is not judged. 4 force evaluations when
+    every row passes at the first scale, up to 16; beyond the first scale
+    a failing evaluation (a model leaving its domain) only drops that
+    scale.
+    """
+    w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
+    size_u = max(float(np.abs(u0).max()), floor)
+    base = _SQRT_EPS * np.maximum(np.abs(u0), 1e-3 * size_u) * w
+    n = ev.n
+    best = np.full(n, np.inf)
+    best_scale = np.zeros(n)
+    for scale in (1.0, 1e2, 1e4, 1e6):
+        steps, values = [], []
+        try:
+            for factor in (1.0, 2.0):
+                d = (u0 + factor * scale * base) - u0        # the step as represented
+                plus = call("internal_force", ev.force, u0 + d)
+                minus = call("internal_force", ev.force, u0 - d)
+                steps.append(d)
+                values.append((plus, minus))
+        except ModelError:
+            if scale == 1.0:
+                raise
+            break
+        (d1, d2), ((p1, q1), (p2, q2)) = steps, values
+        m1 = 0.5 * (p1 - q1) - np.asarray(K @ d1).ravel()
+        m2 = 0.5 * (p2 - q2) - np.asarray(K @ d2).ravel()
+        error = np.abs(8.0 * m1 - m2) / 6.0
+        terms = np.asarray(abs(K) @ np.abs(d1)).ravel()
+        rounding = 16.0 * _EPS * (np.abs(p1) + np.abs(q1) + np.abs(p2) + np.abs(q2))
+        counts = (terms > 0) & (rounding <= 1e-4 * terms)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            relative = np.where(counts, error / terms, np.inf)
+        better = relative < best
+        best[better], best_scale[better] = relative[better], scale
+        if not np.any((terms > 0) & ~(best <= 1e-3)):
+            break           # every row that can be judged has passed: no scale fails it
+    judged = np.isfinite(best)
+    if not judged.any():
+        return
+    worst = int(np.argmax(np.where(judged, best, -1.0)))
+    if best[worst] > 1e-3:
+        largest = float(np.abs(base).max()) * best_scale[worst]
+        raise ModelError(
+            f"model {name!r}: stiffness does not match internal_force at u0: in row "
+            f"{worst}, K(u0)·d and the central differences of f (|d| ≤ {largest:.3g}, "
+            f"Richardson-extrapolated; the best of the steps 1 … 1e6 times that) "
+            f"differ by {best[worst]:.2%} of the size of the row's terms. K must be "
+            f"∂f/∂u: HFDI uses it in its step equation, where a wrong K gives a wrong "
+            f"answer (check the model with hfdi.check_derivatives; pass "
+            f"check_stiffness=False only if f has a kink at u0)")
+
+
+def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
+    """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`).
+
+    HFDI puts ``p'`` into its step equation (``g_t = p' − K v``), so a
+    wrong rate gives a wrong answer that no tolerance shows: a rate 5 times
+    too large was off by 800 times the tolerance at rtol 1e-6. The
+    differences are taken at steps of ``10^-2 … 10^-13`` times the run's
+    span (1 where it is not known) that end before the load's next
+    breakpoint, and the best agreement counts, so a correct rate of a load
+    of any time scale passes; a mismatch above 0.1 % is refused, as for
+    ``K``; a rate that cannot be judged (below the rounding of ``p``) is
+    not.
+    """
+    scale = t_bound - t0 if t_bound is not None else 1.0
+    # every breakpoint, the model's and the given ones, whether the mode
+    # lands on them or not: a jump inside the differences hides a wrong rate
+    points = breakpoints
+    later = points[points > t0]
+    horizon = float(later.min()) if later.size else math.inf
+    mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale,
+                                                    horizon))
+    if mismatch > 1e-3:
+        raise ModelError(
+            f"model {name!r}: load_rate does not match load at t0 = {t0:g}: p'(t0) and "
+            f"forward differences of p differ by {mismatch:.3g} of their size at the "
+            f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}. HFDI uses p' in "
+            f"its step equation, where a wrong rate gives a wrong answer (check the model "
+            f"with hfdi.check_derivatives; check_stiffness=False skips the checks of K "
+            f"and p')")
+
+
+def default_first_step(ev, K, t0, t_bound, min_step) -> float:
+    """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""
+    row_sums = np.asarray(abs(K).sum(axis=1)).ravel()
+    m = ev.mass
+    m_diag = m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        omega2 = np.nanmax(np.where(m_diag > 0, row_sums / m_diag, 0.0))
+    if omega2 > 0 and math.isfinite(omega2):
+        h0 = 1.0 / math.sqrt(omega2)
+    else:
+        h0 = 1e-3 * (t_bound - t0 if t_bound is not None else 1.0)
+    return max(h0, 10.0 * min_step)
+

@@ -1,0 +1,219 @@
+"""What a run gives back: :class:`Statistics`, :class:`Result` and the rows of
+accepted steps."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .dense import Solution
+from .evaluation import State
+from .messages import Status
+from .system import SecondOrderSystem
+
+__all__ = ["Statistics", "Result", "Rows", "STATISTICS_FIELDS"]
+
+
+@dataclass
+class Statistics:
+    """Counters of a run, as the paper counts them (Section 5, Eq. 43).
+
+    Attributes
+    ----------
+    steps : int
+        Predictor–corrector steps, diverged attempts included.
+    accepted, rejected : int
+        Accepted steps and rejected attempts, diverged or failing the error
+        test (``steps = accepted + rejected``).
+    newton_iterations : int
+        ``N_tot``: Newton corrections of all steps, diverged ones included
+        (both sub-steps for Bathe).
+    first_step_trials : int
+        Attempts made to choose the first step size (the accepted one included).
+    first_step_trial_iterations : int
+        Newton corrections of the discarded first-step trials; they are not in
+        ``steps`` or ``newton_iterations``.
+    error_test_failures : int
+        Attempts whose corrector converged but whose local error estimate
+        failed the tolerance (part of ``rejected``).
+    nfev, njev, ntev, npev, nlu : int
+        Evaluations of f, K, T and V, and linear factorisations.
+    cpu_time : float
+        Process time of the run, seconds.
+    """
+
+    steps: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    newton_iterations: int = 0
+    error_test_failures: int = 0
+    first_step_trials: int = 0
+    first_step_trial_iterations: int = 0
+    nfev: int = 0
+    njev: int = 0
+    ntev: int = 0
+    npev: int = 0
+    nlu: int = 0
+    cpu_time: float = 0.0
+    t_start: float = 0.0
+    t_reached: float = 0.0
+
+    @property
+    def mean_iterations(self) -> float:
+        """``N_mv = N_tot / steps`` (Eq. 43)."""
+        return self.newton_iterations / self.steps if self.steps else float("nan")
+
+    @property
+    def mean_step(self) -> float:
+        """``Δt_mv``: time covered divided by ``steps``."""
+        return (self.t_reached - self.t_start) / self.steps if self.steps else float("nan")
+
+
+@dataclass
+class Result:
+    """Solution of :func:`integrate`.
+
+    Attributes
+    ----------
+    t : ndarray (n,)
+        Times of the initial state and of every accepted step (with
+        ``save_steps=False``: of the initial and the last state only). At a
+        declared load breakpoint where the acceleration jumps, the time is
+        there twice: the state the step reached (the load's left limit),
+        then the one the next step starts from (a step of size 0).
+    u, v, a : ndarray (n, N)
+        Displacement, velocity and acceleration at ``t``.
+    step_size : ndarray (n,)
+        Size of the step that ended at ``t`` (NaN at the start).
+    iterations : ndarray (n,)
+        Newton corrections of the accepted step that ended at ``t``.
+    energy_increment : ndarray (n,)
+        ``ΔE`` of the step ending at ``t`` (Eq. 40; 0 at the start).
+    total_energy : ndarray (n,)
+        ``W = V + T`` at ``t``.
+    external_work : ndarray (n,)
+        Work of the load from the start (Eq. 41, summed).
+    status : Status
+    message : str
+    success : bool
+    stats : Statistics
+    scheme : str
+    t_eval : ndarray (m,) or None
+        The requested output times.
+    u_eval, v_eval : ndarray (m, N) or None
+        ``u`` and ``v`` there, by the dense output (NaN past the end of a
+        failed run).
+    system : SecondOrderSystem
+        The model integrated.
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    step_size: np.ndarray
+    iterations: np.ndarray
+    energy_increment: np.ndarray
+    total_energy: np.ndarray
+    external_work: np.ndarray
+    status: Status
+    message: str
+    stats: Statistics
+    scheme: str
+    t_eval: np.ndarray | None = None
+    u_eval: np.ndarray | None = None
+    v_eval: np.ndarray | None = None
+    system: SecondOrderSystem | None = field(default=None, repr=False)
+    steps_saved: bool = True
+
+    @property
+    def success(self) -> bool:
+        return self.status == Status.SUCCESS
+
+    @property
+    def sol(self) -> Solution:
+        """Dense output over the run: ``sol(t)`` gives ``(u, v)`` at any ``t``
+        in ``[t[0], t[-1]]`` by Hermite interpolants on the step ends
+        (:class:`~hfdi.dense.Solution`: quintic in ``u``, cubic in ``v``)."""
+        if not self.steps_saved:
+            raise ValueError("sol needs the steps: this run was made with save_steps=False")
+        return Solution(self.t, self.u, self.v, self.a)
+
+    def quantities(self, system: SecondOrderSystem | None = None) -> dict:
+        """The quantities of interest of ``system`` (default: the model
+        integrated) at ``t``, a dict of (n, m) arrays."""
+        return (system or self.system).quantities(self.t, self.u, self.v)
+
+    def __repr__(self):
+        st = self.stats
+        return (f"Result(scheme={self.scheme!r}, status={self.status.name}, steps={st.steps}, "
+                f"mean_iterations={st.mean_iterations:.3f}, mean_step={st.mean_step:.4g}, "
+                f"t_final={self.t[-1]:.6g})")
+
+
+class Rows:
+    """Per-step records in blocks of arrays: a step of the Python driver costs a
+    copy of its numbers into the open block (grown by doubling), a call of the
+    compiled driver hands over its own rows as a block (views of its buffers,
+    or a copy when it filled less than half of them), and :meth:`arrays`
+    joins the blocks once."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.size = 0                 # rows in all blocks
+        self._blocks = []             # sealed blocks: dicts of arrays of equal length
+        self._open = 0                # rows in the open block
+        self._alloc(64)
+
+    def _alloc(self, capacity):
+        old = getattr(self, "data", None)
+        self.data = {"t": np.empty(capacity), "u": np.empty((capacity, self.n)),
+                     "v": np.empty((capacity, self.n)), "a": np.empty((capacity, self.n)),
+                     "step_size": np.empty(capacity), "iterations": np.empty(capacity, int),
+                     "energy_increment": np.empty(capacity), "total_energy": np.empty(capacity),
+                     "external_work": np.empty(capacity)}
+        if old is not None:
+            for key, arr in old.items():
+                self.data[key][:self._open] = arr[:self._open]
+
+    def append(self, state: State, h, iterations, increment, energy, work):
+        if self._open == self.data["t"].shape[0]:
+            self._alloc(2 * self._open)
+        i = self._open
+        d = self.data
+        d["t"][i] = state.t
+        d["u"][i] = state.u
+        d["v"][i] = state.v
+        d["a"][i] = state.a
+        d["step_size"][i] = h
+        d["iterations"][i] = iterations
+        d["energy_increment"][i] = increment
+        d["total_energy"][i] = energy
+        d["external_work"][i] = work
+        self._open += 1
+        self.size += 1
+
+    def _seal(self):
+        if self._open:
+            # a copy of the rows, not a view that would keep the whole open
+            # block; the open block is then written again from its start
+            self._blocks.append({key: arr[:self._open].copy() for key, arr in self.data.items()})
+            self._open = 0
+
+    def extend(self, arrays: dict):
+        """Append the rows of ``arrays`` (the keys of :meth:`arrays`), kept as
+        they are: the caller gives up the arrays."""
+        self._seal()
+        self._blocks.append(arrays)
+        self.size += arrays["t"].shape[0]
+
+    def arrays(self) -> dict:
+        blocks = self._blocks + ([{key: arr[:self._open] for key, arr in self.data.items()}]
+                                 if self._open or not self._blocks else [])
+        if len(blocks) == 1:
+            return {key: np.array(arr) for key, arr in blocks[0].items()}
+        return {key: np.concatenate([block[key] for block in blocks]) for key in self.data}
+
+
+
+STATISTICS_FIELDS = tuple(f.name for f in __import__("dataclasses").fields(Statistics))

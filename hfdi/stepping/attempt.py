@@ -1,0 +1,325 @@
+"""One attempt at a step, a short step, and the acceptance of a step.
+
+:func:`attempt` takes every stage of the scheme (predictor, then Newton) from
+the current state to ``VECTORS.*_new``; :func:`accept` makes that the current
+state, with the energy balance (Eqs. 40–41); :func:`short_step` takes a step
+much shorter than the one proposed (docs/algorithm.md, "Short steps");
+:func:`refresh` recomputes what the state keeps from the load or the model
+after either changed from outside.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.arrays import all_finite, axpy, copy, kinetic, lincomb, row_sum_max, times
+from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFLOW,
+                          SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
+                          STOP_OVERFLOW, STOP_POTENTIAL_LOST)
+from ..core.control import is_breakpoint
+from ..core.estimate import is_short, predict
+from ..core.jit import jitable
+from ..core.state import FIXED, MAX_STAGES
+from .stages import (affine_end, affine_setup, force_into, hfdi_end, hfdi_setup, load_into,
+                     mass_solve, newton, one_sided, stiffness_of)
+
+__all__ = ["attempt", "accept", "short_step", "fastest_rate", "SHORT_STEP_RATE", "refresh",
+           "stop", "energy_overflows"]
+
+#: Taylor's expansion is explicit: a short step is taken by it only where
+#: ``h (ω_max + γ_max) ≤ SHORT_STEP_RATE`` (:func:`fastest_rate`); past a
+#: stiff component the scheme takes it (docs/algorithm.md).
+SHORT_STEP_RATE = 0.1
+
+
+@jitable(inline=True)
+def stop(run, status, reason):
+    """Stop the run with a failed ``status`` (hfdi.Status) for ``reason``
+    (:mod:`hfdi.core.codes`); the state stays the last good one."""
+    run.status = status
+    run.stop = reason
+    return False
+
+
+@jitable(inline=True)
+def _failed(run, outcome, stage, iterations):
+    run.a_outcome = outcome
+    run.a_stage = stage
+    run.a_iterations = iterations
+    return outcome
+
+
+@jitable
+def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
+    """One attempt at the step from ``RUN.t`` to ``t_end`` (``left``: it lands on
+    a load breakpoint, whose load is taken from the left): every stage,
+    predictor then Newton. ``hfdi``: the scheme's stages are HFDI's, else
+    affine (a constant of the compiled code, which then holds one kind only). Returns the outcome (:mod:`hfdi.core.codes`, also in
+    ``RUN.a_outcome``); on success the end state is in ``VECTORS.*_new`` (the
+    first of two stages' in ``*_mid``), the corrections in
+    ``RUN.a_iterations`` and ``VECTORS.stage_iterations``, and Newton's memory
+    is carried on."""
+    h = t_end - run.t
+    run.a_h = h
+    run.a_t_end = t_end
+    run.a_taylor = False
+    run.a_outcome = OK
+    run.a_stage = 0
+    run.a_iterations = 0
+    run.a_newton_error = 0.0
+    run.a_err = math.nan
+    iterations = vec.stage_iterations
+    for s in range(MAX_STAGES):
+        iterations[s] = 0
+    constant, guard = run.newton_constant, run.newton_guard
+    total = 0
+    newton_error = 0.0
+    for s in range(cfg.stages):
+        st = fn.stage(h, s, data.scheme_params)
+        t_load = t_end if st.load_time == 1.0 else run.t + st.load_time * h
+        outcome = load_into(fn, cfg, data, run, one_sided(t_load, t_end, left), vec.p_stage)
+        if outcome != OK:
+            return _failed(run, outcome, s, total)
+        predict(run, vec, h if st.time == 1.0 else st.time * h, vec.trial)
+        if hfdi:
+            outcome = hfdi_setup(fn, cfg, data, run, vec, h, t_end, left)
+        else:
+            outcome = affine_setup(fn, cfg, data, run, vec, st)
+        if outcome != OK:
+            return _failed(run, outcome, s, total)
+        outcome, k, error, constant, guard = newton(fn, cfg, data, run, vec, st, h, constant,
+                                                    guard, hfdi)
+        if k >= 0:
+            iterations[s] = k
+            total += k
+        if outcome != OK:
+            return _failed(run, outcome, s, total)
+        newton_error = max(newton_error, error)
+        last = s == cfg.stages - 1
+        if hfdi:
+            outcome = hfdi_end(fn, cfg, data, run, vec, h)
+        elif last:
+            outcome = affine_end(fn, cfg, data, run, vec, st, vec.u_new, vec.v_new, vec.a_new)
+        else:
+            outcome = affine_end(fn, cfg, data, run, vec, st, vec.u_mid, vec.v_mid, vec.a_mid)
+            copy(vec.p_mid, vec.p_stage)
+        if outcome != OK:
+            return _failed(run, outcome, s, total)
+        if last:
+            if st.load_time == 1.0:
+                copy(vec.p_new, vec.p_stage)
+            else:
+                outcome = load_into(fn, cfg, data, run, one_sided(t_end, t_end, left), vec.p_new)
+                if outcome != OK:
+                    return _failed(run, outcome, s, total)
+            if cfg.keeps_force and not hfdi:
+                outcome = force_into(fn, cfg, data, run, vec.u_new, vec.f_new)
+                if outcome != OK:
+                    return _failed(run, outcome, s, total)
+    run.a_iterations = total
+    run.a_newton_error = newton_error
+    run.newton_constant = constant
+    run.newton_guard = guard
+    return OK
+
+
+@jitable
+def fastest_rate(fn, cfg, data, run, vec):
+    """A bound of the fastest rate of the motion linearised at ``u``:
+    ``ω_max + γ_max``, ``ω_max² ≤ ‖K(u)‖_∞ / λ_min(M)``, ``γ_max ≤ ‖C‖_∞ /
+    λ_min(M)`` (Gershgorin; ``CONFIG.mass_floor``): ``inf`` where ``K`` cannot
+    be evaluated or no positive bound of ``λ_min(M)`` is known."""
+    if not cfg.mass_floor > 0.0:
+        return math.inf
+    outcome, K = stiffness_of(fn, cfg, data, run, vec.u)
+    if outcome != OK:
+        return math.inf
+    omega2 = row_sum_max(K) / cfg.mass_floor
+    rate = math.sqrt(omega2) if math.isfinite(omega2) else math.inf
+    return rate + cfg.damping_rate
+
+
+@jitable
+def taylor_step(fn, cfg, data, run, vec, t_end, left):
+    """A short step by Taylor's expansion into ``VECTORS.*_new``:
+    ``u = u_n + h v_n + h² a_n/2``, ``a`` from the equation of motion there
+    (Eq. 14, with ``v_n + h a_n``), ``v = v_n + h (a_n + a)/2``; errors
+    ``O(h³)``. An outcome code."""
+    h = t_end - run.t
+    u, v, a = vec.u_new, vec.v_new, vec.a_new
+    lincomb(u, 1.0, vec.u, h, vec.v)
+    axpy(u, 0.5 * h * h, vec.a)
+    outcome = load_into(fn, cfg, data, run, one_sided(t_end, t_end, left), vec.p_new)
+    if outcome != OK:
+        return outcome
+    outcome = force_into(fn, cfg, data, run, u, vec.f_new)
+    if outcome != OK:
+        return outcome
+    lincomb(v, 1.0, vec.v, h, vec.a)                      # v_n + h a_n, for C v
+    times(cfg.c_kind, data.Cd, data.Cf, v, vec.work)
+    lincomb(a, 1.0, vec.p_new, -1.0, vec.f_new)
+    axpy(a, -1.0, vec.work)
+    mass_solve(cfg, data, vec, a)
+    lincomb(vec.work, 1.0, vec.a, 1.0, a)
+    lincomb(v, 1.0, vec.v, 0.5 * h, vec.work)
+    run.a_h = h
+    run.a_t_end = t_end
+    run.a_iterations = 0
+    return OK if all_finite(u) and all_finite(v) and all_finite(a) else END_NOT_FINITE
+
+
+@jitable(inline=True)
+def energy_overflows(kinetic_energy, work, potential):
+    """Whether a step's energy terms are beyond floating point: an infinite or
+    NaN kinetic energy or work (a NaN is an ``inf − inf`` here), or an
+    infinite potential energy (a NaN one is the model's "unknown")."""
+    return not (math.isfinite(kinetic_energy) and math.isfinite(work)) or math.isinf(potential)
+
+
+@jitable
+def _row(run, vec, h, iterations, increment, energy):
+    i = run.rows
+    vec.row_t[i] = run.t
+    vec.row_h[i] = h
+    vec.row_iterations[i] = iterations
+    vec.row_increment[i] = increment
+    vec.row_energy[i] = energy
+    vec.row_work[i] = run.work
+    copy(vec.row_u[i], vec.u)
+    copy(vec.row_v[i], vec.v)
+    copy(vec.row_a[i], vec.a)
+    run.rows = i + 1
+
+
+@jitable
+def accept(fn, cfg, data, run, vec):
+    """Make the attempt's end (``VECTORS.*_new``) the current state: the energy
+    balance (Eqs. 40–41: ``ΔE = V_{n+1} − V_n + T_{n+1} − T_n − ΔL``, ``ΔL`` by
+    the trapezoidal rule over the stage ends where the scheme feels the
+    load; its ends only after a Taylor step, ``RUN.a_taylor``), the
+    history (not kept after a short step), the fixed step's
+    grid, the restart at a load breakpoint, the statistics, and a row when
+    ``VECTORS.row_t`` has room. False when the run stops (``RUN.status``):
+    a potential energy lost or overflowing terms (the state is then not
+    accepted), or ``energy_limit`` (it is)."""
+    h = run.a_h
+    t_end = run.a_t_end
+    taylor = run.a_taylor
+    run.npev += 1
+    potential = fn.potential_energy(vec.u_new, data.params)
+    if math.isnan(potential) and not math.isnan(run.initial_potential):
+        run.stop_t = t_end
+        return stop(run, MODEL_ERROR, STOP_POTENTIAL_LOST)
+    kinetic_old = kinetic(cfg.m_kind, data.Md, data.Mf, vec.v, vec.work)
+    kinetic_new = kinetic(cfg.m_kind, data.Md, data.Mf, vec.v_new, vec.work)
+    difference, total = vec.tmp, vec.work
+    if cfg.stages > 1 and not taylor:
+        lincomb(difference, 1.0, vec.u_mid, -1.0, vec.u)
+        lincomb(total, 1.0, vec.p, 1.0, vec.p_mid)
+        work = 0.5 * float(np.dot(difference, total))
+        lincomb(difference, 1.0, vec.u_new, -1.0, vec.u_mid)
+        lincomb(total, 1.0, vec.p_mid, 1.0, vec.p_new)
+        work += 0.5 * float(np.dot(difference, total))
+    else:
+        lincomb(difference, 1.0, vec.u_new, -1.0, vec.u)
+        lincomb(total, 1.0, vec.p, 1.0, vec.p_new)
+        work = 0.5 * float(np.dot(difference, total))
+    if energy_overflows(kinetic_new, work, potential):
+        run.stop_t, run.stop_kinetic, run.stop_work = t_end, kinetic_new, work
+        run.stop_potential = potential
+        return stop(run, OVERFLOW, STOP_OVERFLOW)
+    increment = potential - run.potential + kinetic_new - kinetic_old - work   # Eq. 40
+    if not is_short(h, run.proposed):
+        copy(vec.u_previous, vec.u)
+        copy(vec.v_previous, vec.v)
+        copy(vec.a_previous, vec.a)
+        copy(vec.f_previous, vec.f)
+        copy(vec.p_previous, vec.p)
+        run.t_previous = run.t
+        run.has_previous = True
+    copy(vec.u, vec.u_new)
+    copy(vec.v, vec.v_new)
+    copy(vec.a, vec.a_new)
+    copy(vec.f, vec.f_new)
+    copy(vec.p, vec.p_new)
+    run.has_force = cfg.keeps_force or taylor
+    run.t = t_end
+    if cfg.controller == FIXED:
+        step = run.grid_origin + (run.grid_steps + 1) * h
+        if run.a_clipped and t_end != step and abs(
+                t_end - (run.grid_origin + (run.grid_steps + 1) * run.a_proposed)) \
+                > 1e-6 * run.a_proposed:
+            run.grid_origin = t_end                    # shortened off the grid
+            run.grid_steps = 0
+        else:
+            run.grid_steps += 1
+    run.work += work
+    run.energy_error += increment
+    run.energy_scale = max(run.energy_scale, kinetic_new + abs(potential - run.initial_potential)
+                           + abs(run.work))
+    run.potential = potential
+    run.last_step = h
+    run.last_iterations = run.a_iterations
+    run.last_energy_increment = increment
+    run.accepted += 1
+    run.t_reached = t_end
+    saving = vec.row_t.shape[0] > 0
+    if saving:
+        _row(run, vec, h, run.a_iterations, increment, potential + kinetic_new)
+    run.restarted = False
+    if is_breakpoint(data, t_end):
+        # a kink or jump of the load: the history behind it would spoil the
+        # predictor, and the next step starts from the load's right limit
+        run.has_previous = False
+        copy(vec.a_new, vec.a)
+        if not refresh(fn, cfg, data, run, vec, False):
+            return False
+        run.restarted = False
+        for i in range(vec.a.shape[0]):
+            if vec.a[i] != vec.a_new[i]:
+                run.restarted = True
+                break
+        if saving and run.restarted and run.t < cfg.t_bound:
+            _row(run, vec, 0.0, 0, 0.0, potential + kinetic(cfg.m_kind, data.Md, data.Mf,
+                                                            vec.v, vec.work))
+    limit = cfg.energy_limit
+    if math.isfinite(limit) and math.isfinite(increment) and \
+            run.energy_error > limit * max(run.energy_scale, 1e-300):
+        return stop(run, ENERGY_GROWTH, STOP_ENERGY)
+    return True
+
+
+@jitable(inline=True)
+def _is_shape_fault(outcome):
+    for code in SHAPE_FAULTS:
+        if outcome == code:
+            return True
+    return False
+
+
+@jitable
+def refresh(fn, cfg, data, run, vec, new_force):
+    """The current state with ``p`` (the right limit) and ``a`` from the load
+    now, and ``f`` too with ``new_force`` or when not kept. False (the run
+    stopped, the state unchanged) when the model fails there."""
+    outcome = load_into(fn, cfg, data, run, run.t, vec.p_new)
+    if outcome == OK and (new_force or not run.has_force):
+        outcome = force_into(fn, cfg, data, run, vec.u, vec.f_new)
+    elif outcome == OK:
+        copy(vec.f_new, vec.f)
+    if outcome != OK:
+        run.a_outcome = outcome
+        run.stop_t = run.t
+        return stop(run, MODEL_ERROR, STOP_MODEL_SHAPE if _is_shape_fault(outcome)
+                    else STOP_MODEL_FAULT)
+    a = vec.tmp
+    times(cfg.c_kind, data.Cd, data.Cf, vec.v, vec.work)
+    lincomb(a, 1.0, vec.p_new, -1.0, vec.f_new)
+    axpy(a, -1.0, vec.work)
+    mass_solve(cfg, data, vec, a)
+    copy(vec.p, vec.p_new)
+    copy(vec.f, vec.f_new)
+    copy(vec.a, a)
+    run.has_force = True
+    return True
