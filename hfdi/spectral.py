@@ -11,8 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import checks
-from .evaluation import Evaluator, State
+from .core.codes import OK
+from .evaluation import State
 from .schemes import get_scheme
+from .stepping.attempt import attempt
 from .system import LinearSystem
 
 __all__ = ["amplification_matrix", "spectral_properties", "SpectralProperties", "RATIO_RANGE",
@@ -62,24 +64,25 @@ def amplification_matrix(scheme, tau: float) -> np.ndarray:
     tau = float(tau)
     if not (np.isfinite(tau) and low <= tau <= high):
         raise ValueError(f"tau = ω h must be a number in [{low:g}, {high:g}], got {tau!r}")
-    ev = Evaluator(LinearSystem(mass=[1.0], stiffness=[[1.0]]))   # ω = 1
+    # the scheme's own step (hfdi.stepping) on u'' + u = 0 (ω = 1), in Python
+    from .integrator import Integrator
+    itg = Integrator(LinearSystem(mass=[1.0], stiffness=[[1.0]]), scheme, step=1.0,
+                     compiled=False, check_stiffness=False, tol=1e-13, max_iterations=4)
     h = tau
-    zero = np.zeros(1)
     A = np.empty((3, 3))
     for j in range(3):
         r = np.zeros(3)
         r[j] = 1.0
-        start = State(0.0, r[:1].copy(), r[1:2] / h, r[2:3] / h ** 2, None, zero)
-        done = []
-        for index in range(scheme.n_stages):
-            problem = scheme.stage(ev, start, h, index, done)
-            u = zero
-            for _ in range(2):   # linear problem: one Newton correction, one to polish
-                residual, tangent = problem.residual_and_jacobian(u)
-                u = u - np.linalg.solve(np.atleast_2d(tangent), residual)
-            done.append(problem.finish(u))
-        end = done[-1]
-        A[:, j] = [end.u[0], h * end.v[0], h * h * end.a[0]]
+        itg._put_current(State(0.0, r[:1].copy(), r[1:2] / h, r[2:3] / h ** 2, None,
+                               np.zeros(1)))
+        itg._run.newton_constant = itg._run.newton_guard = np.inf
+        with np.errstate(all="ignore"):
+            outcome = attempt(itg._functions(), itg._cfg, itg._data, itg._run, itg._vec, h,
+                              False, itg._hfdi)
+        if outcome != OK:
+            raise ArithmeticError(f"the {scheme.name} step failed at tau = {tau!r}")
+        vec = itg._vec
+        A[:, j] = [vec.u_new[0], h * vec.v_new[0], h * h * vec.a_new[0]]
     return A
 
 
