@@ -949,28 +949,41 @@ class HfdiSlave(Fmi2Slave):
         except Exception as exc:
             self._reject(f"fmi2GetString({self._names(vrs)}): {exc!r}")
 
-    def _set(self, setter, function, vrs, values):
-        # every reference is checked before any value is set: a call that
-        # fails must leave the FMU as it was (FMI: fmi2Error changes nothing)
+    def _set(self, setter, function, kind, vrs, values):
+        # every reference and its type are checked before any value is set: a
+        # call that fails must leave the FMU as it was (FMI: fmi2Error changes
+        # nothing)
         try:
+            vrs, values = list(vrs), list(values)
+            if len(vrs) != len(values):
+                raise ValueError(f"{len(vrs)} value references, {len(values)} values")
             unknown = [vr for vr in vrs if vr not in self.vars]
             if unknown:
                 raise KeyError(unknown[0])
+            other = [self.vars[vr] for vr in vrs if not isinstance(self.vars[vr], kind)]
+            if other:
+                raise TypeError(f"{other[0].name} is not of type {kind.__name__} (it is a "
+                                f"{type(other[0]).__name__.strip('_')} variable)")
+            convert = {Real: float, Integer: int, Boolean: bool, String: str}[kind]
+            values = [convert(value) for value in values]
+        except Exception as exc:
+            self._reject(f"{function}({self._names(vrs)}): {exc!r}; no value was set")
+        try:
             setter(vrs, values)
         except Exception as exc:
             self._reject(f"{function}({self._names(vrs)}): {exc!r}")
 
     def set_real(self, vrs, values):
-        self._set(super().set_real, "fmi2SetReal", vrs, values)
+        self._set(super().set_real, "fmi2SetReal", Real, vrs, values)
 
     def set_integer(self, vrs, values):
-        self._set(super().set_integer, "fmi2SetInteger", vrs, values)
+        self._set(super().set_integer, "fmi2SetInteger", Integer, vrs, values)
 
     def set_boolean(self, vrs, values):
-        self._set(super().set_boolean, "fmi2SetBoolean", vrs, values)
+        self._set(super().set_boolean, "fmi2SetBoolean", Boolean, vrs, values)
 
     def set_string(self, vrs, values):
-        self._set(super().set_string, "fmi2SetString", vrs, values)
+        self._set(super().set_string, "fmi2SetString", String, vrs, values)
 
     def time(self) -> float:
         """The FMU's time: that of its integrator's state, the start time before

@@ -1,6 +1,7 @@
 """The FMU in its host: the host's import path and modules left alone,
 nothing run from a cache that was not checked, instances made from several
-threads at once, sizes the native layer checks.
+threads at once, refused calls that change nothing, sizes the native layer
+checks.
 
 Hosts that might crash run in a process of their own, so that a crash fails
 the test, not the run; every such process gets its own ``HFDI_CACHE_DIR``.
@@ -23,6 +24,7 @@ pytest.importorskip("pythonfmu")
 fmpy = pytest.importorskip("fmpy")
 
 from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
 
 from fmu.master import Unit  # noqa: E402
 
@@ -267,6 +269,49 @@ def test_a_python_host_instantiating_from_8_threads_at_once(fmu, tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     results = eval(done.stdout.splitlines()[-1])
     assert results == [expected] * 8, results
+
+
+# -- 5. a refused set changes nothing ---------------------------------------------------
+def test_a_refused_set_changes_nothing(dumbbell_fmu):
+    """``fmi2SetReal([A, scheme])`` (scheme is a String), and after
+    initialization ``fmi2SetReal([F[1], scheme])``: ``fmi2Error`` with one
+    message, and ``A`` and ``F[1]`` keep their values; the same for the
+    other setters."""
+    path, unzip = dumbbell_fmu
+    unit = Unit(path, "refused", unzip_dir=unzip)
+    fmu, vr = unit.fmu, unit.vr
+    try:
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        a = fmu.getReal([vr("A")])
+        calls = [("setReal", [vr("A"), vr("scheme")], [5.0, 1.0]),
+                 ("setReal", [vr("A"), vr("max_internal_steps")], [5.0, 1.0]),
+                 ("setInteger", [vr("max_internal_steps"), vr("A")], [7, 1]),
+                 ("setBoolean", [vr("compiled"), vr("A")], [True, True]),
+                 ("setString", [vr("scheme"), vr("A")], ["newmark", "x"])]
+        before = {name: fmu.getReal([vr(name)]) for name in ("A", "F[1]")}
+        before.update(max_internal_steps=fmu.getInteger([vr("max_internal_steps")]),
+                      compiled=fmu.getBoolean([vr("compiled")]),
+                      scheme=fmu.getString([vr("scheme")]))
+        for setter, refs, values in calls:
+            count = len(unit.messages)
+            with pytest.raises(FMICallException) as info:
+                getattr(fmu, setter)(refs, values)
+            assert info.value.status == 3                       # fmi2Error
+            new = unit.messages[count:]
+            assert len(new) == 1 and "no value was set" in new[0][2], new
+        assert fmu.getReal([vr("A")]) == a
+        assert fmu.getInteger([vr("max_internal_steps")]) == before["max_internal_steps"]
+        assert fmu.getBoolean([vr("compiled")]) == before["compiled"]
+        assert fmu.getString([vr("scheme")]) == before["scheme"]
+        fmu.exitInitializationMode()
+        with pytest.raises(FMICallException):
+            fmu.setReal([vr("F[1]"), vr("scheme")], [7.0, 1.0])
+        assert fmu.getReal([vr("F[1]")]) == before["F[1]"]
+        fmu.doStep(0.0, 0.01)
+        assert fmu.getReal([vr("A")]) == a
+    finally:
+        unit.close()
 
 
 # -- 6. sizes ---------------------------------------------------------------------------
