@@ -1095,7 +1095,8 @@ class HfdiSlave(Fmi2Slave):
         except ValueError as exc:
             self._reject(f"fmi2DeSerializeFMUstate: the serialized state cannot be read: {exc}")
         if set(header) != set(_STATE_HEADER) | {"built"} or \
-                set(arrays) - {"integrator"} != {"inputs", "applied"}:
+                set(arrays) - {"integrator"} != {"inputs", "applied"} or \
+                any(arrays[key].dtype != np.float64 for key in ("inputs", "applied")):
             self._reject("fmi2DeSerializeFMUstate: the serialized state is malformed")
         built = header.pop("built")
         if built is not None:

@@ -1,7 +1,7 @@
 """The FMU in its host: the host's import path and modules left alone,
 nothing run from a cache that was not checked, instances made from several
 threads at once, refused calls that change nothing, sizes the native layer
-checks.
+checks, and the hostile-call fuzz under ASan/UBSan.
 
 Hosts that might crash run in a process of their own, so that a crash fails
 the test, not the run; every such process gets its own ``HFDI_CACHE_DIR``.
@@ -363,3 +363,41 @@ def test_sizes_beyond_every_limit_are_refused_with_a_log_line(fmu, tmp_path):
     bad = [r for r in results if r[1:] != (3, 1)]            # fmi2Error, one message
     assert not bad, bad
     assert len(results) == 3 * 8 + 2
+
+
+# -- the fuzz under ASan/UBSan ------------------------------------------------------------
+@pytest.mark.slow
+def test_fuzz_under_sanitizers(fmu, tmp_path):
+    """``tests/fmu_fuzz.py`` (hostile arguments to every fmi2 function and
+    fuzzed serialized states) against the native layer compiled with
+    AddressSanitizer and UndefinedBehaviorSanitizer: no sanitizer report, no
+    crash, no fmi2Fatal, every refusal logged. docs/robustness.md records a
+    longer run of the same command."""
+    compiler = os.environ.get("CC", "cc")
+    if shutil.which(compiler) is None:
+        pytest.skip(f"no C compiler ({compiler})")
+    runtime = subprocess.run([compiler, "-print-file-name=libasan.so"], capture_output=True,
+                             text=True).stdout.strip()
+    if not os.path.isabs(runtime):
+        pytest.skip(f"{compiler} has no AddressSanitizer runtime (libasan)")
+    unzip = str(extract(str(fmu), unzipdir=str(tmp_path / "x")))
+    md = read_model_description(str(unzip))
+    library = Path(unzip) / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    done = subprocess.run([compiler, "-shared", "-fPIC", "-O1", "-g", "-std=c99", "-pthread",
+                           "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
+                           "-fno-sanitize-recover=all", "-o", str(library),
+                           str(ROOT / "fmu" / "native" / "hfdi_fmi2.c"), f"-I{headers}",
+                           "-ldl", "-lm"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    env = dict(os.environ, LD_PRELOAD=runtime, HFDI_CACHE_DIR=str(tmp_path / "cache"),
+               ASAN_OPTIONS="detect_leaks=0:abort_on_error=1",
+               UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
+    done = subprocess.run([sys.executable, str(ROOT / "tests" / "fmu_fuzz.py"), str(unzip),
+                           "--cases", "3000"], capture_output=True, text=True, timeout=900,
+                          env=env)
+    report = [line for line in done.stderr.splitlines()
+              if "Sanitizer" in line or "runtime error" in line]
+    assert done.returncode == 0 and not report, (done.stdout[-2000:], report,
+                                                 done.stderr[-3000:])
+    assert "no fatal, every refusal logged" in done.stdout
