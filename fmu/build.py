@@ -44,7 +44,7 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
-from hfdi.files import atomic_file
+from hfdi.files import atomic_output
 
 from . import metadata
 from .entry import package_digest
@@ -228,7 +228,7 @@ def _assemble(draft: Path, library: Path, entry: str, config: dict, target: Path
         identifier = root.find("CoSimulation").get("modelIdentifier")
         config = dict(config, guid=root.get("guid"))
         python = f"{_python_library()}\n{sys.base_prefix}\n{entry}\n"
-        with atomic_file(target) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as new:
+        with atomic_output(target) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as new:
             for item in old.infolist():
                 if not item.filename.startswith("binaries/"):
                     new.writestr(item, old.read(item.filename))
