@@ -235,8 +235,8 @@ class Importer:
     def add(self, name, folder, files, module_file=None):
         """Serve ``name`` from ``folder``: a package whose files are ``files``
         (:func:`package_files`), or, with ``module_file``, the module of that
-        file. A name served already must have the same files (another
-        extraction of the same FMU: its folder is used from now on).
+        file. A name served and imported already must have the same files
+        (another extraction of the same FMU: its folder is used from now on).
 
         Raises
         ------
@@ -245,7 +245,8 @@ class Importer:
             process has different code under the same private name.
         """
         known = self._roots.get(name)
-        if known is not None and (known[1], known[2]) != (files, module_file):
+        if known is not None and (known[1], known[2]) != (files, module_file) \
+                and name in sys.modules:
             raise ImportError(f"the module {name} of this FMU is loaded in this process "
                               "already, from another FMU with other files", name=name)
         self._roots[name] = (folder, files, module_file)

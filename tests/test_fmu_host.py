@@ -195,7 +195,10 @@ def test_the_importer_runs_only_the_files_it_was_given(tmp_path, monkeypatch):
         assert sys.path == path
         assert not (package / "__pycache__").exists()
         with pytest.raises(ImportError, match="other files"):
-            importer.add(name, str(package), package_files(package))
+            importer.add(name, str(package), {})
+        other = f"{name}_other"                  # not imported: may be served anew
+        importer.add(other, str(package), {})
+        importer.add(other, str(package), package_files(package))
     finally:
         for key in [k for k in sys.modules if k == name or k.startswith(name + ".")]:
             del sys.modules[key]
