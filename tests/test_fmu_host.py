@@ -17,7 +17,6 @@ import textwrap
 import uuid
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("pythonfmu")
@@ -49,8 +48,9 @@ def isolated(script, cache, timeout=300):
 
 
 def vrs_of(path, names):
-    variables = {v.name: v.valueReference for v in read_model_description(str(path)).modelVariables}
-    return [variables[n] for n in names]
+    variables = read_model_description(str(path)).modelVariables
+    by_name = {v.name: v.valueReference for v in variables}
+    return [by_name[n] for n in names]
 
 
 def reference_values(fmu, unzip):
