@@ -19,7 +19,7 @@ import numpy as np
 
 import hfdi
 from validation import options as opt
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from validation.experiments import SCHEME_ORDER, experiment
 
 __all__ = ["benchmark", "main"]
@@ -178,5 +178,5 @@ def main(argv=None) -> int:
         print(f"  doSteps/s, compiled over Python path: "
               f"{results[1]['do_steps_per_s'] / results[0]['do_steps_per_s']:.2f}x")
     if args.json:
-        write_atomic(args.json, json.dumps(results if args.paths else results[0], indent=1))
+        write_output(args.json, json.dumps(results if args.paths else results[0], indent=1))
     return 0

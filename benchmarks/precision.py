@@ -87,7 +87,7 @@ import hfdi
 
 from hfdi.linalg import normalise_matrix
 from validation import options as opt
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from validation.errors import error_norm
 from validation.experiments import ENERGY_LIMIT, SCHEME_COLOURS, SCHEME_ORDER, experiment, names
 from validation.reference import cached_reference, default_atol, ida_solve
@@ -931,7 +931,7 @@ def plot_problem(result, path) -> Path:
         fig.savefig(buffer, format="png", dpi=120)
     finally:
         plt.close(fig)
-    return write_atomic(path, buffer.getvalue())
+    return write_output(path, buffer.getvalue())
 
 
 def write_outputs(results, out) -> dict:
@@ -941,7 +941,7 @@ def write_outputs(results, out) -> dict:
     tables = []
     for res in results:
         name = res["problem"]
-        written[f"{name}.json"] = write_atomic(out / f"bench_{name}.json",
+        written[f"{name}.json"] = write_output(out / f"bench_{name}.json",
                                                json.dumps(res, indent=1, allow_nan=False))
         written[f"{name}.png"] = plot_problem(res, out / f"bench_{name}.png")
         tables.append(format_problem(res))
@@ -951,7 +951,7 @@ def write_outputs(results, out) -> dict:
             "process per problem, one run after another (see `benchmarks/precision.py`).", ""]
     for table in tables:
         text += ["```", table, "```", ""]
-    written["bench.md"] = write_atomic(out / "bench.md", "\n".join(text))
+    written["bench.md"] = write_output(out / "bench.md", "\n".join(text))
     return written
 
 

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import hfdi
 from validation import options as opt
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from validation.experiments import SCHEME_ORDER, experiment, names
 
 from .floor import floor_us
@@ -329,7 +329,7 @@ def main(argv=None) -> int:
     if args.paths:
         rows = _print_paths(args)
         if args.json:
-            write_atomic(Path(args.json), json.dumps(rows, indent=1))
+            write_output(Path(args.json), json.dumps(rows, indent=1))
         return 0
     rows = []
     print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'ms':>8s} "
@@ -344,7 +344,7 @@ def main(argv=None) -> int:
                   f"{f['model']:5.2f}  {f['linear_algebra']:6.2f}  {f['driver']:6.2f}",
                   flush=True)
     if args.json:
-        write_atomic(Path(args.json), json.dumps(rows, indent=1))
+        write_output(Path(args.json), json.dumps(rows, indent=1))
     return 0
 
 

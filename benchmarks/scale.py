@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from validation.errors import relative_error
 from validation.experiments import experiment
 from hfdi.models.toss_rule import MAX_ELEMENTS
@@ -331,7 +331,7 @@ def plot_scale(records, fits, path):
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=120)
     plt.close(fig)
-    return write_atomic(path, buffer.getvalue())
+    return write_output(path, buffer.getvalue())
 
 
 def _fits(records):
@@ -362,7 +362,7 @@ def _json_value(value):
 
 
 def _write_json(path, data):
-    return write_atomic(path, json.dumps(_json_value(data), indent=1, default=float,
+    return write_output(path, json.dumps(_json_value(data), indent=1, default=float,
                                          allow_nan=False) + "\n")
 
 

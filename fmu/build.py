@@ -22,8 +22,11 @@ The binary is the project's own native layer, not pythonfmu's:
 It resolves the Python C API at run time, so it links no libpython and loads
 in any host; beside it go ``hfdi_fmu_python.txt`` (the Python library, home
 and entry module for hosts without Python), the entry module
-(:mod:`fmu.entry`) and ``hfdi_fmu.json`` (the slave, the GUID and the build
-interpreter's ``sys.path``). The FMU is written to a temporary file and
+(:mod:`fmu.entry`) and ``hfdi_fmu.json`` (the slave's module and class, the
+private names of its core and of the bundled package, the GUID and the build
+interpreter's ``sys.path``, which only a host without Python uses). The
+entry module imports the FMU's modules under these names without touching
+the host's ``sys.path``. The FMU is written to a temporary file and
 renamed over the destination only when complete.
 """
 from __future__ import annotations
@@ -41,10 +44,10 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
-from hfdi.files import atomic_file
+from hfdi.files import atomic_output
 
 from . import metadata
-from .slave import package_digest
+from .entry import package_digest
 
 __all__ = ["BuildError", "problems", "build", "build_all"]
 
@@ -138,6 +141,13 @@ def build(problem: str, out_dir=".") -> Path:
         entry_source = Path(__file__).with_name("entry.py").read_text(encoding="utf-8")
         entry = f"hfdi_fmu_entry_{package_digest(None, entry_source)}"
         (stage / f"{entry}.py").write_text(entry_source, encoding="utf-8")
+        # An FMU of the same sources instantiated in this process holds its
+        # modules under these names, on its own copy of pythonfmu (fmu.entry):
+        # set aside while pythonfmu's builder imports the staged ones
+        private = (alias, f"{core}_pythonfmu")
+        set_aside = {name: sys.modules.pop(name) for name in list(sys.modules)
+                     if name in (module, core)
+                     or any(name == p or name.startswith(p + ".") for p in private)}
         loaded = set(sys.modules)
         try:
             draft = FmuBuilder.build_FMU(script, dest=stage / "draft",
@@ -148,13 +158,16 @@ def build(problem: str, out_dir=".") -> Path:
             raise BuildError(f"{problem}: pythonfmu could not build the FMU: {exc!r}") from None
         finally:
             # pythonfmu leaves the staging directory on sys.path and the staged
-            # modules imported; the FMU must import its own copies when loaded
+            # modules (the slave's and the bundled hfdi) imported; the FMU must
+            # import its own copies when loaded
             while str(stage) in sys.path:
                 sys.path.remove(str(stage))
-            for name in (module, core):
-                if name not in loaded:
-                    sys.modules.pop(name, None)
-        config = {"module": module, "class": cls, "path": _packages_path(stage)}
+            for name in [n for n in sys.modules if n not in loaded and (
+                    n in (module, core) or n == alias or n.startswith(alias + "."))]:
+                sys.modules.pop(name, None)
+            sys.modules.update(set_aside)
+        config = {"module": module, "class": cls, "core": core, "bundle": alias,
+                  "path": _packages_path(stage)}
         return _assemble(Path(draft), library, entry, config, out_dir / Path(draft).name)
 
 
@@ -192,7 +205,7 @@ def compile_native(out_dir: Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     library = out_dir / "hfdi_fmi2.so"
     compiler = os.environ.get("CC", "cc")
-    command = [compiler, "-shared", "-fPIC", "-O2", "-std=c99", "-o", str(library),
+    command = [compiler, "-shared", "-fPIC", "-O2", "-std=c99", "-pthread", "-o", str(library),
                str(source), f"-I{headers}", "-ldl", "-lm"]
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=300)
@@ -215,7 +228,7 @@ def _assemble(draft: Path, library: Path, entry: str, config: dict, target: Path
         identifier = root.find("CoSimulation").get("modelIdentifier")
         config = dict(config, guid=root.get("guid"))
         python = f"{_python_library()}\n{sys.base_prefix}\n{entry}\n"
-        with atomic_file(target) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as new:
+        with atomic_output(target) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as new:
             for item in old.infolist():
                 if not item.filename.startswith("binaries/"):
                     new.writestr(item, old.read(item.filename))

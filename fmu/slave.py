@@ -6,10 +6,12 @@ into the FMU's resources under a build-specific module name and generates a
 small subclass of :class:`HfdiSlave` that names the model, the bundled copy of
 ``hfdi`` and the model's units (see :mod:`fmu.metadata`).
 
-This module must import without ``hfdi`` being installed: it loads the copy of
-``hfdi`` bundled in the FMU's resources under a private, build-specific module
-name, so the FMU runs the code it was built with whatever ``hfdi`` the
-importing process has (see :func:`load_bundle`).
+This module must import without ``hfdi`` being installed: it runs on the copy
+of ``hfdi`` bundled in the FMU's resources under a private, build-specific
+module name, so the FMU runs the code it was built with whatever ``hfdi`` the
+importing process has (see :func:`load_bundle`). In an FMU, the entry module
+(:mod:`fmu.entry`) imports the bundle, this module and pythonfmu's copy in the
+resources under private names, without touching the host's ``sys.path``.
 
 Variables (DOF numbers are 1-based, the convention of the Modelica-based tools
 that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
@@ -52,23 +54,27 @@ that no call runs unbounded.
 """
 from __future__ import annotations
 
-import hashlib
+import importlib
 import importlib.util
 import math
 import numbers
 import os
 import re
-import shutil
 import sys
-import tempfile
-import time
-from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement
 
 import numpy as np
-from pythonfmu import (Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave,
-                       Fmi2Variability, Integer, Real, String)
-from pythonfmu.enums import Fmi2Status
+
+# pythonfmu: in an FMU, the copy in its resources, which the entry module
+# (fmu/entry.py) imports as "<this module's name>_pythonfmu" before this
+# module, so that a pythonfmu of the host is neither used nor replaced; where
+# this module is imported by name (building an FMU), the installed one.
+_pythonfmu = sys.modules.get(__name__ + "_pythonfmu") or importlib.import_module("pythonfmu")
+Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, \
+    Real, String = (getattr(_pythonfmu, name) for name in (
+        "Boolean", "DefaultExperiment", "Fmi2Causality", "Fmi2Initial", "Fmi2Slave",
+        "Fmi2Variability", "Integer", "Real", "String"))
+Fmi2Status = importlib.import_module(_pythonfmu.__name__ + ".enums").Fmi2Status
 
 __all__ = ["HfdiSlave", "FmuError", "load_bundle"]
 
@@ -125,104 +131,18 @@ def _like(what, saved, mine):
     return {key: type(mine[key])(value) for key, value in saved.items()}
 
 
-def package_digest(package, *texts: str) -> str:
-    """12 hex digits of SHA-256 over ``texts`` and the files of the directory
-    ``package`` (relative path and content, in order of path); ``__pycache__``
-    folders are left out. The bundled package's module name carries it
-    (:mod:`fmu.build`), so a copy of the package can be checked against it."""
-    h = hashlib.sha256()
-    for text in texts:
-        h.update(text.encode("utf-8") + b"\0")
-    if package is not None:
-        root = Path(package)
-        for path in sorted(p for p in root.rglob("*")
-                           if p.is_file() and "__pycache__" not in p.relative_to(root).parts):
-            h.update(path.relative_to(root).as_posix().encode("utf-8") + b"\0")
-            h.update(path.read_bytes() + b"\0")
-    return h.hexdigest()[:12]
-
-
-def lasting_copy(alias: str, bundled: str) -> str:
-    """The folder of a lasting copy of the bundled package ``bundled``, made if
-    needed; ``bundled`` itself where no copy can be kept.
-
-    fmpy and other masters extract an FMU into a new folder each time, and
-    numba keys its cache on the path of the source: without a copy that stays,
-    the compiled path would compile the bundled kernels again (about half a
-    minute) at every extraction. The copy lies in ``$HFDI_CACHE_DIR/fmu/``
-    (default ``~/.cache/hfdi/fmu/``) under the bundle's module name, which
-    carries the digest of the package's files; a copy whose files do not give
-    that digest (changed, or half written) is made again, and it is put in
-    place by renaming a finished copy, so that concurrent instances never see
-    a partial one. The copy is code run by this FMU: it is checked against
-    the digest before every use, and so is the bundle, which is used as it is
-    when it does not match (a damaged FMU fails as it would without a copy).
-    """
-    digest = alias.rsplit("_", 1)[-1]
-    root = os.environ.get("HFDI_CACHE_DIR") or os.path.join(os.path.expanduser("~"),
-                                                           ".cache", "hfdi")
-    if not os.path.isabs(root):        # no home folder found: nowhere to keep a copy
-        return bundled
-    home = os.path.join(root, "fmu", alias)
-    target = os.path.join(home, "hfdi")
-    try:
-        if package_digest(bundled) != digest:
-            return bundled      # a damaged or foreign bundle: never copied, nor replaced
-        if os.path.isdir(target) and package_digest(target) == digest:
-            os.utime(home)                      # in use: kept by _forget_unused
-            return target
-        _forget_unused(os.path.join(root, "fmu"))
-        os.makedirs(home, exist_ok=True)
-        staging = tempfile.mkdtemp(prefix=".staging-", dir=home)
-        try:
-            shutil.copytree(bundled, os.path.join(staging, "hfdi"),
-                            ignore=shutil.ignore_patterns("__pycache__"))
-            if os.path.isdir(target):           # a changed copy: set aside, then removed
-                stale = tempfile.mkdtemp(prefix=".stale-", dir=home)
-                os.replace(target, os.path.join(stale, "hfdi"))
-                shutil.rmtree(stale, ignore_errors=True)
-            try:
-                os.replace(os.path.join(staging, "hfdi"), target)
-            except OSError:                     # another instance put its copy first
-                pass
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
-        return target if package_digest(target) == digest else bundled
-    except OSError:
-        return bundled
-
-
-#: A lasting copy not used for this long is removed when another is made.
-UNUSED_COPY_DAYS = 30
-
-
-def _forget_unused(folder):
-    """Remove the lasting copies in ``folder`` unused for :data:`UNUSED_COPY_DAYS`
-    (one is made per build of an FMU that runs here; they would pile up)."""
-    limit = time.time() - UNUSED_COPY_DAYS * 86400.0
-    try:
-        entries = list(os.scandir(folder))
-    except OSError:
-        return
-    for entry in entries:
-        try:
-            if entry.is_dir() and entry.name.startswith("_hfdi_fmu_") and \
-                    entry.stat().st_mtime < limit:
-                shutil.rmtree(entry.path, ignore_errors=True)
-        except OSError:
-            pass
-
-
 def load_bundle(alias: str, resources):
-    """Import the ``hfdi`` package bundled in ``resources`` as module ``alias``
-    (from its lasting copy, :func:`lasting_copy`, where one can be kept).
+    """The ``hfdi`` package bundled in ``resources``, imported as module ``alias``.
+
+    In an FMU the entry module (:mod:`fmu.entry`) has imported it already,
+    checked, from its lasting copy where one can be kept; this returns that
+    module. Elsewhere, when pythonfmu's builder makes a slave to write the
+    model description, the package is imported from ``resources`` (the
+    build's staging folder) as it is.
 
     The bundled package uses relative imports only, so it can live under any
     name; a build-specific name keeps it apart from an ``hfdi`` the host
-    process may have imported and from the copies inside other FMUs. Loaded
-    once per process; a later instance whose resources lie elsewhere (another
-    extraction of the same FMU) re-points the packages' search paths there, so
-    that the classes, and the FMU states that refer to them, stay the same.
+    process may have imported and from the copies inside other FMUs.
 
     Parameters
     ----------
@@ -235,17 +155,10 @@ def load_bundle(alias: str, resources):
     -------
     module
     """
-    package_dir = lasting_copy(alias, os.path.join(str(resources), "hfdi"))
     module = sys.modules.get(alias)
     if module is not None:
-        if not all(os.path.isdir(p) for p in getattr(module, "__path__", [])) \
-                and os.path.isdir(package_dir):
-            prefix = alias + "."
-            for name, sub in list(sys.modules.items()):
-                if (name == alias or name.startswith(prefix)) and hasattr(sub, "__path__"):
-                    rel = name[len(alias):].lstrip(".").replace(".", os.sep)
-                    sub.__path__ = [os.path.join(package_dir, rel) if rel else package_dir]
         return module
+    package_dir = os.path.join(str(resources), "hfdi")
     init = os.path.join(package_dir, "__init__.py")
     if not os.path.isfile(init):
         raise ImportError(f"the FMU's resources hold no hfdi package ({package_dir})")
@@ -1036,28 +949,41 @@ class HfdiSlave(Fmi2Slave):
         except Exception as exc:
             self._reject(f"fmi2GetString({self._names(vrs)}): {exc!r}")
 
-    def _set(self, setter, function, vrs, values):
-        # every reference is checked before any value is set: a call that
-        # fails must leave the FMU as it was (FMI: fmi2Error changes nothing)
+    def _set(self, setter, function, kind, vrs, values):
+        # every reference and its type are checked before any value is set: a
+        # call that fails must leave the FMU as it was (FMI: fmi2Error changes
+        # nothing)
         try:
+            vrs, values = list(vrs), list(values)
+            if len(vrs) != len(values):
+                raise ValueError(f"{len(vrs)} value references, {len(values)} values")
             unknown = [vr for vr in vrs if vr not in self.vars]
             if unknown:
                 raise KeyError(unknown[0])
+            other = [self.vars[vr] for vr in vrs if not isinstance(self.vars[vr], kind)]
+            if other:
+                raise TypeError(f"{other[0].name} is not of type {kind.__name__} (it is a "
+                                f"{type(other[0]).__name__.strip('_')} variable)")
+            convert = {Real: float, Integer: int, Boolean: bool, String: str}[kind]
+            values = [convert(value) for value in values]
+        except Exception as exc:
+            self._reject(f"{function}({self._names(vrs)}): {exc!r}; no value was set")
+        try:
             setter(vrs, values)
         except Exception as exc:
             self._reject(f"{function}({self._names(vrs)}): {exc!r}")
 
     def set_real(self, vrs, values):
-        self._set(super().set_real, "fmi2SetReal", vrs, values)
+        self._set(super().set_real, "fmi2SetReal", Real, vrs, values)
 
     def set_integer(self, vrs, values):
-        self._set(super().set_integer, "fmi2SetInteger", vrs, values)
+        self._set(super().set_integer, "fmi2SetInteger", Integer, vrs, values)
 
     def set_boolean(self, vrs, values):
-        self._set(super().set_boolean, "fmi2SetBoolean", vrs, values)
+        self._set(super().set_boolean, "fmi2SetBoolean", Boolean, vrs, values)
 
     def set_string(self, vrs, values):
-        self._set(super().set_string, "fmi2SetString", vrs, values)
+        self._set(super().set_string, "fmi2SetString", String, vrs, values)
 
     def time(self) -> float:
         """The FMU's time: that of its integrator's state, the start time before
@@ -1169,7 +1095,8 @@ class HfdiSlave(Fmi2Slave):
         except ValueError as exc:
             self._reject(f"fmi2DeSerializeFMUstate: the serialized state cannot be read: {exc}")
         if set(header) != set(_STATE_HEADER) | {"built"} or \
-                set(arrays) - {"integrator"} != {"inputs", "applied"}:
+                set(arrays) - {"integrator"} != {"inputs", "applied"} or \
+                any(arrays[key].dtype != np.float64 for key in ("inputs", "applied")):
             self._reject("fmi2DeSerializeFMUstate: the serialized state is malformed")
         built = header.pop("built")
         if built is not None:

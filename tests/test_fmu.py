@@ -608,7 +608,7 @@ def test_demo_command_matches_in_process(tmp_path, capsys):
 
 # -- the lasting copy of the bundled package ------------------------------------------
 def _bundle(tmp_path):
-    from fmu.slave import package_digest
+    from fmu.entry import package_digest
     bundled = tmp_path / "resources" / "hfdi"
     (bundled / "sub").mkdir(parents=True)
     (bundled / "__init__.py").write_text("X = 1\n")
@@ -622,7 +622,7 @@ def test_the_bundle_has_a_lasting_copy_checked_before_every_use(tmp_path, monkey
     name is made again, and without a copy the bundle itself is used."""
     from pathlib import Path
 
-    from fmu.slave import lasting_copy
+    from fmu.entry import lasting_copy
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
     bundled, alias = _bundle(tmp_path)
     copy = lasting_copy(alias, str(bundled))
@@ -661,7 +661,7 @@ def test_copies_unused_for_a_month_are_removed_when_another_is_made(tmp_path, mo
     import os
     import time
 
-    from fmu.slave import UNUSED_COPY_DAYS, lasting_copy
+    from fmu.entry import UNUSED_COPY_DAYS, lasting_copy
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
     folder = tmp_path / "cache" / "fmu"
     old, recent = folder / "_hfdi_fmu_000000000000", folder / "_hfdi_fmu_111111111111"

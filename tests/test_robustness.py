@@ -96,6 +96,14 @@ class WithInitial(hfdi.SecondOrderSystem):
 # -- bad input ------------------------------------------------------------------------------
 # (id, where, what is wrong, call, exception, fragments of the message). The fragments
 # are plain text that must all appear: the parameter, the value, what is allowed.
+def _energy_model(energy):
+    """An EnergyModel of one DOF ``x`` whose energy is ``energy(x, sympy)``."""
+    import sympy
+    from hfdi.models.symbolic import EnergyModel
+    x = sympy.Symbol("x")
+    return EnergyModel([x], energy(x, sympy), mass=[1.0], initial_displacement=[1.0])
+
+
 INPUT_CASES = [
     # integrate / Integrator arguments
     ("u0-shape", "integrate", "u0 of the wrong shape",
@@ -399,6 +407,9 @@ INPUT_CASES = [
     ("V-complex", "Integrator", "potential_energy returns a complex number",
      lambda: hfdi.Integrator(duffing(potential_energy=lambda u: 1.0 + 2j), "newmark", step=0.1),
      hfdi.ModelError, ["potential_energy returned complex values"]),
+    ("energy-complex", "EnergyModel", "an energy with an imaginary part, x**2/2 + I*x",
+     lambda: _energy_model(lambda x, sympy: x ** 2 / 2 + sympy.I * x), ValueError,
+     ["energy must be real", "the complex number I", "x**2/2 + I*x"]),
     ("u0-complex", "integrate", "u0 complex",
      lambda: run(DUFFING, u0=[1.0 + 1j, 0.0]), ValueError, ["u0 must be real", "(1+1j)"]),
     ("System-mass-complex", "System", "mass complex",

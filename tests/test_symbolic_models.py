@@ -514,3 +514,32 @@ def test_a_load_whose_rate_sympy_cannot_derive_is_refused_by_name():
     t = sympy.Symbol("t", real=True)
     model = EnergyModel([x], x ** 2 / 2, [1.0], time=t, load=[sympy.Abs(sympy.sin(2 * t))])
     assert model.load_rate(0.3)[0] == pytest.approx(2 * math.cos(0.6))
+
+
+@pytest.mark.parametrize("where, make, named", [
+    ("energy", lambda x, t: dict(energy=x ** 2 / 2 + sympy.I * x), "energy"),
+    ("energy", lambda x, t: dict(energy=x ** 2 / 2 + sympy.sqrt(-2) * x), "energy"),
+    ("energy", lambda x, t: dict(energy=x ** 2 / 2 + sympy.log(-2) * x), "energy"),
+    ("load", lambda x, t: dict(energy=x ** 2 / 2, load=[sympy.I * t], time=t), "load"),
+    ("quantity", lambda x, t: dict(energy=x ** 2 / 2, quantities={"z": sympy.I * x}),
+     "quantity 'z'"),
+])
+def test_complex_expressions_are_refused(where, make, named):
+    """An energy (a load, a quantity) with an imaginary part ran with the
+    imaginary part dropped; it is refused like the other complex inputs,
+    naming what is complex and where."""
+    x, t = sympy.symbols("x t")
+    kwargs = make(x, t)
+    energy = kwargs.pop("energy")
+    with pytest.raises(ValueError) as info:
+        EnergyModel([x], energy, mass=[1.0], initial_displacement=[1.0], **kwargs)
+    message = str(info.value)
+    assert message.startswith(f"{named} must be real, got the complex number "), message
+
+
+def test_real_expressions_with_complex_looking_parts_are_taken():
+    """exp(I*pi) is -1, Abs(I*x) is |x|: real numbers, taken."""
+    x = sympy.Symbol("x", real=True)
+    model = EnergyModel([x], sympy.exp(sympy.I * sympy.pi) * -x ** 2 / 2
+                        + sympy.Abs(sympy.I * x), mass=[1.0])
+    assert model.potential_energy([2.0]) == pytest.approx(4.0)

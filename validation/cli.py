@@ -9,7 +9,7 @@ from pathlib import Path
 import hfdi
 
 from . import options as opt
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from .experiments import SCHEME_ORDER, experiment, names
 from .options import UsageError, check_problem, check_runs, out_dir
 from .reference import IDAError
@@ -120,7 +120,7 @@ def _table(args):
         records += tables[problem]
     if args.json:
         # atomic: a full disk or a kill leaves the previous file, not half of one
-        write_atomic(args.json, json.dumps([r.as_dict() for r in records], indent=1).encode())
+        write_output(args.json, json.dumps([r.as_dict() for r in records], indent=1).encode())
     if args.csv:
         records_to_csv(records, args.csv)
 
@@ -146,7 +146,7 @@ def _run_progress(label):
     return progress
 
 
-#: The temporary files of ``write_atomic`` (``.<name>.<random>.tmp``).
+#: The temporary files of ``write_output`` (``.<name>.<random>.tmp``).
 _STALE_TEMP = re.compile(r"\..+\.[A-Za-z0-9_]{8}\.tmp")
 
 

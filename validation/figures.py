@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 
 
-from hfdi.files import write_atomic  # noqa: E402
+from hfdi.files import write_output  # noqa: E402
 from .experiments import (EXPERIMENTS, FIGURE_SUBJECTS, SCHEME_COLOURS,  # noqa: E402
                           SCHEME_ORDER, Quantity)
 from .runs import ProblemRuns, run_label, scheme_title  # noqa: E402
@@ -62,7 +62,7 @@ def figure_png(fig) -> bytes:
 
 def save_figure(fig, path) -> Path:
     """Render ``fig`` as PNG into ``path`` atomically and close it."""
-    return write_atomic(path, figure_png(fig))
+    return write_output(path, figure_png(fig))
 
 
 # -- labels -------------------------------------------------------------------------
@@ -578,7 +578,7 @@ def write_figures(ctx: ProblemRuns, out, skip_existing=False, exists=None, write
     out = Path(out)
     if write is None:
         out.mkdir(parents=True, exist_ok=True)
-        write = write_atomic
+        write = write_output
     exists = exists or Path.exists
     done = []
     for spec in figure_specs(ctx):

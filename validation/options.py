@@ -229,13 +229,34 @@ def job_count(text) -> int:
 
 
 def output_file(text) -> str:
-    """A file the command will write at the end: checked now, not after the runs."""
+    """A file the command will write at the end: checked now, not after the runs.
+
+    A symbolic link is checked as the file it points to (the output is
+    written there, hfdi.files.write_output); a FIFO or a character device
+    (``/dev/null``) is written to as it is and must be writable; a socket or
+    a block device is refused."""
+    import stat
     if not text.strip():
         raise argparse.ArgumentTypeError("must be a file name, got ''")
     path = Path(text).expanduser()
-    parent = path.parent
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a directory")
+    try:
+        mode = path.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        mode = None                         # a new file (the folder is checked below)
+    except OSError as exc:                  # a loop of links, a folder without access
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be written: "
+                                         f"{exc.strerror or exc}") from None
+    if mode is not None and (stat.S_ISFIFO(mode) or stat.S_ISCHR(mode)):
+        if not os.access(path, os.W_OK):
+            raise argparse.ArgumentTypeError(f"{text!r} is not writable")
+        return str(path)
+    if mode is not None and not stat.S_ISREG(mode):
+        kind = "a socket" if stat.S_ISSOCK(mode) else \
+            "a block device" if stat.S_ISBLK(mode) else "not a regular file"
+        raise argparse.ArgumentTypeError(f"{text!r} is {kind}, not a file to write to")
+    parent = (Path(os.path.realpath(path)) if path.is_symlink() else path).parent
     if not parent.is_dir():
         raise argparse.ArgumentTypeError(f"{str(parent)!r} " + ("is not a directory"
                                          if parent.exists() else "does not exist"))

@@ -41,7 +41,7 @@ import numpy as np
 import hfdi
 
 from .errors import error_norms
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from .experiments import EXPERIMENTS, SCHEME_ORDER, experiment, names
 from .figures import figure_specs, write_figures
 from .reference import IDAError
@@ -547,13 +547,13 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
                 [float(t) for t in targets], "t_end": t_end, "long_t_end": long_t_end,
                 "ratios": [float(r) for r in ratios]}
     saved = _check_settings(out, settings, force)
-    write_atomic(out / SETTINGS_FILE, json.dumps(
+    write_output(out / SETTINGS_FILE, json.dumps(
         {"settings": settings, "report_problems": saved.get("report_problems")}, indent=1))
     skip = not force
     (out / FIGURE_DIR).mkdir(exist_ok=True)
 
     def write(name, data):
-        write_atomic(out / name, data)
+        write_output(out / name, data)
 
     ratios = list(ratios)
     if runner is None or not runner.parallel:
@@ -592,9 +592,9 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
         progress.say(f"report {report}: exists, skipped")
     else:
         report_settings = {k: v for k, v in settings.items() if k != "ratios"}
-        write_atomic(report, build_report(out, problems, report_settings, rows,
+        write_output(report, build_report(out, problems, report_settings, rows,
                                           elapsed=time.perf_counter() - start))
-        write_atomic(out / SETTINGS_FILE, json.dumps(
+        write_output(out / SETTINGS_FILE, json.dumps(
             {"settings": settings, "report_problems": problems}, indent=1))
         progress.say(f"report {report}")
     return report

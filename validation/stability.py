@@ -12,7 +12,7 @@ import numpy as np
 
 from hfdi.spectral import spectral_properties
 
-from hfdi.files import write_atomic
+from hfdi.files import write_output
 from .experiments import SCHEME_COLOURS, SCHEME_ORDER
 from .figures import figure_png, plt
 from .runs import Progress, scheme_title
@@ -160,7 +160,7 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
     out = Path(out)
     if write is None:
         out.mkdir(parents=True, exist_ok=True)
-        write = write_atomic
+        write = write_output
     exists = exists or Path.exists
     figures, written = {}, []
     for key, make in (("radius", spectral_radius_figure), ("accuracy", accuracy_figure)):

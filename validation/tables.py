@@ -63,14 +63,20 @@ def format_table(records: list) -> str:
 
 
 def records_to_csv(records: list, path) -> None:
-    """Write the runs as CSV, one row per run and one ``eps_<name>`` column per quantity."""
+    """Write the runs as CSV (UTF-8), one row per run and one ``eps_<name>``
+    column per quantity; atomically (:func:`hfdi.files.write_output`), so a
+    failing write leaves the previous file as it was."""
     import csv
+    import io
+
+    from hfdi.files import write_output
     names = sorted({n for r in records for n in r.eps})
     fields = ["problem", "scheme", "target", "rtol", "steps", "mean_iterations", "mean_step",
               "cpu_time", "status", "t_reached"]
-    with open(path, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(fields + [f"eps_{n}" for n in names] + ["message"])
-        for r in records:
-            writer.writerow([getattr(r, f) for f in fields]
-                            + [r.eps.get(n, "") for n in names] + [r.message])
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(fields + [f"eps_{n}" for n in names] + ["message"])
+    for r in records:
+        writer.writerow([getattr(r, f) for f in fields]
+                        + [r.eps.get(n, "") for n in names] + [r.message])
+    write_output(path, text.getvalue())

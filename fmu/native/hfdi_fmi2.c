@@ -6,15 +6,20 @@
  * The API is resolved at run time (dlsym), never linked: in a Python host
  * (fmpy, a Python master) the interpreter already in the process is used;
  * in any other host the library named in resources/hfdi_fmu_python.txt is
- * loaded and initialized once. Nothing here raises or aborts: every failure
- * becomes a status and one log message.
+ * loaded and initialized once, under a lock (the first fmi2Instantiate may
+ * come from several threads at once). The FMU's Python modules are imported
+ * under private names without touching the host's sys.path (fmu/entry.py).
+ * Nothing here raises or aborts: every failure becomes a status and one log
+ * message, and no Python exception is left pending when a call returns.
+ * Sizes given by the master are checked before an array is read or a Python
+ * object of that size is made.
  *
  * Statuses, as FMI 2.0 defines them:
  *   fmi2Error    a refused call (bad argument, value reference, state, an
  *                exception of the slave); the instance is as before the call;
  *   fmi2Discard  a step not taken (doStep returned false), or a status not
  *                provided;
- *   fmi2Fatal    only when the interpreter itself cannot be used.
+ *   fmi2Fatal    never (it would declare every instance corrupt).
  * fmi2Instantiate returns NULL after one log message when the FMU cannot be
  * loaded (damaged resources, wrong GUID, no Python).
  *
@@ -24,6 +29,7 @@
 #define _GNU_SOURCE
 #include <dlfcn.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -64,12 +70,9 @@ typedef int PyGILState;
     API(int, PyList_SetItem, (PyObject*, Py_ssize_t_, PyObject*))                  \
     API(PyObject*, PyList_GetItem, (PyObject*, Py_ssize_t_))                       \
     API(Py_ssize_t_, PyList_Size, (PyObject*))                                     \
-    API(int, PyList_Insert, (PyObject*, Py_ssize_t_, PyObject*))                   \
-    API(PyObject*, PySys_GetObject, (const char*))                                 \
     API(PyObject*, PyUnicode_DecodeFSDefault, (const char*))                       \
     API(PyObject*, PyUnicode_DecodeUTF8, (const char*, Py_ssize_t_, const char*))  \
     API(const char*, PyUnicode_AsUTF8AndSize, (PyObject*, Py_ssize_t_*))           \
-    API(int, PySequence_Contains, (PyObject*, PyObject*))                          \
     API(PyObject*, PyLong_FromLong, (long))                                        \
     API(PyObject*, PyLong_FromUnsignedLong, (unsigned long))                       \
     API(long, PyLong_AsLong, (PyObject*))                                          \
@@ -80,14 +83,19 @@ typedef int PyGILState;
     API(int, PyBytes_AsStringAndSize, (PyObject*, char**, Py_ssize_t_*))           \
     API(PyObject*, PyErr_Occurred, (void))                                         \
     API(void, PyErr_Fetch, (PyObject**, PyObject**, PyObject**))                   \
-    API(void, PyErr_Clear, (void))
+    API(void, PyErr_Clear, (void))                                                 \
+    API(PyObject*, PyDict_New, (void))                                             \
+    API(PyObject*, PyDict_GetItemString, (PyObject*, const char*))
 API_LIST
 #undef API
 
 static PyObject* py_none;      /* None */
 static int api_ready = 0;       /* the table is filled and Python initialized */
 static int api_started = 0;     /* and this library started the interpreter */
-static char api_problem[8400];   /* why not, when it is not */
+static char api_problem[8400];   /* why not, when it is not (under api_lock) */
+/* Held while the API is resolved and Python started: the first
+ * fmi2Instantiate of a process may come from several threads at once. */
+static pthread_mutex_t api_lock = PTHREAD_MUTEX_INITIALIZER;
 
 static int resolve(void* handle)
 {
@@ -125,10 +133,11 @@ static int read_line(FILE* f, char* out, size_t size)
 
 /* resources/hfdi_fmu_python.txt: the Python library (empty when the build's
  * Python has none, a static one), its home, the entry module; 0 with the
- * reason in api_problem when the file is missing or malformed. */
+ * reason in `problem` when the file is missing or malformed. */
 typedef struct { char library[4096], home[4096], entry[256]; } Description;
 
-static int read_description(const char* resources, Description* d)
+static int read_description(const char* resources, Description* d, char* problem,
+                            size_t size)
 {
     char path[4200];
     snprintf(path, sizeof path, "%s/hfdi_fmu_python.txt", resources);
@@ -137,14 +146,15 @@ static int read_description(const char* resources, Description* d)
              && read_line(f, d->home, sizeof d->home) && read_line(f, d->entry, sizeof d->entry)
              && d->entry[0];
     if (f) fclose(f);
-    if (!ok) snprintf(api_problem, sizeof api_problem, "the FMU's resources are damaged: %s is "
-                      "missing or malformed", path);
+    if (!ok) snprintf(problem, size, "the FMU's resources are damaged: %s is missing or "
+                      "malformed", path);
     return ok;
 }
 
 /* Make the C API usable: the host's interpreter if it has one, else the
- * library the FMU was built with (its path and home in resources). */
-static int python_ready(const char* resources)
+ * library the FMU was built with (its path and home in resources). With
+ * api_lock held. */
+static int start_python(const char* resources)
 {
     if (api_ready) return 1;
     void* self = dlopen(NULL, RTLD_LAZY);
@@ -155,7 +165,7 @@ static int python_ready(const char* resources)
         return 1;
     }
     Description d;
-    if (!read_description(resources, &d)) return 0;
+    if (!read_description(resources, &d, api_problem, sizeof api_problem)) return 0;
     if (!d.library[0]) {
         snprintf(api_problem, sizeof api_problem, "no Python in the host, and the FMU was built "
                  "with a Python that has no shared library to load");
@@ -188,6 +198,17 @@ static int python_ready(const char* resources)
     }
     api_ready = 1;
     return 1;
+}
+
+/* start_python once per process, whatever the number of threads calling it
+ * at once; 0 with the reason in `problem` when Python cannot be used. */
+static int python_ready(const char* resources, char* problem, size_t size)
+{
+    pthread_mutex_lock(&api_lock);
+    int ok = api_ready || start_python(resources);
+    if (!ok) snprintf(problem, size, "%s", api_problem);
+    pthread_mutex_unlock(&api_lock);
+    return ok;
 }
 
 /* ---------------------------------------------------------------------------
@@ -307,6 +328,31 @@ static fmi2Status report_exception(Instance* inst, const char* function)
     return fmi2Error;
 }
 
+/* A new tuple of the `n` new references `items` (stolen, also on failure);
+ * NULL with an exception set when an item is NULL (it could not be made) or
+ * the tuple cannot be made. */
+static PyObject* pack(int n, PyObject** items)
+{
+    int complete = 1;
+    for (int i = 0; i < n; i++) complete = complete && items[i];
+    PyObject* tuple = complete ? p_PyTuple_New(n) : NULL;
+    for (int i = 0; i < n; i++) {
+        if (tuple) p_PyTuple_SetItem(tuple, i, items[i]);
+        else if (items[i]) p_Py_DecRef(items[i]);
+    }
+    return tuple;
+}
+
+/* Release the GIL taken for `function`, leaving no exception behind: one
+ * still pending makes the call's status fmi2Error, with its log message. */
+static fmi2Status release(Instance* inst, PyGILState gil, const char* function,
+                          fmi2Status status)
+{
+    if (p_PyErr_Occurred()) status = report_exception(inst, function);
+    p_PyGILState_Release(gil);
+    return status;
+}
+
 /* Pass on the slave's queued log messages (Adapter.take_log). */
 static void drain_log(Instance* inst)
 {
@@ -319,6 +365,7 @@ static void drain_log(Instance* inst)
         return;
     }
     Py_ssize_t_ n = p_PyList_Size(items);
+    if (n < 0) p_PyErr_Clear();
     for (Py_ssize_t_ i = 0; i < n; i++) {
         PyObject* item = p_PyList_GetItem(items, i);
         long status = p_PyLong_AsLong(p_PyTuple_GetItem(item, 0));
@@ -462,10 +509,10 @@ static fmi2Status simple(fmi2Component c, const char* method, PyObject* (*make_a
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     PyObject* args = make_args ? make_args(data) : NULL;
+    if (make_args && !args) return release(inst, gil, method, fmi2Error);
     PyObject* result = invoke(inst, method, args, &status);
     if (result) p_Py_DecRef(result);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, method, status);
 }
 
 /* ---------------------------------------------------------------------------
@@ -517,6 +564,67 @@ static void free_instance(Instance* inst)
     free(inst);
 }
 
+/* The entry module (resources/<name>.py) is run as module <name> once per
+ * process, by this function of Python, after a check that its bytes give
+ * the digest its name ends with. Not imported through sys.path: the host's
+ * import path stays as it is, and the entry imports the FMU's other modules
+ * under private names (fmu/entry.py). Two threads may run the file at once;
+ * sys.modules keeps the first module finished, which every instance uses. */
+static const char ENTRY_LOADER[] =
+    "def load(name, path):\n"
+    "    import hashlib, sys, types\n"
+    "    module = sys.modules.get(name)\n"
+    "    if module is not None:\n"
+    "        return module\n"
+    "    with open(path, 'rb') as f:\n"
+    "        source = f.read()\n"
+    "    if hashlib.sha256(source + bytes(1)).hexdigest()[:12] != name.rpartition('_')[2]:\n"
+    "        raise ImportError(f\"the FMU's resources are damaged: {path} is not the file \"\n"
+    "                          \"its name says\")\n"
+    "    module = types.ModuleType(name)\n"
+    "    module.__file__ = path\n"
+    "    exec(compile(source, path, 'exec', dont_inherit=True), module.__dict__)\n"
+    "    return sys.modules.setdefault(name, module)\n";
+static PyObject* entry_loader = NULL;   /* load, made once (with the GIL held) */
+
+/* The entry module (a new reference), or NULL with an exception set. With the GIL held. */
+static PyObject* load_entry(const char* resources, const char* name)
+{
+    if (!entry_loader) {
+        PyObject* builtins = p_PyImport_ImportModule("builtins");
+        PyObject* run = builtins ? p_PyObject_GetAttrString(builtins, "exec") : NULL;
+        PyObject* globals = p_PyDict_New();
+        if (globals) p_Py_IncRef(globals);
+        PyObject* items[2] = {p_PyUnicode_DecodeUTF8(ENTRY_LOADER,
+                                                     (Py_ssize_t_)strlen(ENTRY_LOADER), "strict"),
+                              globals};
+        PyObject* args = pack(2, items);
+        PyObject* done = run && args ? p_PyObject_CallObject(run, args) : NULL;
+        PyObject* load = done ? p_PyDict_GetItemString(globals, "load") : NULL;   /* borrowed */
+        if (load && !entry_loader) {     /* another thread may have made it meanwhile */
+            p_Py_IncRef(load);
+            entry_loader = load;
+        }
+        if (done) p_Py_DecRef(done);
+        if (args) p_Py_DecRef(args);
+        if (globals) p_Py_DecRef(globals);
+        if (run) p_Py_DecRef(run);
+        if (builtins) p_Py_DecRef(builtins);
+        if (!entry_loader) return NULL;
+    }
+    size_t n = strlen(resources) + strlen(name) + 5;
+    char* path = (char*)malloc(n);
+    if (!path) return NULL;
+    snprintf(path, n, "%s/%s.py", resources, name);
+    PyObject* items[2] = {p_PyUnicode_DecodeUTF8(name, (Py_ssize_t_)strlen(name), "strict"),
+                          p_PyUnicode_DecodeFSDefault(path)};
+    free(path);
+    PyObject* args = pack(2, items);
+    PyObject* module = args ? p_PyObject_CallObject(entry_loader, args) : NULL;
+    if (args) p_Py_DecRef(args);
+    return module;
+}
+
 FMI2_Export const char* fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 FMI2_Export const char* fmi2GetVersion(void) { return fmi2Version; }
 
@@ -547,39 +655,28 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
         free_instance(inst);
         return NULL;
     }
-    if (!python_ready(resources)) {
-        logf_(inst, fmi2Error, "fmi2Instantiate: %s", api_problem);
+    char problem[8400];
+    Description d;
+    if (!python_ready(resources, problem, sizeof problem)
+        || !read_description(resources, &d, problem, sizeof problem)) {
+        logf_(inst, fmi2Error, "fmi2Instantiate: %s", problem);
         free(resources);
         free_instance(inst);
         return NULL;
     }
     PyGILState gil = p_PyGILState_Ensure();
-    PyObject *path = NULL, *entry = NULL, *make = NULL, *args = NULL, *folder = NULL;
-    folder = p_PyUnicode_DecodeFSDefault(resources);
-    path = p_PySys_GetObject("path");            /* borrowed */
-    int failed = !folder || !path;
-    if (!failed && p_PySequence_Contains(path, folder) != 1) {
-        p_PyErr_Clear();
-        failed = p_PyList_Insert(path, 0, folder) != 0;
-    }
-    Description d;
-    if (!failed && !read_description(resources, &d)) {
-        logf_(inst, fmi2Error, "fmi2Instantiate: %s", api_problem);
-        goto done;
-    }
-    const char* entry_name = d.entry;
-    if (!failed) entry = p_PyImport_ImportModule(entry_name);
-    if (!failed && entry) make = p_PyObject_GetAttrString(entry, "instantiate");
-    if (!failed && make) {
-        args = p_PyTuple_New(6);
-        p_PyTuple_SetItem(args, 0, folder);
-        folder = NULL;                           /* stolen */
-        p_PyTuple_SetItem(args, 1, p_PyUnicode_DecodeUTF8(instanceName, (Py_ssize_t_)strlen(instanceName), "replace"));
-        p_PyTuple_SetItem(args, 2, p_PyUnicode_DecodeUTF8(fmuGUID ? fmuGUID : "", (Py_ssize_t_)strlen(fmuGUID ? fmuGUID : ""), "replace"));
-        p_PyTuple_SetItem(args, 3, p_PyBool_FromLong(visible != fmi2False));
-        p_PyTuple_SetItem(args, 4, p_PyBool_FromLong(loggingOn != fmi2False));
-        p_PyTuple_SetItem(args, 5, p_PyBool_FromLong(api_started));
-        inst->adapter = p_PyObject_CallObject(make, args);
+    PyObject *entry = load_entry(resources, d.entry), *make = NULL, *args = NULL;
+    if (entry) make = p_PyObject_GetAttrString(entry, "instantiate");
+    if (make) {
+        const char* guid = fmuGUID ? fmuGUID : "";
+        PyObject* items[6] = {
+            p_PyUnicode_DecodeFSDefault(resources),
+            p_PyUnicode_DecodeUTF8(instanceName, (Py_ssize_t_)strlen(instanceName), "replace"),
+            p_PyUnicode_DecodeUTF8(guid, (Py_ssize_t_)strlen(guid), "replace"),
+            p_PyBool_FromLong(visible != fmi2False), p_PyBool_FromLong(loggingOn != fmi2False),
+            p_PyBool_FromLong(api_started)};
+        args = pack(6, items);
+        if (args) inst->adapter = p_PyObject_CallObject(make, args);
     }
     if (!inst->adapter) report_exception(inst, "fmi2Instantiate");
     else {
@@ -594,12 +691,11 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
         }
         p_PyErr_Clear();
     }
-done:
-    if (folder) p_Py_DecRef(folder);
     if (args) p_Py_DecRef(args);
     if (make) p_Py_DecRef(make);
     if (entry) p_Py_DecRef(entry);
     if (inst->adapter) drain_log(inst);
+    p_PyErr_Clear();
     p_PyGILState_Release(gil);
     free(resources);
     if (!inst->adapter) {
@@ -640,11 +736,10 @@ typedef struct { fmi2Boolean tol_defined; double tol; double start; fmi2Boolean 
 static PyObject* setup_args(void* data)
 {
     Setup* s = (Setup*)data;
-    PyObject* args = p_PyTuple_New(3);
-    p_PyTuple_SetItem(args, 0, p_PyFloat_FromDouble(s->start));
-    p_PyTuple_SetItem(args, 1, s->stop_defined ? p_PyFloat_FromDouble(s->stop) : none());
-    p_PyTuple_SetItem(args, 2, s->tol_defined ? p_PyFloat_FromDouble(s->tol) : none());
-    return args;
+    PyObject* items[3] = {p_PyFloat_FromDouble(s->start),
+                          s->stop_defined ? p_PyFloat_FromDouble(s->stop) : none(),
+                          s->tol_defined ? p_PyFloat_FromDouble(s->tol) : none()};
+    return pack(3, items);
 }
 
 FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
@@ -678,11 +773,18 @@ FMI2_Export fmi2Status fmi2Reset(fmi2Component c)
 /* ---------------------------------------------------------------------------
  * Values
  * ------------------------------------------------------------------------- */
+/* The references as a new list, or NULL with an exception set. */
 static PyObject* references(const fmi2ValueReference vr[], size_t nvr)
 {
     PyObject* list = p_PyList_New((Py_ssize_t_)nvr);
-    for (size_t i = 0; list && i < nvr; i++)
-        p_PyList_SetItem(list, (Py_ssize_t_)i, p_PyLong_FromUnsignedLong(vr[i]));
+    for (size_t i = 0; list && i < nvr; i++) {
+        PyObject* item = p_PyLong_FromUnsignedLong(vr[i]);
+        if (!item) {
+            p_Py_DecRef(list);
+            return NULL;
+        }
+        p_PyList_SetItem(list, (Py_ssize_t_)i, item);
+    }
     return list;
 }
 
@@ -692,20 +794,39 @@ static const char* SETTERS[] = {"set_real", "set_integer", "set_boolean", "set_s
 static const char* FMI_GET[] = {"fmi2GetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2GetString"};
 static const char* FMI_SET[] = {"fmi2SetReal", "fmi2SetInteger", "fmi2SetBoolean", "fmi2SetString"};
 
+/* The most values one get or set may name (2^24, a tenth of a gigabyte of
+ * Reals): a larger nvr is a master's mistake (a negative count turned into
+ * size_t, say) and is refused before either array is read. */
+#define MAX_VALUES ((size_t)1 << 24)
+
+/* 1 when the arrays of a get or set may be read, else 0 after a log message. */
+static int arrays_ok(Instance* inst, const char* function, const fmi2ValueReference vr[],
+                     size_t nvr, const void* values)
+{
+    if (!vr || !values) {
+        logf_(inst, fmi2Error, "%s: NULL array", function);
+        return 0;
+    }
+    if (nvr > MAX_VALUES) {
+        logf_(inst, fmi2Error, "%s: nvr = %zu values in one call, more than the %zu a call "
+              "may name", function, nvr, MAX_VALUES);
+        return 0;
+    }
+    return 1;
+}
+
 static fmi2Status get_values(fmi2Component c, Kind kind, const fmi2ValueReference vr[],
                              size_t nvr, void* out)
 {
     INSTANCE_OR_ERROR(c)
     if (nvr == 0) return fmi2OK;
-    if (!vr || !out) {
-        logf_(inst, fmi2Error, "%s: NULL array", FMI_GET[kind]);
-        return fmi2Error;
-    }
+    if (!arrays_ok(inst, FMI_GET[kind], vr, nvr, out)) return fmi2Error;
     if (kind == REAL && native_read(inst, vr, nvr, (fmi2Real*)out)) return fmi2OK;
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
-    PyObject* args = p_PyTuple_New(1);
-    p_PyTuple_SetItem(args, 0, references(vr, nvr));
+    PyObject* items[1] = {references(vr, nvr)};
+    PyObject* args = pack(1, items);
+    if (!args) return release(inst, gil, FMI_GET[kind], fmi2Error);
     PyObject* values = invoke(inst, GETTERS[kind], args, &status);
     if (values) {
         if (kind == STRING) free_strings(inst);
@@ -734,8 +855,7 @@ static fmi2Status get_values(fmi2Component c, Kind kind, const fmi2ValueReferenc
         }
         p_Py_DecRef(values);
     }
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, FMI_GET[kind], status);
 }
 
 static fmi2Status set_values(fmi2Component c, Kind kind, const fmi2ValueReference vr[],
@@ -743,10 +863,7 @@ static fmi2Status set_values(fmi2Component c, Kind kind, const fmi2ValueReferenc
 {
     INSTANCE_OR_ERROR(c)
     if (nvr == 0) return fmi2OK;
-    if (!vr || !in) {
-        logf_(inst, fmi2Error, "%s: NULL array", FMI_SET[kind]);
-        return fmi2Error;
-    }
+    if (!arrays_ok(inst, FMI_SET[kind], vr, nvr, in)) return fmi2Error;
     if (kind == REAL && native_write(inst, vr, nvr, (const fmi2Real*)in)) return fmi2OK;
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
@@ -762,27 +879,35 @@ static fmi2Status set_values(fmi2Component c, Kind kind, const fmi2ValueReferenc
             item = s ? p_PyUnicode_DecodeUTF8(s, (Py_ssize_t_)strlen(s), "strict") : NULL;
             if (!item) {
                 p_PyErr_Clear();
-                logf_(inst, fmi2Error, "fmi2SetString: value %u (reference %u) is %s; no value "
-                      "was set", (unsigned)i + 1, (unsigned)vr[i], s ? "not UTF-8 text" : "NULL");
+                logf_(inst, fmi2Error, "fmi2SetString: value %zu (reference %u) is %s; no value "
+                      "was set", i + 1, (unsigned)vr[i], s ? "not UTF-8 text" : "NULL");
                 status = fmi2Error;
             }
             break;
         }
         }
-        if (!item) break;
+        if (!item) {
+            p_Py_DecRef(values);
+            values = NULL;
+            break;
+        }
         p_PyList_SetItem(values, (Py_ssize_t_)i, item);
     }
-    if (status == fmi2OK && values) {
-        PyObject* args = p_PyTuple_New(2);
-        p_PyTuple_SetItem(args, 0, references(vr, nvr));
-        p_PyTuple_SetItem(args, 1, values);
-        values = NULL;
-        PyObject* result = invoke(inst, SETTERS[kind], args, &status);
-        if (result) p_Py_DecRef(result);
+    if (status == fmi2OK) {
+        /* values NULL: the list or an item could not be made (the exception
+           is reported by release, nothing was set) */
+        PyObject* items[2] = {values ? references(vr, nvr) : NULL, values};
+        PyObject* args = values ? pack(2, items) : NULL;
+        if (args) {
+            PyObject* result = invoke(inst, SETTERS[kind], args, &status);
+            if (result) p_Py_DecRef(result);
+        } else {
+            status = report_exception(inst, FMI_SET[kind]);
+        }
+    } else if (values) {
+        p_Py_DecRef(values);
     }
-    if (values) p_Py_DecRef(values);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, FMI_SET[kind], status);
 }
 
 FMI2_Export fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) { return get_values(c, REAL, vr, nvr, value); }
@@ -860,34 +985,43 @@ static int live_or_log(Instance* inst, const char* function, fmi2FMUstate state)
     return 0;
 }
 
+/* A NULL pointer argument of `function`: fmi2Error after a log message. */
+static fmi2Status null_argument(Instance* inst, const char* function, const char* what)
+{
+    logf_(inst, fmi2Error, "%s: %s is NULL", function, what);
+    return fmi2Error;
+}
+
+/* A new tuple of one new reference to `state`, or NULL with an exception set. */
+static PyObject* state_args(fmi2FMUstate state)
+{
+    p_Py_IncRef((PyObject*)state);
+    PyObject* items[1] = {(PyObject*)state};
+    return pack(1, items);
+}
+
 FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* state)
 {
     INSTANCE_OR_ERROR(c)
-    if (!state) return fmi2Error;
+    if (!state) return null_argument(inst, "fmi2GetFMUstate", "the FMUstate pointer");
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     PyObject* saved = invoke(inst, "get_state", NULL, &status);
     if (saved) status = give_state(inst, "fmi2GetFMUstate", saved, state);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2GetFMUstate", status);
 }
 
 FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
 {
     INSTANCE_OR_ERROR(c)
     PyGILState gil = p_PyGILState_Ensure();
-    if (!live_or_log(inst, "fmi2SetFMUstate", state)) {
-        p_PyGILState_Release(gil);
-        return fmi2Error;
-    }
+    if (!live_or_log(inst, "fmi2SetFMUstate", state))
+        return release(inst, gil, "fmi2SetFMUstate", fmi2Error);
     fmi2Status status = fmi2OK;
-    p_Py_IncRef((PyObject*)state);
-    PyObject* args = p_PyTuple_New(1);
-    p_PyTuple_SetItem(args, 0, (PyObject*)state);
-    PyObject* result = invoke(inst, "set_state", args, &status);
+    PyObject* args = state_args(state);
+    PyObject* result = args ? invoke(inst, "set_state", args, &status) : NULL;
     if (result) p_Py_DecRef(result);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2SetFMUstate", args ? status : fmi2Error);
 }
 
 FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* state)
@@ -903,49 +1037,47 @@ FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* state)
         status = fmi2Error;
     }
     *state = NULL;
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2FreeFMUstate", status);
 }
 
-static PyObject* serialized(Instance* inst, fmi2FMUstate state, fmi2Status* status)
+/* The serialized state (new reference to bytes), or NULL with the status set. */
+static PyObject* serialized(Instance* inst, const char* function, fmi2FMUstate state,
+                            fmi2Status* status)
 {
-    p_Py_IncRef((PyObject*)state);
-    PyObject* args = p_PyTuple_New(1);
-    p_PyTuple_SetItem(args, 0, (PyObject*)state);
+    PyObject* args = state_args(state);
+    if (!args) {
+        *status = report_exception(inst, function);
+        return NULL;
+    }
     return invoke(inst, "serialize", args, status);
 }
 
 FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t* size)
 {
     INSTANCE_OR_ERROR(c)
-    if (!size) return fmi2Error;
+    if (!size) return null_argument(inst, "fmi2SerializedFMUstateSize", "the size pointer");
     PyGILState gil = p_PyGILState_Ensure();
-    if (!live_or_log(inst, "fmi2SerializedFMUstateSize", state)) {
-        p_PyGILState_Release(gil);
-        return fmi2Error;
-    }
+    if (!live_or_log(inst, "fmi2SerializedFMUstateSize", state))
+        return release(inst, gil, "fmi2SerializedFMUstateSize", fmi2Error);
     fmi2Status status = fmi2OK;
-    PyObject* bytes = serialized(inst, state, &status);
+    PyObject* bytes = serialized(inst, "fmi2SerializedFMUstateSize", state, &status);
     char* data;
     Py_ssize_t_ n;
     if (bytes && p_PyBytes_AsStringAndSize(bytes, &data, &n) == 0) *size = (size_t)n;
     else if (bytes) status = report_exception(inst, "fmi2SerializedFMUstateSize");
     if (bytes) p_Py_DecRef(bytes);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2SerializedFMUstateSize", status);
 }
 
 FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte out[], size_t size)
 {
     INSTANCE_OR_ERROR(c)
-    if (!out) return fmi2Error;
+    if (!out) return null_argument(inst, "fmi2SerializeFMUstate", "the buffer");
     PyGILState gil = p_PyGILState_Ensure();
-    if (!live_or_log(inst, "fmi2SerializeFMUstate", state)) {
-        p_PyGILState_Release(gil);
-        return fmi2Error;
-    }
+    if (!live_or_log(inst, "fmi2SerializeFMUstate", state))
+        return release(inst, gil, "fmi2SerializeFMUstate", fmi2Error);
     fmi2Status status = fmi2OK;
-    PyObject* bytes = serialized(inst, state, &status);
+    PyObject* bytes = serialized(inst, "fmi2SerializeFMUstate", state, &status);
     char* data;
     Py_ssize_t_ n;
     if (bytes && p_PyBytes_AsStringAndSize(bytes, &data, &n) == 0) {
@@ -960,23 +1092,31 @@ FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state
         status = report_exception(inst, "fmi2SerializeFMUstate");
     }
     if (bytes) p_Py_DecRef(bytes);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2SerializeFMUstate", status);
 }
+
+/* The largest size a Python bytes object can have (PY_SSIZE_T_MAX). */
+#define MAX_BYTES ((size_t)(SIZE_MAX >> 1))
 
 FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte data[], size_t size,
                                                fmi2FMUstate* state)
 {
     INSTANCE_OR_ERROR(c)
-    if (!state || (!data && size)) return fmi2Error;
+    if (!state) return null_argument(inst, "fmi2DeSerializeFMUstate", "the FMUstate pointer");
+    if (!data && size) return null_argument(inst, "fmi2DeSerializeFMUstate", "the data");
+    if (size > MAX_BYTES) {
+        logf_(inst, fmi2Error, "fmi2DeSerializeFMUstate: size = %zu bytes is more than any "
+              "serialized state has", size);
+        return fmi2Error;
+    }
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
-    PyObject* args = p_PyTuple_New(1);
-    p_PyTuple_SetItem(args, 0, p_PyBytes_FromStringAndSize(data ? data : "", (Py_ssize_t_)size));
+    PyObject* items[1] = {p_PyBytes_FromStringAndSize(data ? data : "", (Py_ssize_t_)size)};
+    PyObject* args = pack(1, items);
+    if (!args) return release(inst, gil, "fmi2DeSerializeFMUstate", fmi2Error);
     PyObject* restored = invoke(inst, "deserialize", args, &status);
     if (restored) status = give_state(inst, "fmi2DeSerializeFMUstate", restored, state);
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2DeSerializeFMUstate", status);
 }
 
 /* ---------------------------------------------------------------------------
@@ -987,10 +1127,8 @@ typedef struct { double t, h; } Step;
 static PyObject* step_args(void* data)
 {
     Step* s = (Step*)data;
-    PyObject* args = p_PyTuple_New(2);
-    p_PyTuple_SetItem(args, 0, p_PyFloat_FromDouble(s->t));
-    p_PyTuple_SetItem(args, 1, p_PyFloat_FromDouble(s->h));
-    return args;
+    PyObject* items[2] = {p_PyFloat_FromDouble(s->t), p_PyFloat_FromDouble(s->h)};
+    return pack(2, items);
 }
 
 FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
@@ -1003,14 +1141,15 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
     PyGILState gil = p_PyGILState_Ensure();
     fmi2Status status = fmi2OK;
     Step s = {currentCommunicationPoint, communicationStepSize};
-    PyObject* taken = invoke(inst, "do_step", step_args(&s), &status);
+    PyObject* args = step_args(&s);
+    if (!args) return release(inst, gil, "fmi2DoStep", fmi2Error);
+    PyObject* taken = invoke(inst, "do_step", args, &status);
     if (taken) {
         int ok = p_PyObject_IsTrue(taken);
         p_Py_DecRef(taken);
         if (ok != 1) status = ok == 0 ? fmi2Discard : report_exception(inst, "do_step");
     }
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2DoStep", status);
 }
 
 FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c)
@@ -1039,8 +1178,8 @@ FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fm
 
 FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real* value)
 {
-    Instance* inst = (Instance*)c;
-    if (!inst || !value) return fmi2Error;
+    INSTANCE_OR_ERROR(c)
+    if (!value) return null_argument(inst, "fmi2GetRealStatus", "the value pointer");
     if (s != fmi2LastSuccessfulTime) return no_status(c, "fmi2GetRealStatus");
     /* the time of the FMU's last good state, asked of the slave (not kept
        here): after a discarded doStep it is where the FMU stayed, which need
@@ -1053,8 +1192,7 @@ FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s
         *value = p_PyFloat_AsDouble(t);
         p_Py_DecRef(t);
     }
-    p_PyGILState_Release(gil);
-    return status;
+    return release(inst, gil, "fmi2GetRealStatus", status);
 }
 
 FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer* value)
@@ -1066,9 +1204,9 @@ FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKin
 
 FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean* value)
 {
-    Instance* inst = (Instance*)c;
-    if (!inst || !value) return fmi2Error;
+    INSTANCE_OR_ERROR(c)
     if (s != fmi2Terminated) return no_status(c, "fmi2GetBooleanStatus");
+    if (!value) return null_argument(inst, "fmi2GetBooleanStatus", "the value pointer");
     *value = fmi2False;
     return fmi2OK;
 }

@@ -106,6 +106,12 @@ def _expression(value, what):
         if type(node).__module__.startswith("sympy.codegen"):
             raise ValueError(f"{what} contains the code-generation node "
                              f"{type(node).__name__}: write it as a sympy expression")
+        # a number that is not real (I, sqrt(-2), log(-2)): the compiled
+        # functions would return complex values, whose imaginary part a
+        # model's real arrays drop
+        if node.is_number and node.is_extended_real is False:
+            raise ValueError(f"{what} must be real, got the complex number {node} in "
+                             f"{str(expr):.200}")
     hidden = expr.atoms(sympy.Symbol) - expr.free_symbols
     if hidden:
         raise ValueError(f"{what} contains the symbols {sorted(map(str, hidden))} other than "
