@@ -728,10 +728,10 @@ class HfdiSlave(Fmi2Slave):
     def _prepare_native(self):
         """The native path's C function for the new integrator, loaded (or
         compiled, once per machine) now rather than at the first doStep."""
-        if self._gate is None or not self._itg.driven:
+        if self._gate is None or not self._itg.compiled:
             return
         try:
-            self._native = self._hfdi.compiled.NativeAdvance(self._itg)
+            self._native = self._itg.native_advance()
         except Exception as exc:
             self._gate = None
             self.log(f"the native path is off for this instance: {exc!r}", Fmi2Status.warning)
@@ -792,11 +792,11 @@ class HfdiSlave(Fmi2Slave):
     def _armed_native(self, itg):
         """The integrator's NativeAdvance armed from its state, or ``None`` when
         the next doStep must be this slave's."""
-        if not itg.driven or self._F_input.tolist() != self._F_applied.tolist():
+        if not itg.compiled or self._F_input.tolist() != self._F_applied.tolist():
             return None
         native = self._native
         if native is None or native.integrator is not itg:
-            native = self._native = self._hfdi.compiled.NativeAdvance(itg)
+            native = self._native = itg.native_advance()
         if native.arm(max_steps_per_call=int(self._itg_key[0]["max_internal_steps"]),
                       inputs=self._F_input):
             return None

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from . import checks, compiled as compiled_path
+from .compiled import shadowed
 from .controller import ErrorControl, FixedStep, core_kind
 from .core import codes
 from .core.arrays import DENSE, DIAGONAL, SPARSE
@@ -330,8 +331,13 @@ class Integrator:
         dense = n < DENSE_BELOW
         m = n if dense else 0
         values = {}
+        #: u, v, a, f, p as the rows of one block, whose address a native
+        #: host reads the state at (hfdi.compiled.native)
+        self._state_block = np.zeros((5, n))
+        for row, name in enumerate(("u", "v", "a", "f", "p")):
+            values[name] = self._state_block[row]
         for name, kind in VECTORS.fields:
-            if name.startswith("row_"):
+            if name.startswith("row_") or name in values:
                 continue
             ndim = getattr(kind, "ndim", 1)
             if name in ("error", "ratio"):
@@ -455,6 +461,46 @@ class Integrator:
             self._python_functions = self.ev.functions(self.scheme.stage.py_func,
                                                        self._cfg.exact_rate)
         return self._python_functions
+
+    # -- a C function of the compiled loop ---------------------------------------------
+    def native_advance(self):
+        """This integrator's compiled loop behind a C function
+        (:class:`hfdi.compiled.NativeAdvance`), for a host that steps it without
+        Python (an FMU's native layer).
+
+        Raises
+        ------
+        ValueError
+            When the steps do not run compiled (:attr:`compiled`).
+        """
+        if self._compiled_call is None:
+            raise ValueError("integrator must run compiled (Integrator.compiled), it does not")
+        from .compiled.native import NativeAdvance
+        fn, cfg, data, vec = self._compiled_call
+        return NativeAdvance(self, fn, cfg, data, vec, self._data.held, self._run,
+                             self._state_block, self._hfdi)
+
+    def _native_ready(self) -> str:
+        """Why a native host may not take the next steps now (``""``: it may)."""
+        if self._compiled_call is None:
+            return "the steps do not run compiled"
+        if self.failed:
+            return "the run has failed"
+        if self._model_version is not None and \
+                self.system.parameter_version != self._model_version:
+            return "the model changed since the last step"
+        if shadowed(self.system):
+            return "a method of the model is replaced on the instance"
+        if not self._held_ready():
+            return "the held load is not a finite vector of N values"
+        return ""
+
+    def _native_synced(self, cpu_time: float) -> None:
+        """After a native host took steps (:meth:`NativeAdvance.sync`)."""
+        self._run_cpu += cpu_time
+        if self.finished and self._run.status >= 0:
+            self._run.status = int(Status.SUCCESS)
+            self._message = f"reached t_bound = {self.t_bound!r}"
 
     # -- public state --------------------------------------------------------------
     @property
@@ -904,7 +950,8 @@ class Integrator:
             if self._cfg.controller == CUSTOM:
                 from .custom import custom_steps
                 custom_steps(self, t_stop, max_accepted)
-            elif self._compiled_call is not None and self._held_ready():
+            elif self._compiled_call is not None and self._held_ready() \
+                    and not self._shadowed():
                 self._compiled_steps(t_stop, max_accepted)
             else:
                 self._python_steps(t_stop, max_accepted)
@@ -915,6 +962,17 @@ class Integrator:
         elif self.finished and run.status >= 0:
             run.status = int(Status.SUCCESS)
             self._message = f"reached t_bound = {self.t_bound!r}"
+
+    def _shadowed(self) -> bool:
+        """Whether a method of the model was replaced on the instance since the
+        run began compiled: the rest of the run is the Python steps', said once."""
+        name = shadowed(self.system)
+        if name:
+            compiled_path.say_once(f"{type(self.system).__name__}.{name} is replaced on the "
+                                   f"instance", "{reason}; the rest of the run takes its steps "
+                                   "in Python, which call it")
+            self._compiled_call = None
+        return bool(name)
 
     def _held_ready(self) -> bool:
         """A held load's value into ``DATA.held``; false when it is not a finite

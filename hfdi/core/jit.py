@@ -49,7 +49,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from ..files import cache_dir
 
-__all__ = ["jitable", "twin", "primitive", "python_only", "entry", "JIT_OPTIONS", "compile_for",
+__all__ = ["jitable", "twin", "native", "primitive", "python_only", "entry", "JIT_OPTIONS", "compile_for",
            "numba_cache_dir", "cache_trusted"]
 
 _log = logging.getLogger("hfdi")
@@ -135,6 +135,15 @@ def _link(clone, source):
     for name, value in source.__globals__.items():
         if _is_core(value):
             clone.__globals__[name] = twin(value)
+
+
+def native(function, signature):
+    """``function`` as a C function (a numba ``cfunc`` of ``signature``, cached on
+    disk where :func:`cache_trusted`), the core functions it names being their
+    twins; compiled when this is called."""
+    clone = _clone(function)
+    _link(clone, function)
+    return numba.cfunc(signature, cache=cache_trusted()[0], **JIT_OPTIONS)(clone)
 
 
 def _is_core(value) -> bool:
