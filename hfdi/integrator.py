@@ -339,7 +339,6 @@ class Integrator:
         for name, kind in VECTORS.fields:
             if name.startswith("row_") or name in values:
                 continue
-            ndim = getattr(kind, "ndim", 1)
             if name in ("error", "ratio"):
                 values[name] = np.zeros(2 * n)
             elif name in ("pivots", "b_pivots"):
@@ -350,7 +349,7 @@ class Integrator:
                 values[name] = np.zeros(MAX_STAGES, np.int64)
             elif name == "sparse":
                 values[name] = np.zeros(0) if dense else General(self.ev.bands)
-            elif ndim == 2:
+            elif kind == "matrix":
                 values[name] = np.zeros((m, m))
             else:
                 values[name] = np.zeros(n)

@@ -470,18 +470,11 @@ def use_sparse_kernels(ev, compiled, initial):
 
 
 def function_struct(functions):
-    """The compiled struct of :data:`hfdi.core.state.FUNCTIONS` (named tuple of
-    numba dispatchers), each compiled for its signature first (loaded from
-    the disk cache, or compiled and said once)."""
-    from ..core.state import FUNCTIONS, NEW_FUNCTIONS_SIGNATURE, new_functions
-    for (name, kind), dispatcher in zip(FUNCTIONS.fields, functions):
-        if kind.signature.args not in dispatcher.overloads:
-            compile_for_signature(dispatcher, kind.signature)
-    if NEW_FUNCTIONS_SIGNATURE.args not in new_functions.overloads:
-        new_functions.compile(NEW_FUNCTIONS_SIGNATURE)
-    # the overload of the declared signature itself: each dispatcher unboxed as a
-    # first-class function (a call through the dispatcher would compile another)
-    return new_functions.overloads[NEW_FUNCTIONS_SIGNATURE.args].entry_point(*functions)
+    """The compiled struct of :data:`hfdi.core.state.FUNCTIONS` (a named tuple of
+    numba dispatchers), each compiled for its signature first (loaded from the
+    disk cache, or compiled)."""
+    from ..core.numba_types import function_struct_of
+    return function_struct_of(functions)
 
 
 def compile_for_signature(dispatcher, signature):

@@ -35,7 +35,8 @@ from numba.extending import intrinsic
 from ..core.arrays import copy
 from ..core.codes import REACHED
 from ..core.jit import JIT_OPTIONS, jitable, native
-from ..core.records import INT64_VECTOR, MATRIX, VECTOR, Arrays, Struct
+from ..core.numba_types import INT64_VECTOR, MATRIX, VECTOR, Struct, register
+from ..core.records import Arrays
 from ..core.state import CONFIG, DATA, FUNCTIONS, RUN, VECTORS
 from ..stepping.attempt import refresh
 from ..stepping.loop import advance_affine, advance_hfdi
@@ -73,7 +74,8 @@ class CompiledLoop(structref.StructRefProxy):
 #: The integrator's compiled loop as a first-class function: the C function
 #: calls it through its address, so that its code (compiled and cached once)
 #: is not compiled into the C function again.
-LOOP = Arrays("Loop", LoopType, CompiledLoop, [("advance", types.FunctionType(ADVANCE))])
+LOOP = Arrays("Loop", [("advance", types.FunctionType(ADVANCE))])
+register(LOOP, LoopType, CompiledLoop)
 _LOOP_TYPE = LOOP.type
 
 
@@ -90,6 +92,7 @@ _NEW_LOOP = LOOP.type(types.FunctionType(ADVANCE))
 
 def loop_struct(advance):
     """:data:`LOOP` of the compiled loop ``advance`` (a dispatcher)."""
+    advance = getattr(advance, "dispatcher", advance)
     if ADVANCE.args not in advance.overloads:
         advance.compile(ADVANCE.args)
     if _NEW_LOOP.args not in _new_loop_compiled.overloads:
@@ -106,7 +109,7 @@ class CompiledNative(structref.StructRefProxy):
     __slots__ = ()
 
 
-NATIVE = Arrays("Native", NativeType, CompiledNative, [
+NATIVE = Arrays("Native", [
     ("loop", LOOP.type),
     ("fn", FUNCTIONS.type), ("data", DATA.type), ("vec", VECTORS.type),
     ("cfg", types.Array(from_dtype(CONFIG.dtype), 1, "C")),     # the run's, max_steps per call
@@ -116,6 +119,7 @@ NATIVE = Arrays("Native", NativeType, CompiledNative, [
     ("inputs", VECTOR),                                        # the host's held-load inputs
     ("limits", INT64_VECTOR),
 ])
+register(NATIVE, NativeType, CompiledNative)
 
 
 @intrinsic

@@ -19,8 +19,8 @@ from numba import types
 
 from ..core.jit import JIT_OPTIONS as _OPTIONS
 from ..core.jit import cache_trusted
-from ..core.records import MATRIX, VECTOR
-from ..core.state import FORCE, LOAD, POTENTIAL_ENERGY, STIFFNESS, STIFFNESS_DERIVATIVE
+from ..core.numba_types import (FORCE, LOAD, MATRIX, POTENTIAL_ENERGY, STIFFNESS,
+                                STIFFNESS_DERIVATIVE, VECTOR)
 
 __all__ = ["VECTOR", "MATRIX", "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE", "POTENTIAL_ENERGY",
            "LOAD", "SPARSE_STIFFNESS", "SPARSE_STIFFNESS_DERIVATIVE", "JIT_OPTIONS"]

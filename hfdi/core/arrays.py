@@ -17,11 +17,10 @@ import math
 
 import numpy as np
 
-from numba.extending import overload
+from .jit import jitable, primitive
 
-from .jit import JIT_OPTIONS, jitable, primitive
-
-__all__ = ["NONE", "DIAGONAL", "DENSE", "SPARSE", "copy", "fill", "lincomb", "axpy", "scale", "times",
+__all__ = ["NONE", "DIAGONAL", "DENSE", "SPARSE", "copy", "copy_matrix", "fill", "fill_matrix",
+           "all_finite_matrix", "lincomb", "axpy", "scale", "times",
            "add_times", "divide", "divide_by", "matvec", "scaled_into", "add_scaled", "add_kind", "add_diagonal",
            "divide_rows", "max_abs", "all_finite", "row_sum_max", "kinetic"]
 
@@ -43,47 +42,51 @@ def lincomb(out, a, x, b, y):
     out += b * y
 
 
-def _copy_vector(out, x):
+def _copy_loop(out, x):
     for i in range(out.shape[0]):
         out[i] = x[i]
 
 
-def _copy_matrix(out, x):
+@primitive(_copy_loop)
+def copy(out, x):
+    """``out[:] = x`` (vectors of the same length; compiled without a check of
+    the shapes, whose error paths cost seconds of compiling)."""
+    out[...] = x
+
+
+def _copy_matrix_loop(out, x):
     for i in range(out.shape[0]):
         for j in range(out.shape[1]):
             out[i, j] = x[i, j]
 
 
-def copy(out, x):
-    """``out[...] = x`` (a vector or a matrix of the same shape; compiled, no
-    check of the shapes, whose error paths cost seconds of compiling)."""
+@primitive(_copy_matrix_loop)
+def copy_matrix(out, x):
+    """``out[:, :] = x``."""
     out[...] = x
 
 
-@overload(copy, jit_options=JIT_OPTIONS)
-def _copy_compiled(out, x):
-    return _copy_vector if out.ndim == 1 else _copy_matrix
-
-
-def _fill_vector(out, value):
+def _fill_loop(out, value):
     for i in range(out.shape[0]):
         out[i] = value
 
 
-def _fill_matrix(out, value):
+@primitive(_fill_loop)
+def fill(out, value):
+    """``out[:] = value``."""
+    out[...] = value
+
+
+def _fill_matrix_loop(out, value):
     for i in range(out.shape[0]):
         for j in range(out.shape[1]):
             out[i, j] = value
 
 
-def fill(out, value):
-    """``out[...] = value``."""
+@primitive(_fill_matrix_loop)
+def fill_matrix(out, value):
+    """``out[:, :] = value``."""
     out[...] = value
-
-
-@overload(fill, jit_options=JIT_OPTIONS)
-def _fill_compiled(out, value):
-    return _fill_vector if out.ndim == 1 else _fill_matrix
 
 
 def _axpy_loop(y, a, x):
@@ -197,6 +200,14 @@ def _finite_vector(x):
     return total == 0.0
 
 
+@primitive(_finite_vector)
+def all_finite(x):
+    """Whether no entry of the vector ``x`` is inf or NaN (in Python, of any
+    array or a sparse matrix's data)."""
+    data = x.data if hasattr(x, "tocsr") else x
+    return bool(np.isfinite(data).all())
+
+
 def _finite_matrix(x):
     total = 0.0
     for i in range(x.shape[0]):
@@ -205,15 +216,10 @@ def _finite_matrix(x):
     return total == 0.0
 
 
-def all_finite(x):
-    """Whether no entry of ``x`` (an array, or a sparse matrix's data) is inf or NaN."""
-    data = x.data if hasattr(x, "tocsr") else x
-    return bool(np.isfinite(data).all())
-
-
-@overload(all_finite, jit_options=JIT_OPTIONS)
-def _all_finite_compiled(x):
-    return _finite_vector if x.ndim == 1 else _finite_matrix
+@primitive(_finite_matrix)
+def all_finite_matrix(x):
+    """Whether no entry of the matrix ``x`` (dense or, in Python, sparse) is inf or NaN."""
+    return all_finite(x)
 
 
 # -- matrices ------------------------------------------------------------------------

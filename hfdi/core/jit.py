@@ -38,14 +38,11 @@ import hashlib
 import logging
 import os
 import stat
+import sys
 import time
 import types
 import warnings
 from pathlib import Path
-
-import numba
-from numba.core import caching
-from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from ..files import cache_dir
 
@@ -54,10 +51,25 @@ __all__ = ["jitable", "twin", "native", "primitive", "python_only", "entry", "JI
 
 _log = logging.getLogger("hfdi")
 
-# the first-class functions the compiled loop calls the model's kernels through
-# are "experimental" to numba since 0.49; the tests hold what they do here
-warnings.filterwarnings("ignore", category=NumbaExperimentalFeatureWarning,
-                        module=r"numba\..*|hfdi\..*")
+
+
+@functools.lru_cache(maxsize=None)
+def _numba():
+    """numba, imported when compiled code is first made (the Python steps need
+    none of it): with the disk cache's locator installed."""
+    import numba
+    from numba.core import caching
+    from numba.core.errors import NumbaExperimentalFeatureWarning
+
+    # the first-class functions the compiled loop calls the model's kernels
+    # through are "experimental" to numba since 0.49; the tests hold what they
+    # do here
+    warnings.filterwarnings("ignore", category=NumbaExperimentalFeatureWarning,
+                            module=r"numba\..*|hfdi\..*")
+    locator = _source_keyed_locator(caching)
+    if locator not in caching.CacheImpl._locator_classes:
+        caching.CacheImpl._locator_classes.insert(0, locator)
+    return numba
 
 #: Options of every compiled entry point: division by zero gives inf/NaN as
 #: in numpy (a non-finite value fails an attempt, as on the Python path);
@@ -115,7 +127,7 @@ def twin(function):
     if kind == "inline":
         options["inline"] = "always"
     clone = _clone(source)
-    made = _TWINS[function] = numba.njit(**options)(clone)
+    made = _TWINS[function] = _numba().njit(**options)(clone)
     _link(clone, source)
     return made
 
@@ -131,10 +143,18 @@ def _clone(source):
 
 def _link(clone, source):
     """The core functions ``clone``'s code names, their twins in its globals
-    (after the twin of ``clone`` exists, so that functions may name each other)."""
+    (after the twin of ``clone`` exists, so that functions may name each other),
+    and the names the module gives compiled code only (its
+    ``_compiled_globals()``, e.g. LAPACK's routines bound for numba)."""
+    module = sys.modules.get(source.__module__)
+    extra = getattr(module, "_compiled_globals", None)
+    if extra is not None:
+        clone.__globals__.update(extra())
     for name, value in source.__globals__.items():
         if _is_core(value):
             clone.__globals__[name] = twin(value)
+        elif isinstance(value, _Entry):
+            clone.__globals__[name] = value.dispatcher
 
 
 def native(function, signature):
@@ -143,7 +163,7 @@ def native(function, signature):
     twins; compiled when this is called."""
     clone = _clone(function)
     _link(clone, function)
-    return numba.cfunc(signature, cache=cache_trusted()[0], **JIT_OPTIONS)(clone)
+    return _numba().cfunc(signature, cache=cache_trusted()[0], **JIT_OPTIONS)(clone)
 
 
 def _is_core(value) -> bool:
@@ -245,53 +265,82 @@ def source_digest(path) -> str:
     return hashlib.sha256("\n".join(sorted(parts)).encode()).hexdigest()[:20]
 
 
-class _SourceKeyedLocator(caching._CacheLocator):
-    """numba's cache of this package's functions: in :func:`numba_cache_dir`,
-    stamped with :func:`source_digest` of the function's module."""
+@functools.lru_cache(maxsize=None)
+def _source_keyed_locator(caching):
+    """numba's cache locator of this package's functions (a class of numba's
+    ``_CacheLocator``, made when numba is imported)."""
 
-    def __init__(self, py_file):
-        self._digest = source_digest(py_file)
-        self._path = numba_cache_dir()
+    class SourceKeyedLocator(caching._CacheLocator):
+        """In :func:`numba_cache_dir`, stamped with :func:`source_digest` of the
+        function's module."""
 
-    def ensure_cache_path(self):
-        # made and checked by cache_trusted(); entry() asks for a cache only then
-        pass
+        def __init__(self, py_file):
+            self._digest = source_digest(py_file)
+            self._path = numba_cache_dir()
 
-    def get_cache_path(self):
-        return str(self._path)
+        def ensure_cache_path(self):
+            # made and checked by cache_trusted(); entry() asks for a cache only then
+            pass
 
-    def get_source_stamp(self):
-        return self._digest
+        def get_cache_path(self):
+            return str(self._path)
 
-    def get_disambiguator(self):
-        return self._digest
+        def get_source_stamp(self):
+            return self._digest
 
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        module = getattr(py_func, "__module__", "") or ""
-        if not module.startswith("hfdi") or not os.path.isfile(py_file):
-            return None
-        return cls(py_file)
+        def get_disambiguator(self):
+            return self._digest
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            module = getattr(py_func, "__module__", "") or ""
+            if not module.startswith("hfdi") or not os.path.isfile(py_file):
+                return None
+            return cls(py_file)
+
+    return SourceKeyedLocator
 
 
-if _SourceKeyedLocator not in caching.CacheImpl._locator_classes:
-    caching.CacheImpl._locator_classes.insert(0, _SourceKeyedLocator)
+class _Entry:
+    """An entry point of compiled code: a numba dispatcher made when first
+    used (so that importing the library imports no numba), with ``py_func``,
+    the plain function, at hand without it."""
+
+    def __init__(self, function, options):
+        self.py_func = function
+        self._options = options
+        self._dispatcher = None
+        functools.update_wrapper(self, function)
+
+    @property
+    def dispatcher(self):
+        if self._dispatcher is None:
+            trusted, why = cache_trusted()
+            if not trusted:
+                _say_uncached(why)
+            clone = _clone(self.py_func)
+            self._dispatcher = _numba().njit(cache=trusted, **JIT_OPTIONS,
+                                             **self._options)(clone)
+            _link(clone, self.py_func)
+        return self._dispatcher
+
+    def __call__(self, *args):
+        return self.dispatcher(*args)
+
+    def __getattr__(self, name):       # overloads, compile, stats, address ... of numba's
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.dispatcher, name)
 
 
 def entry(function=None, **options):
     """Compile ``function`` as an entry point of compiled code (``numba.njit``
     with :data:`JIT_OPTIONS`), cached on disk where :func:`cache_trusted`; the
-    core functions it calls are their twins (:func:`twin`). Compiled lazily,
-    at the first call with new argument types; see :func:`compile_for` for
-    the notice of a first compilation."""
+    core functions it calls are their twins (:func:`twin`). Made when first
+    used and compiled at the first call with new argument types; see
+    :func:`compile_for` for the notice of a first compilation."""
     def wrap(fn):
-        trusted, why = cache_trusted()
-        if not trusted:
-            _say_uncached(why)
-        clone = _clone(fn)
-        dispatcher = numba.njit(cache=trusted, **JIT_OPTIONS, **options)(clone)
-        _link(clone, fn)
-        return dispatcher
+        return _Entry(fn, options)
     return wrap if function is None else wrap(function)
 
 
@@ -309,7 +358,7 @@ def compile_for(dispatcher, *args, what="the integrator's compiled loop") -> Non
     """Make sure ``dispatcher`` has code for ``args`` (loaded from the disk cache,
     or compiled) before a run calls it; a compilation is said once per process
     on stderr (a log record at WARNING), with the time it took."""
-    types = tuple(numba.typeof(a) for a in args)
+    types = tuple(_numba().typeof(a) for a in args)
     if types in dispatcher.overloads:
         return
     start = time.perf_counter()

@@ -9,9 +9,9 @@
   In Python it is a named tuple; compiled code gets a numba ``StructRef``
   holding the same arrays (no copy: both see every write), made once by
   :meth:`Arrays.compiled`.
-- :data:`FUNCTIONS` holds the compiled functions a run calls (the model's
-  kernels, the scheme's stage table) as first-class functions, so that the
-  compiled core is compiled once for all models and schemes.
+- The functions a run calls (the model's kernels, the scheme's stage
+  function) are an :class:`Arrays` record of first-class functions, so that
+  the compiled core is compiled once for all models and schemes.
 
 Nothing here knows what the fields mean: :mod:`hfdi.core.state` declares them.
 """
@@ -20,18 +20,8 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from numba import types
-from numba.experimental import structref
-from numba.extending import intrinsic
 
-from .jit import entry
-
-__all__ = ["Scalars", "Arrays", "VECTOR", "MATRIX", "INT32_VECTOR", "INT64_VECTOR"]
-
-VECTOR = types.float64[::1]
-MATRIX = types.float64[:, ::1]
-INT32_VECTOR = types.int32[::1]
-INT64_VECTOR = types.int64[::1]
+__all__ = ["Scalars", "Arrays", "ARRAY_KINDS"]
 
 _NUMPY_OF = {"f8": np.float64, "i8": np.int64, "b1": np.bool_}
 _PYTHON_OF = {"f8": float, "i8": int, "b1": bool}
@@ -95,61 +85,36 @@ class Scalars:
 
 # -- arrays records ------------------------------------------------------------------
 
-@intrinsic
-def _fill(typingctx, instance, values):
-    """Store the tuple ``values`` into the fields of the struct ``instance``, in order."""
-    if not isinstance(instance, types.StructRef) or not isinstance(values, types.BaseTuple) \
-            or len(values) != len(instance.field_dict):
-        return None
-
-    def codegen(context, builder, signature, args):
-        inst_type, tuple_type = signature.args
-        inst, tup = args
-        data = structref._Utils(context, builder, inst_type).get_data_struct(inst)
-        for i, (name, field_type) in enumerate(inst_type.field_dict.items()):
-            value = context.cast(builder, builder.extract_value(tup, i), tuple_type[i],
-                                 field_type)
-            context.nrt.incref(builder, field_type, value)
-            setattr(data, name, value)
-        return context.get_dummy_value()
-
-    return types.none(instance, values), codegen
-
-
-@entry
-def _build(struct_type, values):
-    """A new struct of ``struct_type`` holding ``values`` (one per field)."""
-    instance = structref.new(struct_type)
-    _fill(instance, values)
-    return instance
-
-
-class Struct(types.StructRef):
-    """Base of the numba types of :class:`Arrays` records (each a module-level
-    class registered with ``structref.register``, so that cached code can name it)."""
-
-    def preprocess_fields(self, fields):
-        return tuple((n, types.unliteral(t)) for n, t in fields)
+#: The kinds of field of an :class:`Arrays` record (their numba types are
+#: :data:`hfdi.core.numba_types.KINDS`).
+ARRAY_KINDS = ("vector", "matrix", "int32 vector", "int64 vector")
 
 
 class Arrays:
     """A record of named arrays (or, for the functions a run calls, compiled
-    functions): ``fields`` are ``(name, numba type)``. ``.python`` is the
+    functions): ``fields`` are ``(name, kind)`` with a kind of
+    :data:`ARRAY_KINDS` or ``"function NAME"`` (a compiled function of the
+    signature ``NAME`` of :mod:`hfdi.core.numba_types`). ``.python`` is the
     named tuple Python code takes; :meth:`compiled` the struct compiled code
-    takes, of ``type_class`` (a registered subclass of :class:`Struct`) boxed
-    as ``proxy_class`` (a ``structref.StructRefProxy``); both module-level."""
+    takes (a numba ``StructRef`` of the type :attr:`type`, holding the same
+    arrays). Nothing here needs numba until a struct is made."""
 
-    def __init__(self, name: str, type_class, proxy_class, fields):
+    def __init__(self, name: str, fields):
         self.name = name
         self.fields = tuple(fields)
         self.names = tuple(n for n, _ in self.fields)
         self.python = namedtuple(name, self.names)
-        structref.define_boxing(type_class, proxy_class)
-        self.type = type_class(list(self.fields))
 
     def new(self, **values):
         return self.python(**values)
 
+    @property
+    def type(self):
+        """The numba type of the compiled struct (imports numba)."""
+        from .numba_types import struct_type
+        return struct_type(self)
+
     def compiled(self, value):
         """The struct holding the arrays (functions) of the named tuple ``value``."""
-        return _build(self.type, tuple(value))
+        from .numba_types import build
+        return build(self, tuple(value))

@@ -10,7 +10,7 @@
 - ``VECTORS`` (arrays, read and written): the current, previous and new
   states, the work arrays of an attempt, and the rows of accepted steps.
 - ``FUNCTIONS``: the model's kernels and the scheme's stage function, of the
-  signatures below.
+  signatures of :mod:`hfdi.core.numba_types` (``FORCE``, ..., ``STAGE_FUNCTION``).
 
 A scheme describes each of its stages by a :class:`Stage` (its coefficients),
 returned by its stage function ``stage(h, index, params) -> Stage``.
@@ -20,17 +20,10 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from numba import types
-from numba.experimental import structref
+from .records import Arrays, Scalars
 
-import numba
-
-from .jit import JIT_OPTIONS
-from .records import (INT32_VECTOR, INT64_VECTOR, MATRIX, VECTOR, Arrays, Scalars, Struct)
-
-__all__ = ["CONFIG", "RUN", "DATA", "VECTORS", "FUNCTIONS", "Stage", "STAGE", "AFFINE", "HFDI",
-           "FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE", "POTENTIAL_ENERGY", "LOAD",
-           "STAGE_FUNCTION", "FIXED", "ITERATION", "ERROR", "COMBINED", "CUSTOM", "MAX_STAGES"]
+__all__ = ["CONFIG", "RUN", "DATA", "VECTORS", "FUNCTIONS", "Stage", "AFFINE", "HFDI", "FIXED",
+           "ITERATION", "ERROR", "COMBINED", "CUSTOM", "MAX_STAGES"]
 
 # -- controllers ------------------------------------------------------------------------
 #: Kinds of step-size controller (``CONFIG.controller``); ``CUSTOM`` is a Python
@@ -85,66 +78,26 @@ class Stage(NamedTuple):
     v_a1: float
 
 
-STAGE = types.NamedUniTuple(types.float64, len(Stage._fields), Stage)
-
-# -- the compiled functions a run calls ---------------------------------------------------
-#: ``force(u, params) -> f (N,)``
-FORCE = VECTOR(VECTOR, VECTOR)
-#: ``stiffness(u, params) -> K (N, N)``
-STIFFNESS = MATRIX(VECTOR, VECTOR)
-#: ``stiffness_derivative(u, w, params) -> T(u)[w] (N, N)``
-STIFFNESS_DERIVATIVE = MATRIX(VECTOR, VECTOR, VECTOR)
-#: ``potential_energy(u, params) -> V``
-POTENTIAL_ENERGY = types.float64(VECTOR, VECTOR)
-#: ``load(t, load_params) -> p (N,)`` (also the load rate's)
-LOAD = VECTOR(types.float64, VECTOR)
-#: ``stage(h, index, scheme_params) -> Stage``
-STAGE_FUNCTION = STAGE(types.float64, types.int64, VECTOR)
-
-
-@structref.register
-class FunctionsType(Struct):
-    pass
-
-
-class CompiledFunctions(structref.StructRefProxy):
-    __slots__ = ()
-
-
-FUNCTIONS = Arrays("Functions", FunctionsType, CompiledFunctions, [
-    ("force", types.FunctionType(FORCE)),
-    ("stiffness", types.FunctionType(STIFFNESS)),
-    ("stiffness_derivative", types.FunctionType(STIFFNESS_DERIVATIVE)),
-    ("potential_energy", types.FunctionType(POTENTIAL_ENERGY)),
-    ("load", types.FunctionType(LOAD)),
-    ("load_rate", types.FunctionType(LOAD)),
-    ("stage", types.FunctionType(STAGE_FUNCTION)),
+FUNCTIONS = Arrays("Functions", [
+    ("force", "function FORCE"),
+    ("stiffness", "function STIFFNESS"),
+    ("stiffness_derivative", "function STIFFNESS_DERIVATIVE"),
+    ("potential_energy", "function POTENTIAL_ENERGY"),
+    ("load", "function LOAD"),
+    ("load_rate", "function LOAD"),
+    ("stage", "function STAGE_FUNCTION"),
 ])
 
 
-_FUNCTIONS_TYPE = FUNCTIONS.type
+def __getattr__(name):
+    # the kernels' numba signatures (FORCE, ...) live with numba's types, which
+    # are imported only when compiled code is made
+    if name in ("FORCE", "STIFFNESS", "STIFFNESS_DERIVATIVE", "POTENTIAL_ENERGY", "LOAD",
+                "STAGE_FUNCTION", "STAGE"):
+        from . import numba_types
+        return getattr(numba_types, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-
-def _new_functions(force, stiffness, stiffness_derivative, potential_energy, load, load_rate,
-                   stage):
-    functions = structref.new(_FUNCTIONS_TYPE)
-    functions.force = force
-    functions.stiffness = stiffness
-    functions.stiffness_derivative = stiffness_derivative
-    functions.potential_energy = potential_energy
-    functions.load = load
-    functions.load_rate = load_rate
-    functions.stage = stage
-    return functions
-
-
-#: The compiled struct of FUNCTIONS from dispatchers compiled for their
-#: signatures, declared with the signature so that numba takes each dispatcher
-#: as a first-class function (an address). Not cached on disk: numba's index
-#: of it would pickle the dispatchers of the first call, and loading it
-#: would compile those again (0.1 s to compile it, once per process).
-new_functions = numba.njit(**JIT_OPTIONS)(_new_functions)
-NEW_FUNCTIONS_SIGNATURE = FUNCTIONS.type(*(kind for _, kind in FUNCTIONS.fields))
 
 # -- numbers ---------------------------------------------------------------------------
 _INF, _NAN = math.inf, math.nan
@@ -259,57 +212,38 @@ RUN = Scalars("Run", [
 
 # -- arrays ---------------------------------------------------------------------------
 
-@structref.register
-class DataType(Struct):
-    pass
-
-
-class CompiledData(structref.StructRefProxy):
-    __slots__ = ()
-
-
-DATA = Arrays("Data", DataType, CompiledData, [
-    ("Md", VECTOR), ("Mf", MATRIX),             # M: diagonal or full (CONFIG.m_kind)
-    ("Cd", VECTOR), ("Cf", MATRIX),             # C likewise (CONFIG.c_kind)
-    ("params", VECTOR),                         # the model kernels' data
-    ("load_params", VECTOR),                    # the load's
-    ("held", VECTOR),                           # a held extra load (CONFIG.has_held)
-    ("rtol", VECTOR), ("atol", VECTOR),         # over (u, v), 2N each
-    ("breakpoints", VECTOR),                    # sorted
-    ("scheme_params", VECTOR),                  # the scheme's stage function's data
+DATA = Arrays("Data", [
+    ("Md", "vector"), ("Mf", "matrix"),         # M: diagonal or full (CONFIG.m_kind)
+    ("Cd", "vector"), ("Cf", "matrix"),         # C likewise (CONFIG.c_kind)
+    ("params", "vector"),                       # the model kernels' data
+    ("load_params", "vector"),                  # the load's
+    ("held", "vector"),                         # a held extra load (CONFIG.has_held)
+    ("rtol", "vector"), ("atol", "vector"),     # over (u, v), 2N each
+    ("breakpoints", "vector"),                  # sorted
+    ("scheme_params", "vector"),                # the scheme's stage function's data
 ])
 
-
-@structref.register
-class VectorsType(Struct):
-    pass
-
-
-class CompiledVectors(structref.StructRefProxy):
-    __slots__ = ()
-
-
 _STATE = ("u", "v", "a", "f", "p")
-VECTORS = Arrays("Vectors", VectorsType, CompiledVectors, [
-    *[(name, VECTOR) for name in _STATE],                       # at t
-    *[(f"{name}_previous", VECTOR) for name in _STATE],         # at t_previous
-    *[(f"{name}_new", VECTOR) for name in _STATE],              # the attempt's end
-    ("u_mid", VECTOR), ("v_mid", VECTOR), ("a_mid", VECTOR),    # the first stage's end
-    ("p_mid", VECTOR),
-    *[(f"{name}_saved", VECTOR) for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid")],
-    ("p_stage", VECTOR),            # the load at the stage's load time
-    ("p_rate", VECTOR),             # HFDI's p' at the step's end
-    ("trial", VECTOR),              # the Newton iterate
-    *[(name, VECTOR) for name in ("rhs", "residual", "du", "g", "vd", "kv", "tmp", "work",
-                                  "q0", "f0", "a0", "v0", "b_diagonal", "shift")],
-    ("error", VECTOR), ("ratio", VECTOR),                       # 2N: the error estimate
-    *[(name, MATRIX) for name in ("J", "lu", "S", "SB", "product", "B", "B_lu",
-                                  "columns")],
-    ("pivots", INT32_VECTOR), ("b_pivots", INT32_VECTOR),
-    ("ints", INT32_VECTOR), ("b_ints", INT32_VECTOR),
-    ("stage_iterations", INT64_VECTOR),                         # MAX_STAGES
-    ("row_t", VECTOR), ("row_h", VECTOR), ("row_iterations", INT64_VECTOR),
-    ("row_increment", VECTOR), ("row_energy", VECTOR), ("row_work", VECTOR),
-    ("row_u", MATRIX), ("row_v", MATRIX), ("row_a", MATRIX),
-    ("sparse", VECTOR),             # Python only: the sparse solvers' cache (empty here)
+VECTORS = Arrays("Vectors", [
+    *[(name, "vector") for name in _STATE],                       # at t
+    *[(f"{name}_previous", "vector") for name in _STATE],         # at t_previous
+    *[(f"{name}_new", "vector") for name in _STATE],              # the attempt's end
+    ("u_mid", "vector"), ("v_mid", "vector"), ("a_mid", "vector"),  # the first stage's end
+    ("p_mid", "vector"),
+    *[(f"{name}_saved", "vector") for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid")],
+    ("p_stage", "vector"),          # the load at the stage's load time
+    ("p_rate", "vector"),           # HFDI's p' at the step's end
+    ("trial", "vector"),            # the Newton iterate
+    *[(name, "vector") for name in ("rhs", "residual", "du", "g", "vd", "kv", "tmp", "work",
+                                    "q0", "f0", "a0", "v0", "b_diagonal", "shift")],
+    ("error", "vector"), ("ratio", "vector"),                     # 2N: the error estimate
+    *[(name, "matrix") for name in ("J", "lu", "S", "SB", "product", "B", "B_lu",
+                                    "columns")],
+    ("pivots", "int32 vector"), ("b_pivots", "int32 vector"),
+    ("ints", "int32 vector"), ("b_ints", "int32 vector"),
+    ("stage_iterations", "int64 vector"),                         # MAX_STAGES
+    ("row_t", "vector"), ("row_h", "vector"), ("row_iterations", "int64 vector"),
+    ("row_increment", "vector"), ("row_energy", "vector"), ("row_work", "vector"),
+    ("row_u", "matrix"), ("row_v", "matrix"), ("row_a", "matrix"),
+    ("sparse", "vector"),           # Python only: the sparse solvers' cache (empty here)
 ])

@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import math
 
-import llvmlite.binding as llvm
+import functools
+
 import numpy as np
 import scipy.linalg as sla
-from numba import types
-from numba.extending import get_cython_function_address
 
-from ..core.arrays import all_finite
+from ..core.arrays import all_finite_matrix
 from ..core.jit import jitable, primitive
 
 __all__ = ["CHOLESKY_FROM", "SYMMETRY_TOLERANCE", "INTS", "work_ints", "symmetric", "solve",
@@ -46,21 +45,28 @@ _gesv, _getrf, _getrs, _potrf, _potrs = sla.get_lapack_funcs(
     ("gesv", "getrf", "getrs", "potrf", "potrs"), (_F64,))
 
 
-def _bind(routine: str, arguments: int):
-    """``routine`` of scipy's LAPACK as an external function of ``arguments`` pointers."""
-    symbol = f"hfdi_scipy_lapack_{routine}"
-    llvm.add_symbol(symbol, get_cython_function_address("scipy.linalg.cython_lapack", routine))
-    return types.ExternalFunction(symbol, types.void(*[types.voidptr] * arguments))
+@functools.lru_cache(maxsize=None)
+def _compiled_globals():
+    """LAPACK's routines for compiled code: those of scipy's LAPACK, made known to
+    LLVM under names of their own and declared as external functions of
+    pointers, which the compiled bodies below call by those names (an address
+    baked into the code would not be cacheable)."""
+    import llvmlite.binding as llvm
+    from numba import types
+    from numba.extending import get_cython_function_address
 
+    def bind(routine: str, arguments: int):
+        symbol = f"hfdi_scipy_lapack_{routine}"
+        llvm.add_symbol(symbol, get_cython_function_address("scipy.linalg.cython_lapack",
+                                                            routine))
+        return types.ExternalFunction(symbol, types.void(*[types.voidptr] * arguments))
 
-# dgesv(n, nrhs, a, lda, ipiv, b, ldb, info); dgetrf(m, n, a, lda, ipiv, info);
-# dgetrs(trans, n, nrhs, a, lda, ipiv, b, ldb, info); dpotrf(uplo, n, a, lda, info);
-# dpotrs(uplo, n, nrhs, a, lda, b, ldb, info)
-_dgesv = _bind("dgesv", 8)
-_dgetrf = _bind("dgetrf", 6)
-_dgetrs = _bind("dgetrs", 9)
-_dpotrf = _bind("dpotrf", 5)
-_dpotrs = _bind("dpotrs", 8)
+    # dgesv(n, nrhs, a, lda, ipiv, b, ldb, info); dgetrf(m, n, a, lda, ipiv, info);
+    # dgetrs(trans, n, nrhs, a, lda, ipiv, b, ldb, info); dpotrf(uplo, n, a, lda, info);
+    # dpotrs(uplo, n, nrhs, a, lda, b, ldb, info)
+    return {"_dgesv": bind("dgesv", 8), "_dgetrf": bind("dgetrf", 6),
+            "_dgetrs": bind("dgetrs", 9), "_dpotrf": bind("dpotrf", 5),
+            "_dpotrs": bind("dpotrs", 8)}
 
 
 def work_ints() -> np.ndarray:
@@ -121,7 +127,7 @@ def _gesv_finite(A, x, lu, pivots, ints):
 def gesv(A, x, lu, pivots, ints):
     """``x ← A⁻¹ x`` by LU with partial pivoting (``A`` left as it is); false when
     ``A`` is singular or not finite (``x`` then undefined)."""
-    if not all_finite(A):
+    if not all_finite_matrix(A):
         return False
     return _gesv_finite(A, x, lu, pivots, ints)
 
@@ -155,7 +161,7 @@ def solve(A, x, lu, pivots, ints):
     """``x ← A⁻¹ x`` for a dense tangent: Cholesky when ``A`` has at least
     :data:`CHOLESKY_FROM` rows, is symmetric to rounding and positive
     definite, else :func:`gesv`; false when ``A`` is singular or not finite."""
-    if not all_finite(A):
+    if not all_finite_matrix(A):
         return False
     if A.shape[0] >= CHOLESKY_FROM and symmetric(A, lu[0]):
         outcome = _cholesky(A, x, lu, ints)
@@ -184,7 +190,7 @@ def _getrf_finite(A, lu, pivots, ints):
 def getrf(A, lu, pivots, ints):
     """The LU factors of ``A`` into ``lu`` and ``pivots``; false when ``A`` is
     singular or not finite."""
-    if not all_finite(A):
+    if not all_finite_matrix(A):
         return False
     return _getrf_finite(A, lu, pivots, ints)
 

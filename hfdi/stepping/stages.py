@@ -18,8 +18,8 @@ import math
 
 import numpy as np
 
-from ..core.arrays import (DENSE, DIAGONAL, NONE, add_diagonal, add_scaled, all_finite, axpy,
-                           copy, divide, divide_by, divide_rows, fill, lincomb, matvec, scale,
+from ..core.arrays import (DENSE, DIAGONAL, NONE, add_diagonal, add_scaled, all_finite,
+                           all_finite_matrix, axpy, copy, copy_matrix, divide, divide_by, divide_rows, fill, fill_matrix, lincomb, matvec, scale,
                            scaled_into, times)
 from ..core.codes import (CORRECTION_NOT_FINITE, DERIVATIVE_NOT_FINITE, DERIVATIVE_SHAPE,
                           END_NOT_FINITE, FORCE_NOT_FINITE, FORCE_SHAPE, LOAD_NOT_FINITE,
@@ -60,7 +60,7 @@ def _matrix_fault(run, X, n, shape_code, finite_code):
         run.bad_rows = X.shape[0]
         run.bad_columns = X.shape[1]
         return shape_code
-    return OK if all_finite(X) else finite_code
+    return OK if all_finite_matrix(X) else finite_code
 
 
 @jitable
@@ -337,7 +337,7 @@ def hfdi_setup(fn, cfg, data, run, vec, h, t_end, left):
             run.nlu += 1
     elif cfg.m_kind == DENSE or cfg.c_kind == DENSE:
         B = vec.B
-        fill(B, 0.0)
+        fill_matrix(B, 0.0)
         _add_matrix(B, c2, cfg.m_kind, data.Md, data.Mf)
         _add_matrix(B, c, cfg.c_kind, data.Cd, data.Cf)
         run.nlu += 1
@@ -420,7 +420,7 @@ def _hfdi_residual(fn, cfg, data, run, vec, u, h):
     add_scaled(J, -c, T)
     _add_matrix(J, 1.0, cfg.c_kind, data.Cd, data.Cf)
     if cfg.m_kind == DENSE or cfg.c_kind == DENSE:
-        copy(SB, S)
+        copy_matrix(SB, S)
         getrs_columns(vec.B_lu, vec.b_pivots, vec.b_ints, SB, vec.columns)
     else:
         divide_rows(SB, S, vec.b_diagonal)
