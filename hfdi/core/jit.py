@@ -102,7 +102,7 @@ def primitive(compiled_body):
     Python) and ``compiled_body`` (for numba, usually a loop). Both must give
     the same numbers."""
     def declare(python_body):
-        _CORE[python_body] = ("function", compiled_body)
+        _CORE[python_body] = ("inline", compiled_body)
         return python_body
     return declare
 
