@@ -45,7 +45,7 @@ from validation.experiments import experiment
 
 from strategies import PROPERTY, frequency_bound, log_uniform, spring_chain, spring_chains, taus
 
-SCHEMES = tuple(hfdi.SCHEMES)
+SCHEMES = hfdi.PAPER_SCHEMES          # the energy maps below need a step ending in equilibrium
 
 
 # -- the amplification matrix in the energy norm ---------------------------------
@@ -105,12 +105,28 @@ def _assert_normal_contraction(E, tol):
 @given(tau=taus)
 def test_every_step_ends_in_equilibrium(tau):
     # The restriction to a = −τ² u in energy_map is only valid if every
-    # column of A lands there: each scheme solves the equation of motion at
-    # the end of the step.
+    # column of A lands there: each of the paper's schemes solves the equation
+    # of motion at the end of the step.
     for scheme in SCHEMES:
         A = amplification_matrix(scheme, tau)
         scale = np.abs(A[2]).max() + tau ** 2 * np.abs(A[0]).max() + 1e-300
         assert np.abs(A[2] + tau ** 2 * A[0]).max() <= 1e-8 * scale, scheme
+
+
+@PROPERTY
+@given(tau=taus, rho=st.sampled_from([0.0, 0.5, 0.8, 1.0]))
+def test_generalized_alpha_ends_in_its_alpha_weighted_equilibrium(tau, rho):
+    """Generalized-α solves the equation of motion between the step's ends:
+    ``(1 − α_m) a_{n+1} + α_m a_n + ω² ((1 − α_f) u_{n+1} + α_f u_n) = 0``, for
+    every column of ``A`` (the unit states ``r = (u, h v, h² a)``)."""
+    scheme = hfdi.GeneralizedAlpha(rho)
+    A = amplification_matrix(scheme, tau)
+    am, af = scheme.alpha_m, scheme.alpha_f
+    start = np.eye(3)
+    weighted = ((1 - am) * A[2] + am * start[2]
+                + tau ** 2 * ((1 - af) * A[0] + af * start[0]))
+    scale = np.abs(A[2]).max() + 1.0 + tau ** 2 * (np.abs(A[0]).max() + 1.0)
+    assert np.abs(weighted).max() <= 1e-8 * scale
 
 
 @PROPERTY
