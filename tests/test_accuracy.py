@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 
 import hfdi
 from hfdi.controller import ErrorControl
-from hfdi.corrector import local_error, predict
+from core_records import local_error, predict
 
 import exact_problems
 import problems
@@ -80,7 +80,7 @@ def local_error_ratios(scheme, h, estimate, part=slice(0, 2)):
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_estimate_over_true_local_error_tends_to_one(scheme):
     """In a real run (the history carries the previous steps' errors) the
-    estimate of :func:`hfdi.corrector.local_error` over the true local error
+    estimate of :func:`hfdi.core.estimate.local_error` over the true local error
     tends to 1: its median error shrinks with h, linearly for HFDI (1 + O(h))."""
     medians = [np.median(local_error_ratios(scheme, h, local_error)) for h in (0.04, 0.02, 0.01)]
     deviation = np.abs(np.array(medians) - 1.0)

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 import hfdi
 from hfdi import evaluation, linalg, schemes
-from hfdi.corrector import predict
+from core_records import predict
 from hfdi.models.dumbbell import Dumbbell
 from hfdi.models.pair import PairPotential
 from validation.experiments import experiment

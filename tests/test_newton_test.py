@@ -11,54 +11,53 @@ import numpy as np
 import pytest
 
 import hfdi
-import hfdi.corrector as corrector
-from hfdi.corrector import CONSTANT_MEMORY, NO_MEASUREMENT, newton
+import hfdi.stepping.attempt as attempt
+from hfdi.core.state import RUN
+from hfdi.stepping.stages import CONSTANT_MEMORY, convergence_test
 
 import exact_problems
 
 SCHEMES = ["newmark", "bathe", "hfdi"]
 EXACT = {"duffing": (exact_problems.duffing, 10.0),
          "kepler": (exact_problems.kepler, 2.0 * math.pi)}
+NO_MEASUREMENT = (math.inf, math.inf)
 
 
-class _Solver:
-    """The part of an Evaluator that :func:`newton` uses."""
-
-    @staticmethod
-    def solve(tangent, rhs):
-        return np.linalg.solve(tangent, rhs)
-
-
-class _Square:
-    """``u² − r² = 0`` from above: ``e_{k+1} = e_k² / (2 u_k)``, so the
-    quadratic constant ``‖Δu_{k+1}‖/‖Δu_k‖²`` tends to ``1/(2r)``."""
-
-    def __init__(self, r):
-        self.r = r
-
-    def residual_and_jacobian(self, u):
-        return u * u - self.r ** 2, np.array([[2.0 * u[0]]])
+def square_root_newton(r, u, tol, memory=NO_MEASUREMENT, estimated=False, max_iterations=10):
+    """Newton on ``u² − r² = 0`` from above, stopped by the corrector's test
+    as :func:`hfdi.stepping.stages.newton` applies it: ``e_{k+1} = e_k²/(2u_k)``,
+    so the quadratic constant ``‖Δu_{k+1}‖/‖Δu_k‖²`` tends to ``1/(2r)``.
+    ``(u, corrections, done, error, (constant, guard))``."""
+    constant, guard = memory
+    previous = math.inf
+    for k in range(1, max_iterations + 1):
+        du = -(u * u - r * r) / (2.0 * u)
+        u = u + du
+        done, error, constant, guard = convergence_test(abs(du), du * du, previous, max(abs(u), 1.0),
+                                                        tol, constant, guard, estimated)
+        if done:
+            return u, k, True, error, (constant, guard)
+        previous = abs(du)
+    return u, max_iterations, False, math.inf, (constant, guard)
 
 
 def test_the_measured_constant_is_newtons_quadratic_constant():
     r = 2.0
     # corrections 0.45, 0.049, 6.1e-4, 9.3e-8: the last passes Eq. 38 at 1e-7
-    u, k, ok, _, _, (constant, guard) = newton(_Solver(), _Square(r), np.array([2.5]), 1e-7,
-                                               1.0, 10)
+    u, k, ok, _, (constant, guard) = square_root_newton(r, 2.5, 1e-7)
     assert ok and k == 4
     assert guard == constant
     assert constant == pytest.approx(1.0 / (2 * r), rel=1e-3)
-    assert abs(u[0] - r) < 1e-14
+    assert abs(u - r) < 1e-14
 
 
 def test_one_correction_is_enough_exactly_when_the_guarded_estimate_passes():
-    r, tol, guess = 2.0, 1e-6, np.array([2.0 + 1e-3])
-    first = -(guess[0] ** 2 - r ** 2) / (2 * guess[0])      # the first correction
-    size = abs(guess[0] + first)
+    r, tol, guess = 2.0, 1e-6, 2.0 + 1e-3
+    first = -(guess ** 2 - r ** 2) / (2 * guess)      # the first correction
+    size = abs(guess + first)
     for guard in (0.9 * tol * size / first ** 2, 1.1 * tol * size / first ** 2):
-        memory = (0.25, guard)
-        u, k, ok, _, error, (constant, new_guard) = newton(
-            _Solver(), _Square(r), guess.copy(), tol, 1.0, 10, memory, estimated=True)
+        u, k, ok, error, (constant, new_guard) = square_root_newton(
+            r, guess, tol, (0.25, guard), estimated=True)
         assert ok
         if guard * first ** 2 <= tol * size:
             # stopped on the estimate: error with the constant, the guard fades
@@ -70,30 +69,35 @@ def test_one_correction_is_enough_exactly_when_the_guarded_estimate_passes():
             assert k == 2                                    # it measured again
             assert new_guard == constant
     # Eq. 38 alone ignores the memory; without a measurement no first correction passes
-    assert newton(_Solver(), _Square(r), guess.copy(), tol, 1.0, 10, (0.25, 0.25))[1] == 2
-    assert newton(_Solver(), _Square(r), guess.copy(), tol, 1.0, 10, NO_MEASUREMENT,
-                  estimated=True)[1] == 2
+    assert square_root_newton(r, guess, tol, (0.25, 0.25))[1] == 2
+    assert square_root_newton(r, guess, tol, NO_MEASUREMENT, estimated=True)[1] == 2
 
 
 @pytest.fixture
 def stopped_runs(monkeypatch):
-    """For every Newton run that stopped after one correction larger than Eq.
-    38's bound: the error it left (Newton continued to round-off) over that
-    bound."""
+    """For every Newton run (of the plain Python steps) that stopped after one
+    correction larger than Eq. 38's bound: the error it left (Newton continued
+    to round-off from there, on copies of the run's records) over that bound."""
     ratios = []
-    original = corrector.newton
+    original = attempt.newton
 
-    def recording(ev, problem, u, tol, floor, max_iterations, memory=NO_MEASUREMENT,
-                  estimated=False):
-        out = original(ev, problem, u, tol, floor, max_iterations, memory, estimated)
-        end, k, ok = out[:3]
-        bound = tol * max(float(np.linalg.norm(end)), floor)
-        if ok and k == 1 and np.linalg.norm(end - u) > bound:
-            converged = original(ev, problem, end.copy(), 1e-15, floor, 6)[0]
-            ratios.append(float(np.linalg.norm(end - converged)) / bound)
+    def recording(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
+        start = vec.trial.copy()
+        out = original(fn, cfg, data, run, vec, st, h, constant, guard, hfdi)
+        outcome, k = out[:2]
+        end = vec.trial
+        bound = cfg.tol * max(float(np.linalg.norm(end)), cfg.floor)
+        if outcome == 0 and k == 1 and np.linalg.norm(end - start) > bound:
+            tight = type(cfg).record.copy(cfg)
+            tight.tol, tight.max_iterations, tight.estimated = 1e-15, 6, False
+            kept = vec._replace(**{name: np.array(getattr(vec, name), copy=True)
+                                   for name in vec._fields
+                                   if isinstance(getattr(vec, name), np.ndarray)})
+            original(fn, tight, data, RUN.copy(run), kept, st, h, math.inf, math.inf, hfdi)
+            ratios.append(float(np.linalg.norm(end - kept.trial)) / bound)
         return out
 
-    monkeypatch.setattr(corrector, "newton", recording)
+    monkeypatch.setattr(attempt, "newton", recording)
     return ratios
 
 

@@ -3,8 +3,10 @@
 The loops make one pass without temporaries (compiled code allocates nothing
 per step); the numpy bodies are the fewest calls. Both compute every entry
 with the same operations in the same order (``a * x[i] + b * y[i]`` is the
-same number either way), so the two speeds round alike. Products with
-matrices and dot products are ``np.dot`` in both, which is BLAS in both.
+same number either way), so the two speeds round alike. Dot products and
+products with dense matrices are BLAS calls of one library in both: compiled
+``np.dot`` calls scipy's BLAS, and so do the Python bodies here (numpy's own
+BLAS may be another build, whose sums round otherwise).
 
 Matrix arguments are described by a *kind* (:data:`NONE`, :data:`DIAGONAL`,
 :data:`DENSE`, :data:`SPARSE`) with the diagonal in one array and the full
@@ -16,13 +18,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.linalg import blas as _blas
 
 from .jit import jitable, primitive
 
 __all__ = ["NONE", "DIAGONAL", "DENSE", "SPARSE", "copy", "copy_matrix", "fill", "fill_matrix",
            "all_finite_matrix", "lincomb", "axpy", "scale", "times",
            "add_times", "divide", "divide_by", "matvec", "scaled_into", "add_scaled", "add_kind", "add_diagonal",
-           "divide_rows", "max_abs", "all_finite", "row_sum_max", "kinetic"]
+           "divide_rows", "max_abs", "all_finite", "row_sum_max", "kinetic", "dot", "matmul"]
 
 #: Kinds of a matrix of the model (mass, damping).
 NONE, DIAGONAL, DENSE, SPARSE = 0, 1, 2, 3
@@ -128,7 +131,7 @@ def times(kind, diagonal, full, x, out):
     if kind == DIAGONAL:
         np.multiply(diagonal, x, out)
     elif kind == DENSE:
-        np.dot(full, x, out)
+        _gemv(full, x, out)
     elif kind == SPARSE:
         out[:] = full @ x
     else:
@@ -165,9 +168,35 @@ def _matvec_compiled(A, x, out):
 def matvec(A, x, out):
     """``out = A x`` for a dense or (Python only) sparse ``A``."""
     if isinstance(A, np.ndarray):
-        np.dot(A, x, out)
+        _gemv(A, x, out)
     else:
         out[:] = A @ x
+
+
+def _gemv(A, x, out):
+    # compiled np.dot(A, x, out) of a C-ordered A: dgemv('t') of its transpose
+    out[:] = _blas.dgemv(1.0, A.T, x, trans=1) if A.shape[0] and A.shape[1] else 0.0
+
+
+def _dot_compiled(x, y):
+    return np.dot(x, y)
+
+
+@primitive(_dot_compiled)
+def dot(x, y):
+    """``xᵀ y`` (BLAS's ``ddot``)."""
+    return float(_blas.ddot(x, y)) if x.shape[0] else 0.0
+
+
+def _matmul_compiled(A, B, out):
+    np.dot(A, B, out)
+
+
+@primitive(_matmul_compiled)
+def matmul(A, B, out):
+    """``out = A B`` (BLAS's ``dgemm``; C-ordered, as compiled ``np.dot`` calls
+    it: ``outᵀ = Bᵀ Aᵀ``)."""
+    out[...] = _blas.dgemm(1.0, B.T, A.T).T
 
 
 @jitable
@@ -298,11 +327,16 @@ def _row_sum_max_loop(A):
 @primitive(_row_sum_max_loop)
 def row_sum_max(A):
     """``‖A‖_∞ = max_i Σ_j |A_ij|`` (dense or sparse)."""
-    return float(np.asarray(abs(A).sum(axis=1)).max())
+    if not isinstance(A, np.ndarray):
+        return float(np.asarray(abs(A).sum(axis=1)).max()) if A.shape[0] else 0.0
+    totals = np.zeros(A.shape[0])
+    for column in np.abs(A).T:          # summed in the loop's order (numpy's sums pair)
+        totals += column
+    return max(0.0, float(totals.max())) if A.shape[0] else 0.0
 
 
 @jitable
 def kinetic(kind, diagonal, full, v, work):
     """``½ vᵀ M v`` (``work`` holds ``M v``)."""
     times(kind, diagonal, full, v, work)
-    return 0.5 * float(np.dot(v, work))
+    return 0.5 * dot(v, work)

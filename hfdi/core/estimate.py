@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from .arrays import axpy, lincomb, max_abs
+from .arrays import axpy, dot, lincomb, max_abs
 from .jit import jitable, primitive
 
 __all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
@@ -128,7 +128,7 @@ def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise, ratio):
     ``noise`` added to the weights of ``v`` (:func:`velocity_noise`); entries
     of ``e`` that are 0 count 0 (``ratio`` (2N,) is scratch)."""
     _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise)
-    return math.sqrt(float(np.dot(ratio, ratio)) / ratio.shape[0])
+    return math.sqrt(dot(ratio, ratio) / ratio.shape[0])
 
 
 @jitable

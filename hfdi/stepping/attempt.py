@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..core.arrays import all_finite, axpy, copy, kinetic, lincomb, row_sum_max, times
+from ..core.arrays import all_finite, axpy, copy, dot, kinetic, lincomb, row_sum_max, times
 from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFLOW,
                           SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
                           STOP_OVERFLOW, STOP_POTENTIAL_LOST)
@@ -217,14 +217,14 @@ def accept(fn, cfg, data, run, vec):
     if cfg.stages > 1 and not taylor:
         lincomb(difference, 1.0, vec.u_mid, -1.0, vec.u)
         lincomb(total, 1.0, vec.p, 1.0, vec.p_mid)
-        work = 0.5 * float(np.dot(difference, total))
+        work = 0.5 * dot(difference, total)
         lincomb(difference, 1.0, vec.u_new, -1.0, vec.u_mid)
         lincomb(total, 1.0, vec.p_mid, 1.0, vec.p_new)
-        work += 0.5 * float(np.dot(difference, total))
+        work += 0.5 * dot(difference, total)
     else:
         lincomb(difference, 1.0, vec.u_new, -1.0, vec.u)
         lincomb(total, 1.0, vec.p, 1.0, vec.p_new)
-        work = 0.5 * float(np.dot(difference, total))
+        work = 0.5 * dot(difference, total)
     if energy_overflows(kinetic_new, work, potential):
         run.stop_t, run.stop_kinetic, run.stop_work = t_end, kinetic_new, work
         run.stop_potential = potential

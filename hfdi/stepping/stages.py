@@ -19,7 +19,8 @@ import math
 import numpy as np
 
 from ..core.arrays import (DENSE, DIAGONAL, NONE, add_diagonal, add_scaled, all_finite,
-                           all_finite_matrix, axpy, copy, copy_matrix, divide, divide_by, divide_rows, fill, fill_matrix, lincomb, matvec, scale,
+                           all_finite_matrix, axpy, copy, copy_matrix, divide, divide_by,
+                           divide_rows, dot, fill, fill_matrix, lincomb, matmul, matvec, scale,
                            scaled_into, times)
 from ..core.codes import (CORRECTION_NOT_FINITE, DERIVATIVE_NOT_FINITE, DERIVATIVE_SHAPE,
                           END_NOT_FINITE, FORCE_NOT_FINITE, FORCE_SHAPE, LOAD_NOT_FINITE,
@@ -192,11 +193,11 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
             return TANGENT_SINGULAR, k - 1, math.inf, constant, guard
         # ‖Δu‖² as np.linalg.norm forms it; NaN or infinity in Δu makes it
         # non-finite (an overflow too, hence the entry-wise test only then)
-        du2 = float(np.dot(du, du))
+        du2 = dot(du, du)
         if not math.isfinite(du2) and not all_finite(du):
             return CORRECTION_NOT_FINITE, k, math.inf, constant, guard
         axpy(u, 1.0, du)
-        size = math.sqrt(float(np.dot(u, u)))
+        size = math.sqrt(dot(u, u))
         step = math.sqrt(du2)
         done, error, constant, guard = convergence_test(
             step, du2, previous, max(size, cfg.floor), cfg.tol, constant, guard, cfg.estimated)
@@ -424,7 +425,7 @@ def _hfdi_residual(fn, cfg, data, run, vec, u, h):
         getrs_columns(vec.B_lu, vec.b_pivots, vec.b_ints, SB, vec.columns)
     else:
         divide_rows(SB, S, vec.b_diagonal)
-    np.dot(S, SB, vec.product)
+    matmul(S, SB, vec.product)
     add_scaled(J, 1.0, vec.product)
     return OK, J
 
