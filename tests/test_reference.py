@@ -307,6 +307,30 @@ def test_cache_key_covers_the_helpers_a_model_uses():
     """Editing the loads or the pair potential the tetrahedra use must miss
     the cache: the key hashes every module of hfdi.models and the model
     protocol, not only the model's own module."""
+    from validation.reference import _model_source_digest, model_sources
+    model = hfdi.models.tetrahedra()
+    sources = model_sources(model)
+    names = {p.name for p in sources}
+    assert {"tetrahedra.py", "pair.py", "loads.py", "system.py", "checks.py",
+            "evaluation.py"} <= names
+    # every file listed exists: one that does not would drop the sources from the key
+    assert all(p.is_file() for p in sources)
+    assert _model_source_digest(model) is not None
+
+
+def test_cache_key_covers_the_hfdi_modules_a_model_module_uses(tmp_path, monkeypatch):
+    """A model written outside hfdi.models: its module, and the modules of hfdi
+    it takes names from (here hfdi.models.pair), are in the key."""
+    import importlib
+    import sys
     from validation.reference import model_sources
-    names = {p.name for p in model_sources(hfdi.models.tetrahedra())}
-    assert {"tetrahedra.py", "pair.py", "loads.py", "system.py"} <= names
+    (tmp_path / "my_model.py").write_text(
+        "import hfdi\nfrom hfdi.models.pair import PairPotential\n"
+        "class Mine(hfdi.SecondOrderSystem):\n    n_dof = 1\n    mass = [1.0]\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("my_model")
+    try:
+        names = {p.name for p in model_sources(module.Mine())}
+    finally:
+        sys.modules.pop("my_model", None)
+    assert {"my_model.py", "pair.py", "system.py", "evaluation.py"} <= names
