@@ -345,7 +345,7 @@ def test_cosim_runs_and_reports_a_ratio(inputs):
 
 
 def test_compiled_runs_give_the_records_of_the_python_path(tiny, tmp_path):
-    """``--compiled``: our runs on the compiled attempt; on the dumbbell (whose
+    """``--compiled``: our runs on the compiled path; on the dumbbell (whose
     kernels agree bit for bit with the Python model) every record but the
     times is the one of the Python path."""
     pytest.importorskip("numba")
