@@ -210,11 +210,12 @@ def _stability(args):
 
 
 def _all(args):
-    from .report import FIGURE_DIR, SettingsMismatch, run_all
-    from .stability import DEFAULT_RATIOS
     for option, t_end in (("--t-end", args.t_end), ("--long-t-end", args.long_t_end)):
         check_runs(args.problems or names(), args.schemes, args.targets,
                     t_end, option=option)
+    # after the checks: the figures import matplotlib (about a second)
+    from .report import FIGURE_DIR, SettingsMismatch, run_all
+    from .stability import DEFAULT_RATIOS
     # --dask: the extra and the scheduler are checked before --out is made
     with opt.runner_from_args(args) as runner:
         out = out_dir(args.out)
