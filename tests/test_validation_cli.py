@@ -122,11 +122,12 @@ def test_absurd_t_end_is_refused_before_any_work(tmp_path, capsys, args):
     assert not (tmp_path / "out").exists()
 
 
-def test_table_json_is_written_atomically(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("option", ["--json", "--csv"])
+def test_table_outputs_are_written_atomically(option, tmp_path, monkeypatch, capsys):
     """A failure while writing (the disk full) leaves the previous file."""
     import os
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
-    out = tmp_path / "runs.json"
+    out = tmp_path / "runs.out"
     out.write_text("previous")
 
     def disk_full(fd):
@@ -134,9 +135,9 @@ def test_table_json_is_written_atomically(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(os, "fsync", disk_full)
     assert main(["table", "dumbbell", "--schemes", "hfdi", "--targets", "3.3", "--t-end", "0.2",
-                 "--no-eps", "--json", str(out)]) != 0
+                 "--no-eps", option, str(out)]) != 0
     assert out.read_text() == "previous"
-    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["runs.json"]
+    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["runs.out"]
 
 
 

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 
+from hfdi.files import write_atomic
+
 from .experiments import EXPERIMENTS, SCHEME_ORDER
 from .runs import scheme_title
 
@@ -64,14 +66,18 @@ def format_table(records: list) -> str:
 
 
 def records_to_csv(records: list, path) -> None:
-    """Write the runs as CSV, one row per run and one ``eps_<name>`` column per quantity."""
+    """Write the runs as CSV, one row per run and one ``eps_<name>`` column per
+    quantity, atomically (:func:`hfdi.files.write_atomic`)."""
     import csv
+    import io
     names = sorted({n for r in records for n in r.eps})
     fields = ["problem", "scheme", "target", "rtol", "steps", "mean_iterations", "mean_step",
               "cpu_time", "status", "t_reached"]
-    with open(path, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(fields + [f"eps_{n}" for n in names] + ["message"])
-        for r in records:
-            writer.writerow([getattr(r, f) for f in fields]
-                            + [r.eps.get(n, "") for n in names] + [r.message])
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    writer.writerow(fields + [f"eps_{n}" for n in names] + ["message"])
+    for r in records:
+        writer.writerow([getattr(r, f) for f in fields]
+                        + [r.eps.get(n, "") for n in names] + [r.message])
+    # atomically: a full disk or a kill leaves the previous file, not half of one
+    write_atomic(path, buffer.getvalue())
