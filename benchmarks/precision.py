@@ -811,7 +811,8 @@ def format_problem(result) -> str:
     width = max([8] + [len(r["method"]) for r in result["records"]])
     lines = [f"{result['problem']}  (N = {result['n_dof']}, t_end = {result['t_end']:g}; "
              f"ε_u against IDA rtol {ref['rtol']:g}, {ref['steps']} steps)",
-             f"  {'method':{width}s} {'setting':11s} {'wall [ms]':>10s} {'CPU [ms]':>9s} {'steps':>7s} "
+             f"  {'method':{width}s} {'setting':11s} {'wall [ms]':>10s} {'CPU [ms]':>9s} "
+             f"{'steps':>7s} "
              f"{'Newton it':>9s} {'nfev':>7s} {'njev':>6s} {'nlu':>6s} {'ε_u':>9s}  status"]
     for r in result["records"]:
         eps = "-" if r["eps_u"] is None else format(r["eps_u"], ".2e")

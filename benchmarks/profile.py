@@ -227,7 +227,8 @@ def _print_paths(args) -> list:
                 f"  (compiled: {row['compiled_steps']} steps, "
                 f"{row['compiled_newton_iterations']} its)")
             f = row["compiled_split"]
-            print(f"{problem:12s} {scheme:{width}s} {row['steps']:6d} {row['newton_iterations']:6d} "
+            print(f"{problem:12s} {scheme:{width}s} {row['steps']:6d} "
+                  f"{row['newton_iterations']:6d} "
                   f"{row['python_us']:13.1f} {row['compiled_us']:15.1f} "
                   f"{row['speedup']:6.2f} {row['floor_us']:12.2f}  {f['model']:15.2f}  "
                   f"{f['linear_algebra']:6.2f}  "
@@ -272,7 +273,8 @@ def main(argv=None) -> int:
             row = profile_run(problem, scheme, args.target, args.repeats, args.t_end)
             rows.append(row)
             f = row["fractions"]
-            print(f"{problem:12s} {scheme:{width}s} {row['steps']:6d} {row['newton_iterations']:6d} "
+            print(f"{problem:12s} {scheme:{width}s} {row['steps']:6d} "
+                  f"{row['newton_iterations']:6d} "
                   f"{1e3 * row['wall_s']:8.1f} {row['ms_per_iteration']:7.3f}  "
                   f"{f['model']:5.2f}  {f['linear_algebra']:6.2f}  {f['driver']:6.2f}",
                   flush=True)

@@ -48,8 +48,8 @@ from .reference import IDAError
 from .runs import Progress, ProblemRuns, RunRecord, scheme_title
 from .stability import DEFAULT_RATIOS, FIGURE_NAMES, format_stability_table, write_stability
 
-__all__ = ["run_all", "reference_convergence", "build_report", "SettingsMismatch",
-           "TIGHT_RTOL", "SETTINGS_FILE"]
+__all__ = ["run_all", "reference_convergence", "build_report", "stability_schemes",
+           "SettingsMismatch", "TIGHT_RTOL", "SETTINGS_FILE"]
 
 #: rtol of the default reference and of the tighter one of the convergence check.
 DEFAULT_RTOL = 1e-12
