@@ -1,21 +1,27 @@
-"""The floor: the same Newton iteration in a minimal compiled loop.
+"""The floor: what one Newton correction cannot avoid, timed on the library's own code.
 
-A fixed-step run of one scheme written as plainly as compiled code allows, for
-a diagonal ``M`` and no damping (the four paper models): the model's own
-compiled kernels passed as arguments (numba specialises the loop on them and
-may inline them), LAPACK as the compiled attempt calls it
-(:func:`hfdi.compiled.lapack.solve`: Cholesky for a tangent symmetric to
-rounding, else LU), work
-arrays allocated once, a linear predictor, the convergence test of Eq. 38 and
-nothing else: no error estimate, no controller, no energy balance, no checks
-of the model's values, no statistics. What the library's compiled path costs
-above this per Newton iteration is the price of its generality and its
-guards (docs/compiled.md).
+A correction of a stage evaluates the model's internal force ``f(u)`` and its
+tangent ``K(u)`` and solves one dense linear system; HFDI's stage (Eq. 21)
+also evaluates ``T(u)[v_D]`` and forms the product ``S B⁻¹ S``. The floor of
+a scheme on a model is the sum of those unit costs, each timed in a compiled
+loop that calls
 
-:func:`floor_us` runs it at the mean step of a library run and returns µs per
-Newton iteration (:func:`floor_run`, its end state, is held to the library's
-fixed-step run by ``tests/test_profile.py``); ``python -m benchmarks profile --paths`` prints it beside
-the compiled path's.
+* the model's own compiled kernels (``compiled_kernels()``, as
+  :func:`hfdi.compiled.kernels_of` gives them), and
+* the dense solve of the stepping code, :func:`hfdi.linsolve.dense.solve`
+  (Cholesky for a tangent symmetric to rounding from
+  :data:`~hfdi.linsolve.dense.CHOLESKY_FROM` rows on, else LU), in its
+  compiled form, on work arrays allocated once, as the stepping code does;
+
+with nothing of the step restated here. What the library's compiled path
+costs per Newton iteration above the floor is its predictor, residual and
+tangent assembly, checks, error estimate, controller and energy balance
+(docs/compiled.md). The floor is a cost per correction; a step costs it
+times the run's corrections per step.
+
+:func:`unit_costs` gives the unit costs (µs per call), :func:`floor_us` their
+sum for a scheme. ``python -m benchmarks profile --paths`` prints the floor
+beside the compiled path's µs per iteration.
 """
 from __future__ import annotations
 
@@ -24,207 +30,171 @@ import time
 
 import numpy as np
 
-__all__ = ["floor_us", "floor_run"]
+__all__ = ["unit_costs", "floor_us", "correction_costs", "UNIT_COSTS"]
+
+#: The unit costs :func:`unit_costs` measures (µs per call).
+UNIT_COSTS = ("force", "stiffness", "stiffness_derivative", "potential_energy", "solve",
+              "product")
 
 _LOOPS = {}
 
 
 def _loops():
-    """The three minimal loops, compiled on first use (numba imported here)."""
+    """The timing loops, compiled on first use (numba imported here)."""
     if _LOOPS:
         return _LOOPS
     from numba import njit
 
-    from hfdi.compiled.lapack import solve, work_arrays
+    from hfdi.core.jit import twin
+    from hfdi.linsolve.dense import solve as library_solve
+    # the stepping code's dense solve as compiled code calls it
+    solve = twin(library_solve)
 
     @njit
-    def correct(tangent, du, u, lu, pivots, ints, tol):
-        """``u += tangent⁻¹ du`` (``du`` holds ``−residual``); converged by Eq. 38."""
-        solve(tangent, du, lu, pivots, ints)
-        step2, size2 = 0.0, 0.0
-        for i in range(u.shape[0]):
-            u[i] += du[i]
-            step2 += du[i] * du[i]
-            size2 += u[i] * u[i]
-        return math.sqrt(step2) <= tol * max(math.sqrt(size2), 1.0)
+    def vector_calls(kernel, u, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, params)[0]
+        return total
 
     @njit
-    def newton(force, stiffness, params, M, ca, rhs, u, tol, work, counters):
-        """Newton on ``ca M u + f(u) = rhs`` from ``u`` (in place)."""
-        n = u.shape[0]
-        tangent, residual, du, lu, pivots, ints = work
-        for _ in range(50):
-            f = force(u, params)
-            K = stiffness(u, params)
-            for i in range(n):
-                residual[i] = ca * M[i] * u[i] + f[i] - rhs[i]
-                du[i] = -residual[i]
-                for j in range(n):
-                    tangent[i, j] = K[i, j]
-                tangent[i, i] += ca * M[i]
-            counters[0] += 1
-            if correct(tangent, du, u, lu, pivots, ints, tol):
-                return
+    def matrix_calls(kernel, u, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, params)[0, 0]
+        return total
 
     @njit
-    def newmark(force, stiffness, load, params, load_params, M, u, v, a, h, steps, tol):
-        n = u.shape[0]
-        work = (np.empty((n, n)), np.empty(n), np.empty(n)) + work_arrays(n)
-        counters = np.zeros(1, np.int64)
-        gamma, beta = 0.5, 0.25
-        ca, cv = 1.0 / (beta * h * h), gamma / (beta * h)
-        rhs, new = np.empty(n), np.empty(n)
-        for k in range(steps):
-            p = load((k + 1) * h, load_params)
-            a0 = -ca * u - v / (beta * h) - (0.5 / beta - 1.0) * a
-            v0 = -cv * u + (1.0 - gamma / beta) * v + h * (1.0 - 0.5 * gamma / beta) * a
-            for i in range(n):
-                rhs[i] = p[i] - M[i] * a0[i]
-                new[i] = u[i] + h * v[i]
-            newton(force, stiffness, params, M, ca, rhs, new, tol, work, counters)
-            for i in range(n):
-                u[i] = new[i]
-                v[i] = cv * new[i] + v0[i]
-                a[i] = ca * new[i] + a0[i]
-        return counters[0]
+    def derivative_calls(kernel, u, w, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, w, params)[0, 0]
+        return total
 
     @njit
-    def bathe(force, stiffness, load, params, load_params, M, u, v, a, h, steps, tol):
-        n = u.shape[0]
-        work = (np.empty((n, n)), np.empty(n), np.empty(n)) + work_arrays(n)
-        counters = np.zeros(1, np.int64)
-        g = 0.5                  # the library's default sub-step ratio
-        hg = g * h
-        ca, cv = 4.0 / (hg * hg), 2.0 / hg
-        c1, c2 = (1.0 - g) / (g * h), -1.0 / ((1.0 - g) * g * h)
-        c3 = (2.0 - g) / ((1.0 - g) * h)
-        rhs, mid, new = np.empty(n), np.empty(n), np.empty(n)
-        mid_v, v0, a0 = np.empty(n), np.empty(n), np.empty(n)
-        for k in range(steps):
-            t = k * h
-            p = load(t + hg, load_params)
-            for i in range(n):       # the trapezoidal rule over γ h
-                a0[i] = -ca * u[i] - 2.0 * cv * v[i] - a[i]
-                v0[i] = -cv * u[i] - v[i]
-                rhs[i] = p[i] - M[i] * a0[i]
-                mid[i] = u[i] + hg * v[i]
-            newton(force, stiffness, params, M, ca, rhs, mid, tol, work, counters)
-            for i in range(n):
-                mid_v[i] = cv * mid[i] + v0[i]
-            p = load(t + h, load_params)
-            for i in range(n):       # the three-point backward formula
-                v0[i] = c1 * u[i] + c2 * mid[i]
-                a0[i] = c1 * v[i] + c2 * mid_v[i] + c3 * v0[i]
-                rhs[i] = p[i] - M[i] * a0[i]
-                new[i] = u[i] + h * v[i]
-            newton(force, stiffness, params, M, c3 * c3, rhs, new, tol, work, counters)
-            for i in range(n):
-                u[i] = new[i]
-                v[i] = c3 * new[i] + v0[i]
-                a[i] = c3 * c3 * new[i] + a0[i]
-        return counters[0]
+    def scalar_calls(kernel, u, params, n):
+        total = 0.0
+        for _ in range(n):
+            total += kernel(u, params)
+        return total
 
     @njit
-    def hfdi(force, stiffness, derivative, load, params, load_params, M, u, v, h, steps,
-             tol):
-        """HFDI's Newton on Eq. 21 with its exact tangent (diagonal M, no C)."""
-        n = u.shape[0]
-        c, c2 = h * h / 6.0, 2.0 * h / 3.0
-        b = c2 * M
-        S, tangent = np.empty((n, n)), np.empty((n, n))
-        g, vD, residual, du, q0, F0 = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
-                                       np.empty(n), np.empty(n))
-        lu, pivots, ints = work_arrays(n)
-        iterations = 0
-        p_n = load(0.0, load_params)
-        f_n = force(u, params)
-        for k in range(steps):
-            p = load((k + 1) * h, load_params)
-            for i in range(n):
-                q0[i] = -M[i] * (u[i] + h / 3.0 * v[i])
-                F0[i] = -M[i] * v[i] - h / 3.0 * (p_n[i] - f_n[i])
-            pt = (p - p_n) / h
-            x = u + h * v
-            for _ in range(50):
-                f = force(x, params)
-                K = stiffness(x, params)
-                for i in range(n):
-                    g[i] = p[i] - f[i]
-                    vD[i] = (M[i] * x[i] + q0[i] + c * g[i]) / b[i]
-                Kv = np.dot(K, vD)
-                for i in range(n):
-                    residual[i] = M[i] * vD[i] - c2 * g[i] + c * (pt[i] - Kv[i]) + F0[i]
-                    du[i] = -residual[i]
-                T = derivative(x, vD, params)
-                for i in range(n):
-                    for j in range(n):
-                        S[i, j] = -c * K[i, j]
-                        tangent[i, j] = c2 * K[i, j] - c * T[i, j]
-                    S[i, i] += M[i]
-                tangent += S @ (S / b.reshape(n, 1))
-                iterations += 1
-                if correct(tangent, du, x, lu, pivots, ints, tol):
-                    break
-            f_n = force(x, params)
-            for i in range(n):
-                v[i] = (M[i] * x[i] + q0[i] + c * (p[i] - f_n[i])) / b[i]
-                u[i] = x[i]
-            p_n = p
-        return iterations
+    def solves(A, b, x, lu, pivots, ints, n):
+        total = 0.0
+        for _ in range(n):
+            x[:] = b
+            if not solve(A, x, lu, pivots, ints):
+                return math.nan
+            total += x[0]
+        return total
 
-    _LOOPS.update(newmark=newmark, bathe=bathe, hfdi=hfdi)
+    @njit
+    def products(A, B, out, n):
+        total = 0.0
+        for _ in range(n):
+            np.dot(A, B, out)
+            total += out[0, 0]
+        return total
+
+    _LOOPS.update(vector_calls=vector_calls, matrix_calls=matrix_calls,
+                  derivative_calls=derivative_calls, scalar_calls=scalar_calls, solves=solves,
+                  products=products)
     return _LOOPS
 
 
-def floor_us(model, scheme: str, step: float, t_end: float, tol: float, repeats: int = 3):
-    """µs per Newton iteration of the minimal loop of ``scheme`` on ``model``
-    (compiled kernels, diagonal ``M``, no damping) at the fixed ``step`` over
-    ``t_end``, best of ``repeats``; ``(µs, iterations per step)``."""
-    run, steps = _runner(model, scheme, step, t_end, tol)
-    run()                                           # compile
-    best, iterations = math.inf, 0
-    for _ in range(max(1, int(repeats))):
-        start = time.perf_counter()
-        iterations = run()[2]
-        best = min(best, time.perf_counter() - start)
-    return 1e6 * best / max(iterations, 1), iterations / steps
-
-
-def floor_run(model, scheme: str, step: float, t_end: float, tol: float):
-    """The minimal loop's end state: ``(u, v, Newton iterations)``."""
-    return _runner(model, scheme, step, t_end, tol)[0]()
-
-
-def _runner(model, scheme, step, t_end, tol):
+def _kernels(model):
     from hfdi.compiled import kernels_of
-    from hfdi.compiled.loads import hat_load
-
     kernels, why = kernels_of(model)
     if kernels is None:
-        raise ValueError(f"no compiled kernels: {why}")
-    M = np.asarray(model.mass, dtype=float)
-    if M.ndim == 2 and np.array_equal(M, np.diag(np.diagonal(M))):
-        M = np.ascontiguousarray(np.diagonal(M))
-    if M.ndim != 1 or model.damping is not None:
-        raise ValueError("the minimal loop takes a diagonal mass and no damping")
-    load = kernels.load if kernels.load is not None else hat_load
-    load_params = kernels.load_params if kernels.load is not None else np.zeros(1)
-    steps = max(1, int(round(t_end / step)))
-    h = t_end / steps
-    loop = _loops()[scheme]
+        raise ValueError(f"model {getattr(model, 'name', type(model).__name__)!r} has no "
+                         f"compiled kernels: {why}")
+    return kernels
 
-    def run():
-        u = np.array(model.initial_displacement, dtype=float)
-        v = np.zeros_like(u) if model.initial_velocity is None else \
-            np.array(model.initial_velocity, dtype=float)
-        if scheme == "hfdi":
-            iterations = loop(kernels.force, kernels.stiffness, kernels.stiffness_derivative,
-                              load, kernels.params, load_params, M, u, v, h, steps, tol)
-        else:
-            # the initial acceleration M⁻¹(p(0) − f(u0)), as the library starts
-            a = (load(0.0, load_params) - kernels.force(u, kernels.params)) / M
-            iterations = loop(kernels.force, kernels.stiffness, load, kernels.params,
-                              load_params, M, u, v, a, h, steps, tol)
-        return u, v, int(iterations)
 
-    return run, steps
+def unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
+    """µs per call, in compiled loops, of the model's kernels at ``u`` and of
+    the dense linear algebra of one Newton correction; best of ``repeats``.
+
+    Parameters
+    ----------
+    model : SecondOrderSystem
+        A model with compiled kernels (``ValueError`` naming the model otherwise).
+    u : array_like (N,)
+        Where the kernels are evaluated (say the end state of a run).
+    repeats, calls : int
+        Timed loops (the fastest kept) and calls per loop, each ``>= 1``.
+
+    Returns
+    -------
+    dict
+        The keys of :data:`UNIT_COSTS`: ``force`` ``f(u)``, ``stiffness``
+        ``K(u)``, ``stiffness_derivative`` ``T(u)[w]``, ``potential_energy``
+        ``V(u)``; ``solve``: :func:`hfdi.linsolve.dense.solve` with an (N, N)
+        matrix of ``K(u)``'s pattern and symmetry (``K`` plus a diagonal that
+        makes it definite, as a tangent ``c M + K`` is) and one right-hand side;
+        ``product``: an (N, N) product into a given array, HFDI's ``S B⁻¹ S``.
+    """
+    for name, value in (("repeats", repeats), ("calls", calls)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    from hfdi.linsolve.dense import work_ints
+
+    kernels = _kernels(model)
+    u = np.ascontiguousarray(u, dtype=float)
+    if u.ndim != 1 or u.size != int(model.n_dof) or not np.isfinite(u).all():
+        raise ValueError(f"u must be a finite vector of the model's {int(model.n_dof)} "
+                         f"entries, got shape {u.shape}")
+    loops = _loops()
+    n = u.size
+    w = np.sin(np.arange(1, n + 1.0))
+    p = kernels.params
+    K = np.asarray(kernels.stiffness(u, p), dtype=float)
+    A = np.ascontiguousarray(K + np.diag(np.abs(K).sum(axis=1) + 1.0))
+    x, lu = np.empty(n), np.empty((n, n))
+    pivots, ints = np.empty(n, np.int32), work_ints()
+    out = np.empty((n, n))
+    runs = {"force": lambda m: loops["vector_calls"](kernels.force, u, p, m),
+            "stiffness": lambda m: loops["matrix_calls"](kernels.stiffness, u, p, m),
+            "stiffness_derivative": lambda m: loops["derivative_calls"](
+                kernels.stiffness_derivative, u, w, p, m),
+            "potential_energy": lambda m: loops["scalar_calls"](kernels.potential_energy, u,
+                                                                p, m),
+            "solve": lambda m: loops["solves"](A, w, x, lu, pivots, ints, m),
+            "product": lambda m: loops["products"](A, A, out, m)}
+    costs = {}
+    for name in UNIT_COSTS:
+        run = runs[name]
+        if not math.isfinite(run(1)):                 # compiles; the solve must succeed
+            raise ValueError(f"the {name} of model {model.name!r} at u is not finite")
+        best = math.inf
+        for _ in range(int(repeats)):
+            start = time.perf_counter()
+            run(int(calls))
+            best = min(best, time.perf_counter() - start)
+        costs[name] = 1e6 * best / int(calls)
+    return costs
+
+
+def correction_costs(scheme) -> tuple:
+    """The unit costs (keys of :func:`unit_costs`) one Newton correction of
+    ``scheme``'s stages pays: ``f``, ``K`` and a solve; for HFDI's stage
+    also ``T(u)[v_D]`` and the product ``S B⁻¹ S``."""
+    import hfdi
+    hfdi_stage = isinstance(hfdi.get_scheme(scheme), hfdi.HFDI)
+    return ("force", "stiffness", "solve") + \
+        (("stiffness_derivative", "product") if hfdi_stage else ())
+
+
+def floor_us(model, scheme, costs: dict | None = None, u=None, repeats: int = 3) -> float:
+    """µs per Newton correction of ``scheme`` on ``model`` that no
+    implementation avoids: the sum of the unit costs of
+    :func:`correction_costs` (``costs`` from :func:`unit_costs`, measured at
+    ``u`` — default the model's initial displacement — when not given)."""
+    if costs is None:
+        u = model.initial_displacement if u is None else u
+        u = np.zeros(int(model.n_dof)) if u is None else u
+        costs = unit_costs(model, u, repeats)
+    missing = [name for name in correction_costs(scheme) if name not in costs]
+    if missing:
+        raise ValueError(f"costs lacks {', '.join(missing)} (see benchmarks.floor.unit_costs)")
+    return float(sum(costs[name] for name in correction_costs(scheme)))

@@ -5,7 +5,8 @@ For each problem, every method integrates the model from its initial state to
 methods taken in turn (every method's loosest setting, then every method's
 next one, ...) so that a drift of the machine's load is shared by all:
 
-* ours — Newmark, Bathe and HFDI (:func:`hfdi.integrate`), one run per target
+* ours — Newmark, Bathe, HFDI and generalized-α (every scheme of
+  :data:`hfdi.SCHEMES`; :func:`hfdi.integrate`), one run per target
   iteration count ``N̄`` (per sub-step for Bathe), Newton tolerance 1e-8 and
   the energy guard of the paper's tables; and each error-controlled, one run
   per ``rtol`` of ``ours_rtols``;
@@ -85,18 +86,20 @@ import scipy.sparse as sp
 
 import hfdi
 
-from hfdi.linalg import normalise_matrix
+from hfdi.evaluation import normalise_matrix
 from validation import options as opt
 from hfdi.files import write_output
 from validation.errors import error_norm
-from validation.experiments import ENERGY_LIMIT, SCHEME_COLOURS, SCHEME_ORDER, experiment, names
+from validation.experiments import (ENERGY_LIMIT, SCHEME_COLOURS, SCHEME_ORDER, SchemeStyle,
+                                   experiment, names)
 from validation.reference import cached_reference, default_atol, ida_solve
-from validation.runs import integrate
+from validation.runs import integrate, scheme_title
 
 __all__ = ["bench_problem", "bench_task", "pareto_front", "interpolate_wall", "speedups",
            "goal", "format_problem", "plot_problem", "machine_info", "write_outputs",
            "add_parser", "run_command", "SCHEMES", "COMPETITORS", "DEFAULT_TARGETS", "DEFAULT_RTOLS"]
 
+#: Our schemes: every scheme of :data:`hfdi.SCHEMES` (the paper's three and generalized-α).
 SCHEMES = SCHEME_ORDER
 #: Our schemes under error control (``hfdi.integrate(..., rtol=...)``), one run per rtol.
 ERROR_CONTROLLED = tuple(f"{s}-rtol" for s in SCHEMES)
@@ -105,14 +108,12 @@ COMPETITORS = ("ida", "radau", "bdf")
 #: Relative tolerances of our error-controlled runs, loosest first.
 DEFAULT_OURS_RTOLS = tuple(10.0 ** -k for k in range(3, 10))
 
-#: Targets ``N̄`` per scheme (per sub-step for Bathe), loosest first. They span
-#: the accuracy the iteration-count rule reaches: 5 gives a few steps per
+#: Targets ``N̄`` of every scheme (per sub-step for Bathe), loosest first. They
+#: span the accuracy the iteration-count rule reaches: 5 gives a few steps per
 #: period of the slow motion, 1.5 resolves part of the fast vibrations.
-DEFAULT_TARGETS = {
-    "newmark": (5.0, 4.0, 3.5, 3.0, 2.5, 2.0, 1.5),
-    "bathe": (5.0, 4.0, 3.5, 3.0, 2.5, 2.0, 1.5),
-    "hfdi": (5.0, 4.0, 3.5, 3.0, 2.5, 2.0, 1.5),
-}
+TARGETS = (5.0, 4.0, 3.5, 3.0, 2.5, 2.0, 1.5)
+#: :data:`TARGETS` per scheme (the same for each).
+DEFAULT_TARGETS = {s: TARGETS for s in SCHEMES}
 #: Relative tolerances of the competitors, loosest first.
 DEFAULT_RTOLS = tuple(10.0 ** -k for k in range(3, 11))
 REFERENCE_RTOL = 1e-12
@@ -407,10 +408,11 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     problem : str
         A name of :func:`hfdi.models.available`.
     schemes : sequence of str
-        Our schemes, of ``"newmark"``, ``"bathe"``, ``"hfdi"``.
+        Our schemes, of :data:`SCHEMES` (``"newmark"``, ``"bathe"``,
+        ``"hfdi"``, ``"generalized_alpha"``).
     targets : dict or sequence of float, optional
         Target iteration counts ``N̄`` (per sub-step for Bathe): one list for
-        every scheme, or scheme → list. Default :data:`DEFAULT_TARGETS`.
+        every scheme, or scheme → list. Default :data:`TARGETS` for each.
     rtols : sequence of float
         Relative tolerances of the competitors (sorted loosest first here).
     ours_rtols : sequence of float
@@ -432,7 +434,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     progress : callable, optional
         Called with one line of text per run.
     compiled : bool
-        Our runs on the compiled attempt (``compiled=True``, docs/compiled.md).
+        Our runs on the compiled path (``compiled=True``, docs/compiled.md).
 
     Returns
     -------
@@ -449,10 +451,16 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     load_start = load_average()
     model = hfdi.models.get(problem)
     t_end = float(experiment(problem).observation_time if t_end is None else t_end)
+    unknown = [s for s in schemes if s not in SCHEMES]
+    if unknown:
+        raise ValueError(f"schemes must be of {', '.join(SCHEMES)}, got "
+                         f"{', '.join(map(repr, unknown))}")
     if isinstance(targets, dict):
-        per_scheme = {s: tuple(targets.get(s) or DEFAULT_TARGETS[s]) for s in schemes}
+        per_scheme = {s: tuple(targets.get(s) or DEFAULT_TARGETS.get(s, TARGETS))
+                      for s in schemes}
     else:
-        per_scheme = {s: tuple(targets) if targets else DEFAULT_TARGETS[s] for s in schemes}
+        per_scheme = {s: tuple(targets) if targets else DEFAULT_TARGETS.get(s, TARGETS)
+                      for s in schemes}
     # loosest first: the warm-up uses the cheapest setting, and the skip rule
     # of the competitors needs the order
     per_scheme = {s: tuple(sorted(map(float, ts), reverse=True)) for s, ts in per_scheme.items()}
@@ -799,13 +807,16 @@ def _num(value, fmt):
 def format_problem(result) -> str:
     """A plain-text table of one problem's runs, the speed-ups and the goal figure."""
     ref = result["reference"]
+    # the method column as wide as its longest name ("generalized_alpha-rtol")
+    width = max([8] + [len(r["method"]) for r in result["records"]])
     lines = [f"{result['problem']}  (N = {result['n_dof']}, t_end = {result['t_end']:g}; "
              f"ε_u against IDA rtol {ref['rtol']:g}, {ref['steps']} steps)",
-             f"  {'method':8s} {'setting':11s} {'wall [ms]':>10s} {'CPU [ms]':>9s} {'steps':>7s} "
+             f"  {'method':{width}s} {'setting':11s} {'wall [ms]':>10s} {'CPU [ms]':>9s} "
+             f"{'steps':>7s} "
              f"{'Newton it':>9s} {'nfev':>7s} {'njev':>6s} {'nlu':>6s} {'ε_u':>9s}  status"]
     for r in result["records"]:
         eps = "-" if r["eps_u"] is None else format(r["eps_u"], ".2e")
-        lines.append(f"  {r['method']:8s} {r['label']:11s} "
+        lines.append(f"  {r['method']:{width}s} {r['label']:11s} "
                      f"{_num(None if r['wall'] is None else r['wall'] * 1e3, '10.1f'):>10s} "
                      f"{_num(None if r['cpu'] is None else r['cpu'] * 1e3, '9.1f'):>9s} "
                      f"{_num(r['steps'], 'd'):>7s} {_num(r['newton_iterations'], 'd'):>9s} "
@@ -873,12 +884,32 @@ def format_problem(result) -> str:
 
 
 #: Colour, marker and line of each method: our schemes in the colours of every
-#: figure (:data:`validation.experiments.SCHEME_COLOURS`), dotted when error-controlled.
-_MARKERS = {"newmark": "o", "bathe": "s", "hfdi": "D"}
-_STYLE = {**{s: (SCHEME_COLOURS[s], _MARKERS[s], "-") for s in SCHEMES},
-          **{f"{s}-rtol": (SCHEME_COLOURS[s], _MARKERS[s], ":") for s in SCHEMES},
-          "ida": ("black", "^", "--"), "radau": ("tab:purple", "v", "--"),
-          "bdf": ("tab:brown", "P", "--")}
+#: figure (:data:`validation.experiments.SCHEME_COLOURS`) with a marker by their
+#: place in :data:`hfdi.SCHEMES`, dotted when error-controlled.
+_MARKERS = SchemeStyle(("o", "s", "D", "X", "*", "h"), "x")
+_COMPETITOR_STYLE = {"ida": ("black", "^", "--"), "radau": ("tab:purple", "v", "--"),
+                     "bdf": ("tab:brown", "P", "--")}
+
+
+def _style(method):
+    """``(colour, marker, line)`` of a method: a competitor, a scheme or
+    ``<scheme>-rtol``; gray crosses for a name of neither."""
+    if method in _COMPETITOR_STYLE:
+        return _COMPETITOR_STYLE[method]
+    scheme, _, mode = method.partition("-")
+    if scheme in SCHEMES:
+        return SCHEME_COLOURS[scheme], _MARKERS[scheme], ":" if mode else "-"
+    return "gray", "x", ":"
+
+
+def _method_name(method):
+    """A method as the legends name it: ``HFDI``, ``GeneralizedAlpha (rtol)``, ``IDA``."""
+    base, _, mode = method.partition("-")
+    if base in SCHEMES:
+        name = scheme_title(base)
+    else:
+        name = base.upper() if base in ("ida", "bdf") else base.capitalize()
+    return name + (f" ({mode})" if mode else "")
 
 
 def plot_problem(result, path) -> Path:
@@ -897,12 +928,10 @@ def plot_problem(result, path) -> Path:
                 continue
             # in the order of the settings (loosest first), as work-precision
             # diagrams are read: a zigzag shows where tightening cost no time
-            color, marker, line = _STYLE.get(method, ("gray", "x", ":"))
+            color, marker, line = _style(method)
             x = [r["wall"] for r in runs]
             y = [r["eps_u"] for r in runs]
-            base, _, mode = method.partition("-")
-            name = (base.upper() if base in ("hfdi", "ida", "bdf") else base.capitalize()) + \
-                (f" ({mode})" if mode else "")
+            name = _method_name(method)
             ax.plot(x, y, line, color=color, marker=marker, label=name, ms=5, lw=1.2)
             # label the ends of each curve (loosest and tightest setting)
             for r in {id(runs[0]): runs[0], id(runs[-1]): runs[-1]}.values():
@@ -986,7 +1015,8 @@ def add_parser(sub) -> None:
     bench.add_argument("--out", default="out/bench", metavar="DIR",
                        help="output directory (default out/bench)")
     bench.add_argument("--schemes", type=opt.schemes, default=list(SCHEMES),
-                       help="our schemes (default: all three)")
+                       help=f"our schemes, comma-separated (default: all, "
+                            f"{','.join(SCHEMES)})")
     bench.add_argument("--targets", type=opt.targets, default=None,
                        help="target iteration counts for every scheme (per sub-step for "
                             "Bathe; default 1.5,2,2.5,3,3.5,4,5)")
@@ -1008,7 +1038,7 @@ def add_parser(sub) -> None:
                             f"{MAX_NFEV}); tighter rtols are skipped after a run above "
                             f"half of it")
     bench.add_argument("--compiled", action="store_true",
-                       help="our runs on the compiled attempt (compiled=True; docs/compiled.md)")
+                       help="our runs on the compiled path (compiled=True; docs/compiled.md)")
     opt.add_parallel_options(bench)
 
 

@@ -1,34 +1,38 @@
 """Cost per Newton iteration and where it goes: model, linear algebra, driver.
 
 ``python -m benchmarks profile [--problems a,b] [--schemes ...] [--target 3]
-[--json FILE]`` integrates each problem to its ``T_o`` and prints, per
-scheme, the wall time per Newton iteration (best of ``--repeats`` plain runs)
-and the fractions of one run under ``cProfile`` spent in
+[--json FILE]`` integrates each problem to its ``T_o`` on the Python path
+(``compiled=False``) and prints, per scheme, the wall time per Newton
+iteration (best of ``--repeats`` plain runs) and the fractions of one run
+under ``cProfile`` spent in
 
 * **model evaluation** — the model's own methods (``internal_force``,
   ``stiffness``, ``stiffness_derivative``, ``load``, ...) as called by
   :class:`hfdi.evaluation.Evaluator`, i.e. functions defined in the model's
   module or in :mod:`hfdi.models`;
-* **linear algebra** — :mod:`hfdi.linalg` (factorisations, solves, band
-  storage, ``combine``) and the ``solve``/``band`` methods of the tangents in
-  :mod:`hfdi.schemes`, counted where they are entered from outside that set;
-* **driver** — everything else: the evaluator's checks, predictor,
-  corrector, controller, energy balance and the schemes' inline numpy
-  arithmetic.
+* **linear algebra** — :mod:`hfdi.linsolve` (the dense LAPACK solves and
+  factorisations, the sparse, banded and block solvers), counted where it is
+  entered from outside that package;
+* **driver** — everything else: the evaluator's checks and the stepping code
+  (:mod:`hfdi.stepping`, :mod:`hfdi.core`: predictor, residuals and tangents,
+  corrector, error estimate, controller, energy balance).
 
 Fractions are of the profiled run's total; cProfile's own overhead inflates
 the many small calls of the driver somewhat, so the split is an estimate and
 the per-iteration time is taken from the plain runs.
 
 ``--paths`` instead compares the Python path with the compiled path
-(``compiled=True``: the compiled driver, docs/compiled.md) on the same runs:
+(``compiled=True``: the compiled loop, docs/compiled.md) on the same runs:
 µs per Newton iteration of each, best of ``--repeats`` runs made in turn,
-their ratio, and the floor: the same scheme's Newton iteration in a minimal
-compiled loop (:mod:`benchmarks.floor`) at the compiled run's mean step; with ``--rtol R`` the runs are error-controlled instead of
+and their ratio; with ``--rtol R`` the runs are error-controlled instead of
 at ``--target``. The compiled run's time is split into the model's kernels,
-the dense linear algebra and the rest (the compiled driver) from its
-evaluation counts and the unit costs of each kernel and of a solve and a
-product, timed in compiled loops (:func:`compiled_unit_costs`).
+the dense linear algebra and the rest (the compiled loop's own work) from its
+evaluation counts and the unit costs of each kernel, of the library's dense
+solve and of a product, timed in compiled loops (:func:`compiled_unit_costs`,
+:func:`benchmarks.floor.unit_costs`). The floor is what one correction of the
+scheme cannot avoid: the sum of the unit costs of the kernels it evaluates
+and of its solve (:func:`benchmarks.floor.floor_us`), printed beside the
+compiled µs per iteration.
 """
 from __future__ import annotations
 
@@ -46,13 +50,12 @@ from validation import options as opt
 from hfdi.files import write_output
 from validation.experiments import SCHEME_ORDER, experiment, names
 
-from .floor import floor_us
+from .floor import correction_costs, floor_us, unit_costs
 from validation.runs import integrate
 
 __all__ = ["profile_run", "compare_paths", "compiled_unit_costs", "compiled_split", "main"]
 
 _HFDI = Path(hfdi.__file__).resolve().parent
-_LINALG_METHODS = {"solve", "band", "solve_band"}
 
 
 def _file(key) -> Path | None:
@@ -71,10 +74,7 @@ def _classify(model):
 
     def is_linalg(key):
         path = _file(key)
-        if path is None:
-            return False
-        return path == _HFDI / "linalg.py" or (path == _HFDI / "schemes.py"
-                                               and key[2] in _LINALG_METHODS)
+        return path is not None and path.parent == _HFDI / "linsolve"
     return is_model, is_linalg
 
 
@@ -134,15 +134,21 @@ def profile_run(problem: str, scheme: str, target: float = 3.0, repeats: int = 5
 def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int = 3,
                   t_end: float | None = None) -> dict:
     """Wall time per Newton iteration of the Python path and of the compiled
-    attempt on the same run, best of ``repeats`` runs of each made in turn.
+    path on the same run, best of ``repeats`` runs of each made in turn.
 
     Returns
     -------
     dict
         ``steps``, ``newton_iterations`` (Python path), ``compiled_steps``,
         ``compiled_newton_iterations``, ``python_us``, ``compiled_us`` (µs
-        per iteration of each path's own run), ``speedup`` (their ratio) and
-        ``same_counts`` (steps and Newton corrections equal on both paths).
+        per iteration of each path's own run), ``speedup`` (their ratio),
+        ``same_counts`` (steps and Newton corrections equal on both paths),
+        ``unit_costs_us`` (:func:`compiled_unit_costs` at the compiled run's
+        end state), ``compiled_split`` (:func:`compiled_split`), ``floor_us``
+        (:func:`benchmarks.floor.floor_us`: µs per correction in the kernels
+        and the solve it cannot avoid) and ``floor_iterations_per_step`` (the
+        compiled run's corrections per step: the floor per step is
+        ``floor_us`` times it).
     """
     end = experiment(problem).observation_time if t_end is None else t_end
     if rtol is not None:
@@ -165,12 +171,9 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
     model = experiment(problem).model()
     costs = compiled_unit_costs(model, results[True].u[-1])
     split = compiled_split({"scheme": scheme}, results[True], costs, best[True])
-    # the floor: a minimal compiled loop at the compiled run's mean step and
-    # Newton tolerance
-    mode = dict(target_iterations=target) if rtol is None else dict(rtol=rtol)
-    tol = hfdi.Integrator(model, scheme, compiled=False, **mode).tol
-    floor, floor_per_step = floor_us(model, scheme, end / max(counts[True][0], 1), end, tol,
-                                     repeats)
+    # the floor: the kernels and the solve one correction cannot avoid
+    floor = floor_us(model, scheme, costs)
+    floor_per_step = counts[True][1] / max(counts[True][0], 1)
     return {"problem": problem, "scheme": scheme, "target": target, "rtol": rtol,
             "unit_costs_us": costs, "compiled_split": split,
             "steps": steps, "newton_iterations": iterations,
@@ -185,86 +188,10 @@ def compare_paths(problem: str, scheme: str, target=3.0, rtol=None, repeats: int
 def compiled_unit_costs(model, u, repeats: int = 3, calls: int = 2000) -> dict:
     """µs per call, in compiled loops, of the model's kernels at ``u`` (``f``, ``K``,
     ``T[w]``, ``V``) and of the dense linear algebra of one Newton correction
-    (a solve with an (N, N) matrix, symmetric when ``K`` is, as the attempt
-    solves it (:func:`hfdi.compiled.lapack.solve`), and
-    an (N, N) product, HFDI's ``S B⁻¹ S``); best of ``repeats``."""
-    import numpy as np
-    from numba import njit
-
-    from hfdi.compiled import kernels_of
-    from hfdi.compiled.lapack import solve, work_arrays
-
-    kernels, why = kernels_of(model)
-    if kernels is None:
-        raise ValueError(f"no compiled kernels: {why}")
-
-    @njit
-    def vector_calls(kernel, u, params, n):
-        total = 0.0
-        for _ in range(n):
-            total += kernel(u, params)[0]
-        return total
-
-    @njit
-    def matrix_calls(kernel, u, params, n):
-        total = 0.0
-        for _ in range(n):
-            total += kernel(u, params)[0, 0]
-        return total
-
-    @njit
-    def derivative_calls(kernel, u, w, params, n):
-        total = 0.0
-        for _ in range(n):
-            total += kernel(u, w, params)[0, 0]
-        return total
-
-    @njit
-    def scalar_calls(kernel, u, params, n):
-        total = 0.0
-        for _ in range(n):
-            total += kernel(u, params)
-        return total
-
-    @njit
-    def solves(A, b, n):
-        lu, pivots, ints = work_arrays(A.shape[0])
-        x = np.empty_like(b)
-        total = 0.0
-        for _ in range(n):
-            x[:] = b
-            solve(A, x, lu, pivots, ints)
-            total += x[0]
-        return total
-
-    @njit
-    def products(A, B, n):
-        total = 0.0
-        for _ in range(n):
-            total += (A @ B)[0, 0]
-        return total
-
-    u = np.ascontiguousarray(u, dtype=float)
-    w = np.sin(np.arange(1, u.size + 1.0))
-    p = kernels.params
-    K = kernels.stiffness(u, p)
-    A = np.ascontiguousarray(K + np.diag(np.abs(K).sum(axis=1) + 1.0))
-    runs = {"force": lambda n: vector_calls(kernels.force, u, p, n),
-            "stiffness": lambda n: matrix_calls(kernels.stiffness, u, p, n),
-            "stiffness_derivative": lambda n: derivative_calls(kernels.stiffness_derivative,
-                                                               u, w, p, n),
-            "potential_energy": lambda n: scalar_calls(kernels.potential_energy, u, p, n),
-            "solve": lambda n: solves(A, w, n), "product": lambda n: products(A, A, n)}
-    costs = {}
-    for name, run in runs.items():
-        run(1)                                   # compile
-        best = math.inf
-        for _ in range(repeats):
-            start = time.perf_counter()
-            run(calls)
-            best = min(best, time.perf_counter() - start)
-        costs[name] = 1e6 * best / calls
-    return costs
+    (the library's solve, :func:`hfdi.linsolve.dense.solve`, with an (N, N)
+    matrix symmetric when ``K`` is, and an (N, N) product, HFDI's ``S B⁻¹ S``);
+    best of ``repeats``: :func:`benchmarks.floor.unit_costs`."""
+    return unit_costs(model, u, repeats, calls)
 
 
 def compiled_split(row: dict, result, costs: dict, wall_s: float) -> dict:
@@ -272,12 +199,13 @@ def compiled_split(row: dict, result, costs: dict, wall_s: float) -> dict:
     dense linear algebra and in the rest (the driver: predictor, residuals and
     tangents' assembly, error estimate, controller, energy balance), estimated
     from the run's evaluation counts and the unit costs of
-    :func:`compiled_unit_costs`."""
+    :func:`compiled_unit_costs` (a product per correction for a scheme whose
+    corrections form one, :func:`benchmarks.floor.correction_costs`)."""
     st = result.stats
     model = (st.nfev * costs["force"] + st.njev * costs["stiffness"]
              + st.ntev * costs["stiffness_derivative"] + st.npev * costs["potential_energy"])
     linalg = st.nlu * costs["solve"]
-    if row["scheme"] == "hfdi":
+    if "product" in correction_costs(row["scheme"]):
         linalg += st.newton_iterations * costs["product"]      # S B⁻¹ S per correction
     total = 1e6 * wall_s
     return {"model": model / total, "linear_algebra": linalg / total,
@@ -286,7 +214,8 @@ def compiled_split(row: dict, result, costs: dict, wall_s: float) -> dict:
 
 def _print_paths(args) -> list:
     rows = []
-    print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'python µs/it':>13s} "
+    width = max([8] + [len(s) for s in args.schemes])
+    print(f"{'problem':12s} {'scheme':{width}s} {'steps':>6s} {'its':>6s} {'python µs/it':>13s} "
           f"{'compiled µs/it':>15s} {'ratio':>6s} {'floor µs/it':>12s}  compiled: model  "
           f"linalg  driver")
     for problem in args.problems or names():
@@ -298,7 +227,8 @@ def _print_paths(args) -> list:
                 f"  (compiled: {row['compiled_steps']} steps, "
                 f"{row['compiled_newton_iterations']} its)")
             f = row["compiled_split"]
-            print(f"{problem:12s} {scheme:8s} {row['steps']:6d} {row['newton_iterations']:6d} "
+            print(f"{problem:12s} {scheme:{width}s} {row['steps']:6d} "
+                  f"{row['newton_iterations']:6d} "
                   f"{row['python_us']:13.1f} {row['compiled_us']:15.1f} "
                   f"{row['speedup']:6.2f} {row['floor_us']:12.2f}  {f['model']:15.2f}  "
                   f"{f['linear_algebra']:6.2f}  "
@@ -310,7 +240,8 @@ def main(argv=None) -> int:
     parser = opt.Parser(prog="python -m benchmarks profile",
                         description="Cost per Newton iteration and its split.")
     parser.add_argument("--problems", default=None, type=opt.problems)
-    parser.add_argument("--schemes", default=list(SCHEME_ORDER), type=opt.schemes)
+    parser.add_argument("--schemes", default=list(SCHEME_ORDER), type=opt.schemes,
+                        help=f"comma-separated (default: all, {','.join(SCHEME_ORDER)})")
     parser.add_argument("--target", type=opt.single(opt.targets, "target"), default=3.0,
                         help="N̄ (default 3)")
     parser.add_argument("--repeats", type=opt.repeats, default=5,
@@ -318,7 +249,9 @@ def main(argv=None) -> int:
     parser.add_argument("--t-end", type=opt.positive, default=None, help="default: T_o")
     parser.add_argument("--json", default=None, metavar="FILE", type=opt.output_file)
     parser.add_argument("--paths", action="store_true",
-                        help="compare the Python path with the compiled attempt")
+                        help="compare the Python path with the compiled path; the floor: "
+                             "µs per correction in the model's kernels and the library's "
+                             "solve")
     parser.add_argument("--rtol", type=opt.single(opt.rtols, "rtol"), default=None,
                         help="with --paths: error-controlled runs at this rtol")
     args = parser.parse_args(argv)
@@ -332,14 +265,16 @@ def main(argv=None) -> int:
             write_output(Path(args.json), json.dumps(rows, indent=1))
         return 0
     rows = []
-    print(f"{'problem':12s} {'scheme':8s} {'steps':>6s} {'its':>6s} {'ms':>8s} "
+    width = max([8] + [len(s) for s in args.schemes])
+    print(f"{'problem':12s} {'scheme':{width}s} {'steps':>6s} {'its':>6s} {'ms':>8s} "
           f"{'ms/it':>7s}  model  linalg  driver")
     for problem in args.problems or names():
         for scheme in args.schemes:
             row = profile_run(problem, scheme, args.target, args.repeats, args.t_end)
             rows.append(row)
             f = row["fractions"]
-            print(f"{problem:12s} {scheme:8s} {row['steps']:6d} {row['newton_iterations']:6d} "
+            print(f"{problem:12s} {scheme:{width}s} {row['steps']:6d} "
+                  f"{row['newton_iterations']:6d} "
                   f"{1e3 * row['wall_s']:8.1f} {row['ms_per_iteration']:7.3f}  "
                   f"{f['model']:5.2f}  {f['linear_algebra']:6.2f}  {f['driver']:6.2f}",
                   flush=True)

@@ -49,7 +49,7 @@ import numpy as np
 
 from hfdi.files import write_output
 from validation.errors import relative_error
-from validation.experiments import experiment
+from validation.experiments import SCHEME_ORDER, experiment
 from hfdi.models.toss_rule import MAX_ELEMENTS
 from validation import options as opt
 from validation.options import Parser, caused_by_interrupt
@@ -89,16 +89,31 @@ def _peak_rss():
     return int(peak) * (1 if sys.platform == "darwin" else 1024)
 
 
+#: Sizes of the untimed warm-up runs before the baseline: one dense system
+#: (its steps in the compiled loop) and one above ``DENSE_BELOW`` unknowns (the
+#: Python loop with the compiled sparse model).
+_WARM_UP_SIZES = (6, 60)
+
+
+def _warm_up(scheme, target):
+    """One step of the toss rule at each of :data:`_WARM_UP_SIZES` with the
+    integrator's defaults: numba and the compiled code the runs use (about
+    120 MB, the same at every size) are loaded, or compiled, before the
+    baseline, so that the peak is the model's and the run's memory and no
+    compilation falls into the timed steps."""
+    import hfdi
+    t_o = experiment("toss_rule").observation_time
+    for size in _WARM_UP_SIZES:
+        hfdi.Integrator(hfdi.models.toss_rule(size), scheme, target_iterations=float(target),
+                        t_bound=t_o).step()
+
+
 def _measure_here(n_elements, scheme="hfdi", target=3.0, steps=5, compiled="auto"):
     """The measurement of :func:`measure_size`, in the current process."""
     import hfdi                                          # import before the baseline
     import scipy.sparse                                  # noqa: F401  (part of the baseline)
     if compiled != "off":
-        # numba and the compiled code (about 120 MB, the same at every size)
-        # are loaded before the baseline too: the peak is the model's and
-        # the run's memory
-        import hfdi.compiled.attempt, hfdi.compiled.band, hfdi.compiled.driver  # noqa: F401
-        import hfdi.compiled.models  # noqa: F401
+        _warm_up(scheme, target)
     baseline = _current_rss()
     t0 = time.perf_counter()
     model = hfdi.models.toss_rule(int(n_elements))
@@ -179,7 +194,8 @@ def measure_size(n_elements, scheme="hfdi", target=3.0, steps=5, threads=1, time
     ----------
     n_elements : int
         ``N_el`` of the toss rule (``3 (N_el + 1)`` DOFs).
-    scheme : {"hfdi", "newmark", "bathe"}
+    scheme : str
+        A scheme of :data:`hfdi.SCHEMES`.
     target : float
         Target Newton iterations per step ``N̄``.
     steps : int
@@ -468,17 +484,21 @@ class _Error:
 
 
 def _scheme_run(model, scheme, target, keep, t_end):
-    """One adaptive run to ``t_end`` step by step; keeps ``(t, u)`` per step only if asked."""
+    """One adaptive run to ``t_end`` (:meth:`hfdi.Integrator.advance`); keeps
+    ``(t, u)`` of every accepted step only if asked, from the blocks of rows
+    ``advance`` hands over (a time repeated at a load breakpoint kept once)."""
     import hfdi
     start = time.perf_counter()
     integrator = hfdi.Integrator(model, scheme, target_iterations=float(target), t_bound=t_end)
     ts, us = [integrator.t], [integrator.state.u.copy()] if keep else None
-    ok = True
-    while ok and integrator.t < t_end:
-        ok = integrator.step()
-        if ok and keep:
-            ts.append(integrator.t)
-            us.append(integrator.state.u.copy())
+
+    def rows(block):
+        for t, u in zip(block["t"], block["u"]):
+            if t > ts[-1]:
+                ts.append(float(t))
+                us.append(u)
+
+    ok = integrator.advance(t_end, rows=rows if keep else None)
     wall = time.perf_counter() - start
     st = integrator.statistics
     record = {"scheme": scheme, "target_iterations": float(target), "wall_time_s": wall,
@@ -775,7 +795,7 @@ def build_parser():
                         "'none' skips the size measurement")
     p.add_argument("--steps", type=lambda text: opt.integer_in(text, 1, 100_000), default=5,
                    help="steps timed after the first (5)")
-    p.add_argument("--scheme", default="hfdi", choices=("hfdi", "newmark", "bathe"))
+    p.add_argument("--scheme", default="hfdi", choices=SCHEME_ORDER)
     p.add_argument("--target", type=opt.single(opt.targets, "target"), default=3.0,
                    help="target iterations N̄ (3)")
     p.add_argument("--default-threads", action="store_true",

@@ -69,9 +69,12 @@ def test_outputs_are_written(tiny):
                     "threads"):
             assert key in data["machine"]
         methods = [(r["method"], r["target"], r["rtol"]) for r in data["records"]]
+        # every scheme of hfdi.SCHEMES by default: generalized-α beside the paper's three
         assert methods == [("newmark", 3.0, None), ("bathe", 3.0, None), ("hfdi", 3.0, None),
+                           ("generalized_alpha", 3.0, None),
                            ("newmark-rtol", None, 1e-5), ("bathe-rtol", None, 1e-5),
-                           ("hfdi-rtol", None, 1e-5), ("ida", None, 1e-4), ("ida", None, 1e-7),
+                           ("hfdi-rtol", None, 1e-5), ("generalized_alpha-rtol", None, 1e-5),
+                           ("ida", None, 1e-4), ("ida", None, 1e-7),
                            ("radau", None, 1e-4), ("radau", None, 1e-7),
                            ("bdf", None, 1e-4), ("bdf", None, 1e-7)]
         png = (tiny / f"bench_{name}.png").read_bytes()
@@ -111,8 +114,9 @@ def test_speedup_rows_refer_to_the_runs(tiny):
     front = data["speedup"]["ours_front"]
     assert front
     for row in front:
-        assert row["method"] in ("newmark", "bathe", "hfdi", "newmark-rtol", "bathe-rtol",
-                                 "hfdi-rtol")
+        assert row["method"] in ("newmark", "bathe", "hfdi", "generalized_alpha",
+                                 "newmark-rtol", "bathe-rtol", "hfdi-rtol",
+                                 "generalized_alpha-rtol")
         assert set(row["competitors"]) == {"ida", "radau", "bdf"}
         if row["ratio"] is not None:
             best = row["competitors"][row["best_competitor"]]
@@ -121,6 +125,56 @@ def test_speedup_rows_refer_to_the_runs(tiny):
     g = data["goal"]
     assert g["rtol"] == 1e-6 and g["ida"] is None     # no IDA run at 1e-6 here
     assert "no successful IDA run" in g["note"]
+
+
+def test_generalized_alpha_has_its_rows_in_the_tables(tiny):
+    """Generalized-α's rows (iteration count and error control) in the text
+    table, its curves in the figure's legend, on the speed-up's front
+    candidates; the method column is as wide as its longest name."""
+    from benchmarks.precision import format_problem
+    data = _load(tiny, "dumbbell")
+    text = format_problem(data)
+    rows = [line.split() for line in text.splitlines()]
+    ours = {row[0]: row for row in rows if row and row[0].startswith("generalized_alpha")}
+    assert set(ours) == {"generalized_alpha", "generalized_alpha-rtol"}
+    assert ours["generalized_alpha"][1] == "N̄=3" and ours["generalized_alpha"][-1] == "SUCCESS"
+    assert ours["generalized_alpha-rtol"][1] == "rtol=1e-05"
+    header = next(line for line in text.splitlines() if "setting" in line)
+    row = next(line for line in text.splitlines() if line.strip().startswith("bathe "))
+    assert header.index("setting") == row.index("N̄=3")       # columns aligned
+    assert "generalized_alpha" in data["speedup"]["ours"]
+    assert data["settings"]["targets"]["generalized_alpha"] == [3.0]
+
+
+def test_generalized_alpha_alone(cache_dir, tmp_path, capsys):
+    """``--schemes generalized_alpha``: its runs only (no competitor), the
+    default targets of every scheme when none are given."""
+    from benchmarks.precision import TARGETS
+    assert main(["--problems", "dumbbell", "--out", str(tmp_path), "--schemes",
+                 "generalized_alpha", "--competitors", "none", "--rtol", "none",
+                 "--t-end", "0.05", "--repeats", "1"]) == 0
+    records = _load(tmp_path, "dumbbell")["records"]
+    assert [(r["method"], r["target"]) for r in records] == [
+        ("generalized_alpha", t) for t in TARGETS]
+    assert all(r["success"] and 0 < r["eps_u"] < 1e-2 for r in records)
+    # a looser target takes fewer steps
+    assert records[0]["steps"] < records[-1]["steps"]
+    assert "generalized_alpha " in capsys.readouterr().out
+
+
+def test_style_and_names_of_every_method():
+    from benchmarks.precision import DEFAULT_TARGETS, SCHEMES, _method_name, _style
+    import hfdi
+    assert SCHEMES == tuple(hfdi.SCHEMES) and set(DEFAULT_TARGETS) == set(SCHEMES)
+    styles = {_style(s) for s in SCHEMES}
+    assert len(styles) == len(SCHEMES)                    # one look per scheme
+    assert _style("generalized_alpha-rtol")[2] == ":" and _style("generalized_alpha")[2] == "-"
+    assert _style("something") == ("gray", "x", ":")
+    assert [_method_name(m) for m in ("hfdi", "newmark-rtol", "generalized_alpha", "ida",
+                                      "radau")] == [
+        "HFDI", "Newmark (rtol)", "GeneralizedAlpha", "IDA", "Radau"]
+    with pytest.raises(ValueError, match="schemes must be of newmark"):
+        bench_problem("dumbbell", schemes=["euler"])
 
 
 def test_jobs_give_the_same_numbers(tiny, tmp_path):
@@ -291,7 +345,7 @@ def test_cosim_runs_and_reports_a_ratio(inputs):
 
 
 def test_compiled_runs_give_the_records_of_the_python_path(tiny, tmp_path):
-    """``--compiled``: our runs on the compiled attempt; on the dumbbell (whose
+    """``--compiled``: our runs on the compiled path; on the dumbbell (whose
     kernels agree bit for bit with the Python model) every record but the
     times is the one of the Python path."""
     pytest.importorskip("numba")

@@ -8,10 +8,13 @@ import pytest
 
 # benchmarks/ is not installed: it is imported from the repository's root
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.floor import correction_costs, floor_us, unit_costs  # noqa: E402
 from benchmarks.profile import main, profile_run  # noqa: E402
 
+import hfdi  # noqa: E402
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+
+@pytest.mark.parametrize("scheme", list(hfdi.SCHEMES))
 def test_fractions_partition_the_run(scheme):
     row = profile_run("dumbbell", scheme, 3.0, repeats=1, t_end=0.2)
     f = row["fractions"]
@@ -42,54 +45,72 @@ def test_command_line_writes_json(tmp_path, capsys):
         main(["--problems", "nope"])
 
 
+@pytest.mark.slow
 def test_paths_compare_the_same_runs(tmp_path, capsys):
     pytest.importorskip("numba")
     out = tmp_path / "paths.json"
     assert main(["--paths", "--rtol", "1e-5", "--problems", "articulated", "--schemes",
-                 "bathe,hfdi", "--repeats", "1", "--t-end", "0.02", "--json", str(out)]) == 0
+                 "bathe,hfdi,generalized_alpha", "--repeats", "1", "--t-end", "0.02",
+                 "--json", str(out)]) == 0
     rows = json.loads(out.read_text())
-    assert [(r["scheme"], r["rtol"], r["target"]) for r in rows] == [("bathe", 1e-5, None),
-                                                                     ("hfdi", 1e-5, None)]
+    assert [(r["scheme"], r["rtol"], r["target"]) for r in rows] == [
+        ("bathe", 1e-5, None), ("hfdi", 1e-5, None), ("generalized_alpha", 1e-5, None)]
     for row in rows:
         # both paths take the same steps and corrections; the timing itself is not asserted
         assert row["same_counts"] and row["newton_iterations"] >= row["steps"] > 0
         assert row["python_us"] > 0 and row["compiled_us"] > 0
         assert math.isclose(row["speedup"], row["python_us"] / row["compiled_us"])
-        assert row["floor_us"] > 0 and row["floor_iterations_per_step"] >= 1
+        # the floor is the unit costs of one correction, measured on the library's code
+        costs = row["unit_costs_us"]
+        assert set(costs) == {"force", "stiffness", "stiffness_derivative",
+                              "potential_energy", "solve", "product"}
+        assert all(value > 0 for value in costs.values())
+        assert math.isclose(row["floor_us"], sum(costs[k] for k in
+                                                 correction_costs(row["scheme"])))
+        assert math.isclose(row["floor_iterations_per_step"],
+                            row["compiled_newton_iterations"] / row["compiled_steps"])
     assert "floor µs/it" in capsys.readouterr().out
 
 
-def _floor_case(problem, t_end, step):
-    import numpy as np
-
-    import hfdi
-    from benchmarks.floor import floor_run
-    pytest.importorskip("numba")
-    make = getattr(hfdi.models, problem)
-
-    def check(scheme):
-        # HFDI's floor takes the load rate as a difference quotient
-        library = hfdi.HFDI(load_rate="difference") if scheme == "hfdi" else scheme
-        ref = hfdi.integrate(make(), library, t_end, step=step, tol=1e-12, compiled=False)
-        u, v, iterations = floor_run(make(), scheme, step, t_end, 1e-12)
-        assert iterations >= ref.stats.steps
-        for got, want in ((u, ref.u[-1]), (v, ref.v[-1])):
-            assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max()
-    return check
+def test_the_floor_of_a_correction_is_its_kernels_and_its_solve():
+    """Every scheme's correction evaluates f and K and solves once; HFDI's
+    stage also evaluates T(u)[v_D] and forms S B⁻¹ S (Eq. 21)."""
+    costs = {"force": 1.0, "stiffness": 10.0, "stiffness_derivative": 100.0,
+             "potential_energy": 1000.0, "solve": 1e4, "product": 1e5}
+    assert floor_us(None, "newmark", costs) == 10011.0
+    assert floor_us(None, "bathe", costs) == 10011.0
+    assert floor_us(None, "generalized_alpha", costs) == 10011.0
+    assert floor_us(None, "hfdi", costs) == 110111.0
+    assert floor_us(None, hfdi.HFDI(load_rate="difference"), costs) == 110111.0
+    with pytest.raises(ValueError, match="costs lacks stiffness_derivative, product"):
+        floor_us(None, "hfdi", {"force": 1.0, "stiffness": 1.0, "solve": 1.0})
+    with pytest.raises(ValueError, match="scheme must be one of"):
+        correction_costs("euler")
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-def test_the_floor_loop_takes_the_librarys_steps(scheme):
-    """The minimal loop whose cost is the floor (benchmarks/floor.py) computes
-    the same steps as the library: the same end state, to the Newton tolerance,
-    at the same fixed step."""
-    _floor_case("dumbbell", 0.2, 1e-3)(scheme)
+def test_unit_costs_refuse_bad_input_naming_it():
+    model = hfdi.models.dumbbell()
+    with pytest.raises(ValueError, match="repeats must be an integer >= 1"):
+        unit_costs(model, model.initial_displacement, repeats=0)
+    with pytest.raises(ValueError, match="calls must be an integer >= 1"):
+        unit_costs(model, model.initial_displacement, calls=1.5)
+    with pytest.raises(ValueError, match="u must be a finite vector of the model's 4 entries"):
+        unit_costs(model, [0.0, 1.0])
+    linear = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]])
+    with pytest.raises(ValueError, match="has no compiled kernels"):
+        unit_costs(linear, [0.0])
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("problem, t_end, step", [("tetrahedra", 1.0, 0.01),
-                                                   ("articulated", 0.2, 1e-3),
-                                                   ("toss_rule", 0.002, 1e-5)])
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-def test_the_floor_loop_takes_the_librarys_steps_on_every_model(problem, t_end, step, scheme):
-    _floor_case(problem, t_end, step)(scheme)
+def test_unit_costs_time_the_models_kernels_and_the_librarys_solve():
+    """The loops call the model's compiled kernels and hfdi.linsolve.dense.solve
+    (no timing asserted: every cost measured, positive and finite); the
+    floor from them is their sum for the scheme."""
+    pytest.importorskip("numba")
+    model = hfdi.models.toss_rule()
+    costs = unit_costs(model, model.initial_displacement, repeats=1, calls=10)
+    assert set(costs) == {"force", "stiffness", "stiffness_derivative", "potential_energy",
+                          "solve", "product"}
+    assert all(math.isfinite(v) and v > 0 for v in costs.values())
+    assert floor_us(model, "generalized_alpha", costs) == pytest.approx(
+        costs["force"] + costs["stiffness"] + costs["solve"])

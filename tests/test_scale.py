@@ -71,6 +71,36 @@ def test_scale_measures_both_paths(tmp_path):
         scale.measure_size(45, compiled="yes")
 
 
+def test_scale_measures_generalized_alpha():
+    """--scheme takes every scheme of hfdi.SCHEMES; the warm-up before the
+    baseline loads the compiled code, so the size's own steps are timed."""
+    rec = scale.measure_size(2, scheme="generalized_alpha", steps=2, timeout=300)
+    assert rec["scheme"] == "generalized_alpha" and rec["status"] in ("RUNNING", "SUCCESS")
+    # two accepted steps timed (attempts counted: a rejected one among them)
+    assert rec["ok"] and rec["steps_timed"] >= 2 and rec["newton_iterations_timed"] >= 2
+    assert rec["compiled_attempt"]                    # 9 DOFs: the compiled loop
+    with pytest.raises(SystemExit):
+        scale.build_parser().parse_args(["--out", "x", "--scheme", "euler"])
+
+
+@pytest.mark.parametrize("scheme", ["hfdi", "generalized_alpha"])
+def test_full_run_keeps_every_accepted_step(scheme):
+    """The full run's steps, observed through Integrator.advance(rows=...),
+    are those of hfdi.integrate on the same model: times and displacements."""
+    model = hfdi.models.toss_rule(6)
+    record, u_end, (ts, us) = scale._scheme_run(model, scheme, 3.0, True, 0.002)
+    ref = hfdi.integrate(hfdi.models.toss_rule(6), scheme, 0.002, target_iterations=3.0)
+    assert record["success"] and record["steps"] == ref.stats.steps
+    assert record["accepted"] == ref.stats.accepted == len(ts) - 1
+    np.testing.assert_array_equal(ts, ref.t)
+    np.testing.assert_array_equal(np.array(us), ref.u)
+    np.testing.assert_array_equal(u_end, ref.u[-1])
+    # without keeping them, the same run
+    again, u_again, (t_none, u_none) = scale._scheme_run(model, scheme, 3.0, False, 0.002)
+    assert u_none is None and again["steps"] == record["steps"]
+    np.testing.assert_array_equal(u_again, u_end)
+
+
 def test_fit_exponent_recovers_a_power_law():
     n = np.array([10, 100, 1000, 10000])
     fit = scale.fit_exponent(n, 3e-4 * n ** 1.05)

@@ -66,8 +66,9 @@ def test_paper_tables_are_complete():
     assert paper_row("dumbbell", "newmark", 4.5) is None          # "div"
     for name, exp in EXPERIMENTS.items():
         assert name in hfdi.models.available()
-        # the paper's table has a row for every target of every scheme, and no other
-        assert set(exp.paper) == set(exp.targets) == set(hfdi.SCHEMES)
+        # the paper's table has a row for every target of every scheme of its
+        # tables, and no other (generalized-α is not in the paper)
+        assert set(exp.paper) == set(exp.targets) == set(hfdi.PAPER_SCHEMES)
         for scheme, targets in exp.targets.items():
             assert sorted(exp.paper[scheme]) == sorted(targets), (name, scheme)
         # the runs the figures draw are runs of the table
@@ -121,11 +122,12 @@ def test_absurd_t_end_is_refused_before_any_work(tmp_path, capsys, args):
     assert not (tmp_path / "out").exists()
 
 
-def test_table_json_is_written_atomically(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("option", ["--json", "--csv"])
+def test_table_outputs_are_written_atomically(option, tmp_path, monkeypatch, capsys):
     """A failure while writing (the disk full) leaves the previous file."""
     import os
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
-    out = tmp_path / "runs.json"
+    out = tmp_path / "runs.out"
     out.write_text("previous")
 
     def disk_full(fd):
@@ -133,7 +135,105 @@ def test_table_json_is_written_atomically(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(os, "fsync", disk_full)
     assert main(["table", "dumbbell", "--schemes", "hfdi", "--targets", "3.3", "--t-end", "0.2",
-                 "--no-eps", "--json", str(out)]) != 0
+                 "--no-eps", option, str(out)]) != 0
     assert out.read_text() == "previous"
-    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["runs.json"]
+    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["runs.out"]
 
+
+
+# -- generalized-α: a scheme of the library, not of the paper -------------------------
+
+def test_every_scheme_has_a_style_and_the_papers_keep_theirs():
+    """Colours and markers come from the scheme registry with a fallback: no
+    KeyError for generalized-α or a scheme added later."""
+    from validation.experiments import SCHEME_COLOURS, SchemeStyle
+    assert [SCHEME_COLOURS[s] for s in ("newmark", "bathe", "hfdi")] == [
+        "tab:blue", "tab:orange", "tab:green"]
+    colours = [SCHEME_COLOURS[s] for s in hfdi.SCHEMES]
+    assert len(set(colours)) == len(colours) and "generalized_alpha" in SCHEME_COLOURS
+    assert SCHEME_COLOURS["not_a_scheme"] == "tab:gray"
+    markers = SchemeStyle(("o",), "x")
+    assert {markers[s] for s in hfdi.SCHEMES} == {"o"} and markers["other"] == "x"
+    assert list(SCHEME_COLOURS) == list(hfdi.SCHEMES)
+
+
+def test_table_targets_are_the_papers_for_its_schemes_only():
+    from validation.experiments import OTHER_SCHEME_TARGETS
+    for name, exp in EXPERIMENTS.items():
+        for scheme in hfdi.PAPER_SCHEMES:
+            assert exp.table_targets(scheme) == tuple(exp.targets[scheme])
+        assert "generalized_alpha" not in exp.targets and "generalized_alpha" not in exp.paper
+        assert exp.table_targets("generalized_alpha") == OTHER_SCHEME_TARGETS
+    with pytest.raises(ValueError, match="unknown scheme 'euler'; available: newmark"):
+        EXPERIMENTS["dumbbell"].table_targets("euler")
+    with pytest.raises(KeyError):
+        paper_row("dumbbell", "generalized_alpha", 3.0)
+
+
+def test_schemes_option_takes_generalized_alpha_and_names_it_when_refusing():
+    import argparse
+    from validation import options as opt
+    assert opt.schemes("generalized_alpha, HFDI") == ["generalized_alpha", "hfdi"]
+    with pytest.raises(argparse.ArgumentTypeError,
+                       match="unknown scheme.*'euler'.*generalized_alpha"):
+        opt.schemes("euler")
+
+
+def test_models_lists_the_default_targets_of_the_other_schemes(capsys):
+    assert main(["models"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("default targets of the other schemes (not in the paper): "
+                         "generalized_alpha 3, 3.5, 4, 4.5, 5") == len(EXPERIMENTS)
+
+
+def test_generalized_alpha_table_has_its_own_targets_and_no_paper_rows(tmp_path, capsys):
+    """``table --schemes generalized_alpha``: the documented default targets
+    (OTHER_SCHEME_TARGETS), beside no paper numbers (the paper has none)."""
+    out = tmp_path / "runs.json"
+    assert main(["table", "dumbbell", "--schemes", "generalized_alpha,hfdi", "--t-end", "0.1",
+                 "--no-eps", "--json", str(out)]) == 0
+    records = json.loads(out.read_text())
+    assert [(r["scheme"], r["target"]) for r in records] == [
+        ("generalized_alpha", t) for t in (3.0, 3.5, 4.0, 4.5, 5.0)] + [
+        ("hfdi", t) for t in (3.0, 3.1, 3.2, 3.3, 3.5)]
+    assert all(r["status"] == "SUCCESS" and r["steps"] > 0 for r in records)
+    printed = capsys.readouterr().out
+    # HFDI first, in the order of hfdi.SCHEMES; the paper's numbers beneath it only
+    theirs, ours = printed.split("GeneralizedAlpha\n")
+    assert "HFDI\n" in theirs and "(paper)" in theirs
+    assert "(paper)" not in ours and "N_mv" in ours
+
+
+def test_a_table_of_every_scheme_is_in_registry_order():
+    from validation.runs import RunRecord
+    from validation.tables import format_table
+    records = [RunRecord("dumbbell", s, 3.0, 10, 3.0, 0.01, 0.1, "SUCCESS", "", 0.1)
+               for s in reversed(list(hfdi.SCHEMES))]
+    text = format_table(records)
+    titles = [line for line in text.splitlines() if line and not line.startswith(" ")]
+    assert titles == ["Newmark", "Bathe", "HFDI", "GeneralizedAlpha"]
+    assert text.count("(paper)") == 3 * 4         # four rows under each paper scheme
+
+
+def test_the_report_says_a_scheme_is_not_in_the_paper():
+    from validation.report import _comparison_summary, stability_schemes
+    from validation.runs import RunRecord
+    records = [RunRecord("dumbbell", s, 3.0, 10, 3.0, 0.01, 0.1, "SUCCESS", "", 2.0)
+               for s in ("hfdi", "generalized_alpha")]
+    lines = _comparison_summary("dumbbell", records)
+    assert lines[0].startswith("- HFDI: steps ours/paper")
+    assert lines[1] == ("- GeneralizedAlpha: not in the paper (its targets: 3.0); div here "
+                        "at N̄ = none.")
+    # the stability outputs of `all`: the paper's three, then the other schemes asked for
+    assert stability_schemes(["hfdi"]) == ["newmark", "bathe", "hfdi"]
+    assert stability_schemes(["generalized_alpha", "bathe"]) == [
+        "newmark", "bathe", "hfdi", "generalized_alpha"]
+
+
+def test_stability_rows_of_generalized_alpha_reach_its_rho_inf():
+    from validation.stability import stability_rows
+    rows = stability_rows([0.01, 1e4], ["generalized_alpha"])
+    assert [(r["scheme"], r["ratio"]) for r in rows] == [("generalized_alpha", 0.01),
+                                                         ("generalized_alpha", 1e4)]
+    assert rows[0]["spectral_radius"] == pytest.approx(1.0, abs=1e-3)
+    assert rows[1]["spectral_radius"] == pytest.approx(0.8, abs=1e-3)   # ρ∞ = 0.8

@@ -62,12 +62,16 @@ def test_figures_writes_the_named_pngs(tmp_path, capsys):
     assert sum(" figure " in line for line in progress) == len(DUMBBELL_FIGURES)
 
 
+_TITLES = {"Newmark": "newmark", "Bathe": "bathe", "HFDI": "hfdi",
+           "GeneralizedAlpha": "generalized_alpha"}
+
+
 def _parse_table(text):
     rows = {}
     for line in text.splitlines():
         cells = line.split()
-        if len(cells) == 5 and cells[0] in ("Newmark", "Bathe", "HFDI"):
-            rows[cells[0].lower(), float(cells[1])] = [
+        if len(cells) == 5 and cells[0] in _TITLES:
+            rows[_TITLES[cells[0]], float(cells[1])] = [
                 np.nan if c == "-" else float(c) for c in cells[2:]]
     return rows
 
@@ -90,6 +94,38 @@ def test_stability_writes_both_figures_and_prints_the_spectral_values(tmp_path, 
             assert ad == pytest.approx(props.amplitude_decay[k], abs=1e-4)
     # the paper's claims: HFDI damps high frequencies, Newmark conserves
     assert rows["hfdi", 10.0][0] < 0.05 and rows["newmark", 10.0][0] == pytest.approx(1.0)
+
+
+def test_stability_of_generalized_alpha_beside_hfdi(tmp_path, capsys):
+    """``stability --schemes``: any scheme of hfdi.SCHEMES, its curves drawn and
+    its ρ, PE and AD in the table; generalized-α keeps ρ∞ = 0.8 at large Δt/T."""
+    out = tmp_path / "stab"
+    ratios = [0.01, 0.1, 1e5]
+    assert main(["stability", "--out", str(out), "--schemes", "generalized_alpha,hfdi",
+                 "--ratios", ",".join(map(str, ratios))]) == 0
+    assert {p.name for p in out.iterdir()} == STABILITY_FIGURES
+    for path in out.iterdir():
+        assert_png(path)
+    rows = _parse_table(capsys.readouterr().out)
+    assert {scheme for scheme, _ in rows} == {"generalized_alpha", "hfdi"}
+    props = spectral_properties("generalized_alpha", ratios)
+    for k, ratio in enumerate(ratios):
+        assert rows["generalized_alpha", ratio][0] == pytest.approx(
+            props.spectral_radius[k], abs=1e-6)
+    assert rows["generalized_alpha", 1e5][0] == pytest.approx(0.8, abs=1e-3)
+
+
+def test_figures_of_generalized_alpha_runs(tmp_path, capsys):
+    """``figures --schemes generalized_alpha``: its table runs in the error
+    figures (its own targets); the figures of the paper's named runs as ever."""
+    out = tmp_path / "figs"
+    assert main(["figures", "dumbbell", "--out", str(out), "--schemes", "generalized_alpha",
+                 "--t-end", "0.2"]) == 0
+    assert {p.name for p in out.iterdir()} == DUMBBELL_FIGURES
+    for path in out.iterdir():
+        assert_png(path)
+    runs = [line for line in capsys.readouterr().err.splitlines() if " run dumbbell " in line]
+    assert sum("GeneralizedAlpha N̄ = " in line for line in runs) == 5
 
 
 def test_all_writes_the_report_and_resumes(tmp_path, capsys):

@@ -10,20 +10,26 @@ import hfdi
 
 from . import options as opt
 from hfdi.files import write_output
-from .experiments import SCHEME_ORDER, experiment, names
+from .experiments import OTHER_SCHEME_TARGETS, PAPER_SCHEMES, SCHEME_ORDER, experiment, names
 from .options import UsageError, check_problem, check_runs, out_dir
 from .reference import IDAError
 from .runs import Progress, ProblemRuns, run_tables
 from .tables import format_table, records_to_csv
 
 
+_SCHEMES_HELP = (f"comma-separated, of {', '.join(SCHEME_ORDER)} (default: the paper's "
+                 f"{', '.join(PAPER_SCHEMES)})")
+_OTHER_TARGETS = (f"{', '.join(s for s in SCHEME_ORDER if s not in PAPER_SCHEMES)} "
+                  f"{','.join(format(t, 'g') for t in OTHER_SCHEME_TARGETS)}")
+
+
 def _run_options(parser):
     """The options that choose the runs of ``figures`` and ``all``."""
-    parser.add_argument("--schemes", type=opt.schemes, default=list(SCHEME_ORDER),
-                        help="schemes of the table runs (default: all three)")
+    parser.add_argument("--schemes", type=opt.schemes, default=list(PAPER_SCHEMES),
+                        help=_SCHEMES_HELP)
     parser.add_argument("--targets", type=opt.targets, default=None,
                         help="target iteration counts of the table runs, for every scheme "
-                             "(default: the paper's per scheme)")
+                             "(default: the paper's per scheme; " + _OTHER_TARGETS + ")")
     parser.add_argument("--t-end", type=opt.positive, default=None,
                         help="end time of the runs and of the reference (default: T_o)")
     parser.add_argument("--long-t-end", type=opt.positive, default=None,
@@ -39,9 +45,11 @@ def build_parser():
                                          "(comma-separated)")
     table.add_argument("problem", help=f"one of {', '.join(names())}, or "
                                        "several, comma-separated")
-    table.add_argument("--schemes", type=opt.schemes, default=list(SCHEME_ORDER))
+    table.add_argument("--schemes", type=opt.schemes, default=list(PAPER_SCHEMES),
+                       help=_SCHEMES_HELP)
     table.add_argument("--targets", type=opt.targets, default=None,
-                       help="target iteration counts (per sub-step for Bathe)")
+                       help="target iteration counts (per sub-step for Bathe; default: the "
+                            "paper's per scheme; " + _OTHER_TARGETS + ")")
     table.add_argument("--rtol", type=opt.rtols, default=None, metavar="R[,R...]",
                        help="error-controlled runs at these relative tolerances instead of "
                             "the paper's targets (with --targets: both rules combined)")
@@ -61,6 +69,8 @@ def build_parser():
     stability = sub.add_parser("stability", help="spectral radius, period elongation and "
                                                  "amplitude decay of the schemes (Figs. 1-2)")
     stability.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    stability.add_argument("--schemes", type=opt.schemes, default=list(PAPER_SCHEMES),
+                           help=_SCHEMES_HELP)
     stability.add_argument("--ratios", type=opt.ratios, default=None,
                            help="Δt/T of the printed table, comma-separated "
                                 "(default: 0.01,0.05,0.1,0.2,0.5,1,10)")
@@ -85,6 +95,10 @@ def _models(args):
         targets = "; ".join(f"{s} {', '.join(format(t, 'g') for t in ts)}"
                             for s, ts in exp.targets.items())
         print(f"  paper's targets: {targets}")
+        others = "; ".join(f"{s} {', '.join(format(t, 'g') for t in exp.table_targets(s))}"
+                           for s in SCHEME_ORDER if s not in exp.targets)
+        if others:
+            print(f"  default targets of the other schemes (not in the paper): {others}")
         for key, value in hfdi.models.describe(name).items():
             print(f"  {key} = {value!r}")
 
@@ -186,7 +200,8 @@ def _stability(args):
     from .stability import DEFAULT_RATIOS, write_stability
     out = out_dir(args.out)
     ratios = args.ratios or list(DEFAULT_RATIOS)
-    done = write_stability(out, ratios, progress=Progress(checkpoint=opt.raise_if_interrupted))
+    done = write_stability(out, ratios, progress=Progress(checkpoint=opt.raise_if_interrupted),
+                           schemes=args.schemes)
     print("Spectral radius ρ, period elongation PE and amplitude decay AD (Eqs. 29-33)\n")
     print(done["table"])
     print()
@@ -195,11 +210,12 @@ def _stability(args):
 
 
 def _all(args):
-    from .report import FIGURE_DIR, SettingsMismatch, run_all
-    from .stability import DEFAULT_RATIOS
     for option, t_end in (("--t-end", args.t_end), ("--long-t-end", args.long_t_end)):
         check_runs(args.problems or names(), args.schemes, args.targets,
                     t_end, option=option)
+    # after the checks: the figures import matplotlib (about a second)
+    from .report import FIGURE_DIR, SettingsMismatch, run_all
+    from .stability import DEFAULT_RATIOS
     # --dask: the extra and the scheduler are checked before --out is made
     with opt.runner_from_args(args) as runner:
         out = out_dir(args.out)

@@ -19,13 +19,56 @@ from typing import Mapping
 import hfdi
 
 __all__ = ["Experiment", "Quantity", "EXPERIMENTS", "experiment", "names", "paper_row",
-           "ENERGY_LIMIT", "SCHEME_ORDER", "SCHEME_COLOURS", "FIGURE_SUBJECTS"]
+           "ENERGY_LIMIT", "SCHEME_ORDER", "PAPER_SCHEMES", "OTHER_SCHEME_TARGETS",
+           "SchemeStyle", "SCHEME_COLOURS", "FIGURE_SUBJECTS"]
 
-#: The schemes in the paper's order (as :data:`hfdi.SCHEMES` lists them).
+#: Every scheme of the library, in the order of its registry (:data:`hfdi.SCHEMES`):
+#: the paper's three first, then the others. Outputs list schemes in this order,
+#: and ``--schemes`` chooses from it.
 SCHEME_ORDER = tuple(hfdi.SCHEMES)
 
-#: One colour per scheme, in every figure (paper's tables, stability, benchmarks).
-SCHEME_COLOURS = {"newmark": "tab:blue", "bathe": "tab:orange", "hfdi": "tab:green"}
+#: The schemes of the paper's tables (:data:`hfdi.PAPER_SCHEMES`): the default
+#: of every command that reproduces the paper.
+PAPER_SCHEMES = tuple(hfdi.PAPER_SCHEMES)
+
+#: Target iteration counts of a table run of a scheme the paper did not run
+#: (generalized-α): the range 3 to 5 of the paper's Tables 2, 4 and 5. The
+#: paper's own targets stay defined for its schemes only (``Experiment.targets``).
+OTHER_SCHEME_TARGETS = (3.0, 3.5, 4.0, 4.5, 5.0)
+
+
+class SchemeStyle(Mapping):
+    """A style per scheme (a colour, a marker, a line), taken from the scheme's
+    place in :data:`hfdi.SCHEMES` and never a ``KeyError``.
+
+    ``values[i]`` styles the ``i``-th scheme of the registry (cycling when
+    there are more schemes than values); a name the registry does not know
+    gets ``fallback``. A scheme added to the library is drawn without an
+    entry here.
+    """
+
+    def __init__(self, values, fallback):
+        self.values = tuple(values)
+        self.fallback = fallback
+        if not self.values:
+            raise ValueError("SchemeStyle needs at least one value")
+
+    def __getitem__(self, scheme):
+        if scheme in SCHEME_ORDER:
+            return self.values[SCHEME_ORDER.index(scheme) % len(self.values)]
+        return self.fallback
+
+    def __iter__(self):
+        return iter(SCHEME_ORDER)
+
+    def __len__(self):
+        return len(SCHEME_ORDER)
+
+
+#: One colour per scheme, in every figure (paper's tables, stability, benchmarks):
+#: Newmark blue, Bathe orange, HFDI green, generalized-α red.
+SCHEME_COLOURS = SchemeStyle(("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
+                              "tab:brown", "tab:pink", "tab:olive", "tab:cyan"), "tab:gray")
 
 #: A run is reported "div" when a guard of the integrator stops it (step below
 #: its minimum, halvings exhausted) or when its energy balance breaks down: the
@@ -124,8 +167,10 @@ class Experiment:
     long_observation_time : float or None
         End of the long energy runs (Figs. 7 and 18); ``T_o`` when ``None``.
     targets : mapping of str to tuple of float
-        The paper's target iteration counts per scheme (per sub-step for
-        Bathe, which the paper writes ``2·N̄``).
+        The paper's target iteration counts per scheme of its tables (per
+        sub-step for Bathe, which the paper writes ``2·N̄``); another
+        scheme's table runs take :data:`OTHER_SCHEME_TARGETS`
+        (:meth:`table_targets`).
     paper : mapping
         The paper's table: scheme → target → ``{"mean_step", "steps",
         "mean_iterations", "cpu_time"}``, or ``None`` for a run it reports
@@ -174,6 +219,18 @@ class Experiment:
         """End of the long energy runs: ``long_observation_time`` or ``T_o``."""
         return float(self.long_observation_time or self.observation_time)
 
+    def table_targets(self, scheme: str) -> tuple:
+        """The target iteration counts of the table runs of ``scheme``: the
+        paper's for a scheme of its table, :data:`OTHER_SCHEME_TARGETS` for
+        another scheme of :data:`hfdi.SCHEMES` (the paper has no numbers to
+        compare those runs with); ``ValueError`` naming the schemes for a name
+        the library does not know."""
+        if scheme in self.targets:
+            return tuple(float(t) for t in self.targets[scheme])
+        if scheme in SCHEME_ORDER:
+            return OTHER_SCHEME_TARGETS
+        raise ValueError(f"unknown scheme {scheme!r}; available: {', '.join(SCHEME_ORDER)}")
+
     def model(self, **params):
         """A new model of this benchmark, with ``params`` for its constructor."""
         return hfdi.models.get(self.name, **params)
@@ -202,7 +259,7 @@ EXPERIMENTS = {
         cost=1.0),
     "tetrahedra": Experiment(
         "tetrahedra", "Tetrahedra", table=3, observation_time=50.0,
-        targets={s: (3.0, 3.5, 4.0, 4.5) for s in ("newmark", "bathe", "hfdi")},
+        targets={s: (3.0, 3.5, 4.0, 4.5) for s in PAPER_SCHEMES},
         paper=PAPER_TABLES["tetrahedra"],
         shown_runs={"trajectory": (("bathe", 4.0), ("hfdi", 4.0))},      # Figs. 12-13
         eps_figures={"u": 9, "f": 10}, eps_in_paper=("u", "f"),
@@ -212,7 +269,7 @@ EXPERIMENTS = {
     "articulated": Experiment(
         "articulated", "Articulated system", table=4, observation_time=0.5,
         long_observation_time=3.0,
-        targets={s: _PAPER_ORDER for s in ("newmark", "bathe", "hfdi")},
+        targets={s: _PAPER_ORDER for s in PAPER_SCHEMES},
         paper=PAPER_TABLES["articulated"],
         shown_runs={"configuration": (("newmark", 5.0), ("bathe", 5.0), ("hfdi", 5.0)),
                     "trajectory": (("bathe", 4.5), ("hfdi", 4.0)),       # Figs. 15-17
@@ -222,7 +279,7 @@ EXPERIMENTS = {
         cost=1.1),
     "toss_rule": Experiment(
         "toss_rule", "Toss rule", table=5, observation_time=0.1,
-        targets={s: _PAPER_ORDER for s in ("newmark", "bathe", "hfdi")},
+        targets={s: _PAPER_ORDER for s in PAPER_SCHEMES},
         paper=PAPER_TABLES["toss_rule"],
         # the paper does not name the runs of Figs. 23-24: N̄ = 4.0 for each scheme
         shown_runs={"trajectory": (("newmark", 4.0), ("bathe", 4.0), ("hfdi", 4.0))},
@@ -261,5 +318,6 @@ def experiment(name: str) -> Experiment:
 
 def paper_row(problem: str, scheme: str, target: float):
     """The paper's numbers for one run: a dict, ``None`` for "div", or
-    ``KeyError`` when the paper has no such run."""
+    ``KeyError`` when the paper has no such run (a scheme it did not run
+    included)."""
     return EXPERIMENTS[problem].paper[scheme][round(float(target), 3)]

@@ -34,15 +34,25 @@ import scipy.sparse as sp  # noqa: E402
 
 from hfdi.files import write_output  # noqa: E402
 from .experiments import (EXPERIMENTS, FIGURE_SUBJECTS, SCHEME_COLOURS,  # noqa: E402
-                          SCHEME_ORDER, Quantity)
+                          SCHEME_ORDER, Quantity, SchemeStyle)
 from .runs import ProblemRuns, run_label, scheme_title  # noqa: E402
 
 __all__ = ["figure_png", "save_figure", "FigureSpec", "figure_specs", "write_figures",
            "eps_figure", "kinetic_energy"]
 
-#: Colour (one per scheme in every figure) and marker of each scheme's runs.
-_STYLE = {scheme: {"color": SCHEME_COLOURS[scheme], "marker": marker}
-          for scheme, marker in (("newmark", "s"), ("bathe", "^"), ("hfdi", "o"))}
+#: Marker of each scheme's runs (by its place in hfdi.SCHEMES; "x" for another name).
+_MARKERS = SchemeStyle(("s", "^", "o", "v", "D", "P", "*"), "x")
+
+
+class _Style(dict):
+    """Colour (one per scheme in every figure) and marker of each scheme's runs;
+    any scheme name has one (:class:`~validation.experiments.SchemeStyle`)."""
+
+    def __missing__(self, scheme):
+        return {"color": SCHEME_COLOURS[scheme], "marker": _MARKERS[scheme]}
+
+
+_STYLE = _Style()
 _REFERENCE_STYLE = {"color": "black", "linestyle": "-", "linewidth": 0.8}
 _TARGET_COLORS = ("tab:green", "tab:blue", "tab:purple", "tab:red", "tab:brown", "tab:olive",
                   "tab:cyan", "tab:pink")

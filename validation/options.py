@@ -128,7 +128,8 @@ def names_from(text, allowed, what, lower=True, also="") -> list:
 
 
 def schemes(text) -> list:
-    """Scheme names of :data:`hfdi.SCHEMES`, comma-separated."""
+    """Scheme names of :data:`hfdi.SCHEMES` (the paper's three and
+    generalized-α), comma-separated."""
     return names_from(text, SCHEME_ORDER, "scheme(s)")
 
 
@@ -324,11 +325,13 @@ def check_runs(problem_names, scheme_names, target_values, t_end, rtol_values=No
                              "time)")
         for scheme in scheme_names:
             for target in target_values or ([None] if rtol_values else
-                                            exp.targets.get(scheme) or [3.0]):
+                                            exp.table_targets(scheme)):
                 for rtol in rtol_values or [None]:
                     try:
+                        # the library's checks of the settings only: no compiled
+                        # code is loaded (or compiled) for them
                         hfdi.Integrator(model, scheme, target_iterations=target, rtol=rtol,
-                                        t_bound=t_end or exp.observation_time)
+                                        t_bound=t_end or exp.observation_time, compiled=False)
                     except ValueError as exc:
                         setting = ", ".join(f"{k} = {v:g}" for k, v in
                                             (("N̄", target), ("rtol", rtol)) if v is not None)

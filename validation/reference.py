@@ -79,7 +79,7 @@ import scipy.sparse.linalg as spla
 
 import hfdi
 from hfdi.dense import hermite_quintic
-from hfdi.linalg import normalise_matrix
+from hfdi.evaluation import normalise_matrix
 
 from hfdi.files import atomic_file, cache_dir
 
@@ -925,19 +925,36 @@ def _digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+#: The modules of hfdi every reference reads a model through: the model
+#: protocol, the checks of its values and the normalisation of its matrices.
+_PROTOCOL_MODULES = ("system.py", "checks.py", "evaluation.py")
+
+
 def model_sources(model) -> list:
     """The source files a model's forces come from: its module, every module
     of the package it lives in (for hfdi.models: the pair potential and the
-    loads its models share) and hfdi's model protocol, checks and linear
-    algebra. The reference cache's key hashes them all, so that an edited
-    model, or an edited helper of it, misses the cache."""
-    module = Path(inspect.getsourcefile(inspect.getmodule(type(model))))
+    loads its models share), every module of hfdi its module takes a name
+    from, and hfdi's model protocol, checks and the normalisation of its
+    matrices (:data:`_PROTOCOL_MODULES`). The reference cache's key hashes
+    them all, so that an edited model, or an edited helper of it, misses the
+    cache. Every file listed exists (a file that is gone would make the key
+    drop the sources altogether)."""
+    source = inspect.getmodule(type(model))
+    module = Path(inspect.getsourcefile(source))
     files = {module}
     if (module.parent / "__init__.py").is_file():
         files.update(module.parent.glob("*.py"))
     core = Path(hfdi.__file__).parent
-    files.update(core / name for name in ("system.py", "checks.py", "linalg.py"))
-    return sorted(files)
+    files.update(core / name for name in _PROTOCOL_MODULES)
+    for value in vars(source).values():
+        used = value if inspect.ismodule(value) else inspect.getmodule(value)
+        name = getattr(used, "__name__", "")
+        if name == "hfdi" or name.startswith("hfdi."):
+            try:
+                files.add(Path(inspect.getsourcefile(used)))
+            except TypeError:                           # a built-in module: no source
+                pass
+    return sorted(path.resolve() for path in files if path.is_file())
 
 
 def _model_source_digest(model):

@@ -42,14 +42,14 @@ import hfdi
 
 from .errors import error_norms
 from hfdi.files import write_output
-from .experiments import EXPERIMENTS, SCHEME_ORDER, experiment, names
+from .experiments import EXPERIMENTS, PAPER_SCHEMES, SCHEME_ORDER, experiment, names
 from .figures import figure_specs, write_figures
 from .reference import IDAError
 from .runs import Progress, ProblemRuns, RunRecord, scheme_title
 from .stability import DEFAULT_RATIOS, FIGURE_NAMES, format_stability_table, write_stability
 
-__all__ = ["run_all", "reference_convergence", "build_report", "SettingsMismatch",
-           "TIGHT_RTOL", "SETTINGS_FILE"]
+__all__ = ["run_all", "reference_convergence", "build_report", "stability_schemes",
+           "SettingsMismatch", "TIGHT_RTOL", "SETTINGS_FILE"]
 
 #: rtol of the default reference and of the tighter one of the convergence check.
 DEFAULT_RTOL = 1e-12
@@ -219,9 +219,14 @@ def _comparison_summary(problem, records) -> list:
                     if r.scheme == scheme and r.diverged]
         div_paper = [_target_text(scheme, r.target) for r in records
                      if r.scheme == scheme and _paper(problem, scheme, r.target) is None]
+        text = f"- {scheme_title(scheme)}: "
+        runs = [_target_text(scheme, r.target) for r in records if r.scheme == scheme]
+        if runs and scheme not in EXPERIMENTS[problem].paper:
+            lines.append(f"{text}not in the paper (its targets: {', '.join(runs)}); div here "
+                         f"at N̄ = {', '.join(div_ours) or 'none'}.")
+            continue
         if not pairs and not div_ours and not div_paper:
             continue
-        text = f"- {scheme_title(scheme)}: "
         if pairs:
             text += (f"steps ours/paper from {min(pairs):.2f} to {max(pairs):.2f} "
                      f"(median {float(np.median(pairs)):.2f}) over {len(pairs)} runs both finished")
@@ -326,7 +331,7 @@ def build_report(out, problems, settings, stability_rows, elapsed=None) -> str:
     for problem in problems:
         title = experiment(problem).title
         records = [RunRecord(**d) for d in json.loads((out / f"{problem}_table.json").read_text())]
-        ctx = ProblemRuns(problem, schemes=settings.get("schemes") or SCHEME_ORDER,
+        ctx = ProblemRuns(problem, schemes=settings.get("schemes") or PAPER_SCHEMES,
                           targets=settings.get("targets"), t_end=settings.get("t_end"),
                           long_t_end=settings.get("long_t_end"))
         number = experiment(problem).table
@@ -470,23 +475,31 @@ def _problem_outputs(problem, schemes, targets, t_end, long_t_end, out, existing
     return wrote
 
 
-def _stability_outputs(ratios, out, existing, write, progress) -> tuple:
+def stability_schemes(schemes) -> list:
+    """The schemes of the stability outputs of ``all``: the paper's three
+    (its Figs. 1–2), then any other scheme of ``schemes``."""
+    return list(PAPER_SCHEMES) + [s for s in SCHEME_ORDER
+                                  if s in schemes and s not in PAPER_SCHEMES]
+
+
+def _stability_outputs(ratios, out, existing, write, progress, schemes=PAPER_SCHEMES) -> tuple:
     """The stability figures and ``stability.json``
-    (:func:`validation.stability.write_stability`, told what ``existing``
-    found); returns the table's rows and whether anything was written."""
+    (:func:`validation.stability.write_stability` of ``schemes``, told what
+    ``existing`` found); returns the table's rows and whether anything was
+    written."""
     out = Path(out)
     done = write_stability(out / FIGURE_DIR, ratios, skip_existing=True, progress=progress,
                            json_path=out / "stability.json",
                            exists=lambda path: path.name in existing["figures"],
                            write=lambda path, data: write(str(path.relative_to(out)), data),
-                           rows=existing["stability"])
+                           rows=existing["stability"], schemes=schemes)
     return done["rows"], bool(done["written"])
 
 
 def _all_task(kind, *args) -> dict:
     """One task of a parallel :func:`run_all`, run in a worker: ``("problem",
     name, schemes, targets, t_end, long_t_end, out, existing)`` or
-    ``("stability", ratios, out, existing)``. Returns the outputs as bytes
+    ``("stability", ratios, out, existing, schemes)``. Returns the outputs as bytes
     (``files``: name → data, in the order made), the progress lines and, for
     the stability, its rows."""
     files, lines = {}, _Lines()
@@ -498,12 +511,13 @@ def _all_task(kind, *args) -> dict:
         wrote = _problem_outputs(*args, write=keep, progress=lines)
         rows = None
     else:
-        rows, wrote = _stability_outputs(*args, write=keep, progress=lines)
+        ratios, out, existing, schemes = args
+        rows, wrote = _stability_outputs(ratios, out, existing, keep, lines, schemes)
     return {"kind": kind, "name": args[0] if kind == "problem" else "stability",
             "files": files, "lines": lines.lines, "wrote": wrote, "rows": rows}
 
 
-def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
+def run_all(out, problems=None, schemes=PAPER_SCHEMES, targets=None, t_end=None,
             long_t_end=None, ratios=DEFAULT_RATIOS, force=False, progress=None,
             runner=None) -> Path:
     """Every table, figure, the stability outputs and ``report.md`` into ``out``.
@@ -515,7 +529,9 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
     problems : sequence of str, optional
         Default: every benchmark of :mod:`validation.experiments`.
     schemes, targets, t_end, long_t_end
-        As :class:`validation.runs.ProblemRuns`.
+        As :class:`validation.runs.ProblemRuns`. The stability outputs show
+        the paper's three schemes and any other of ``schemes``
+        (:func:`stability_schemes`).
     ratios : sequence of float
         ``Δt/T`` of the stability table.
     force : bool
@@ -563,14 +579,15 @@ def run_all(out, problems=None, schemes=SCHEME_ORDER, targets=None, t_end=None,
             wrote |= _problem_outputs(problem, schemes, targets, t_end, long_t_end, out,
                                       _existing(out, problem, skip), write, progress)
         rows, written = _stability_outputs(ratios, out, _existing(out, None, skip), write,
-                                           progress)
+                                           progress, stability_schemes(schemes))
         wrote |= written
     else:
         tasks = [("problem", p, list(schemes), targets, t_end, long_t_end, str(out),
                   _existing(out, p, skip))
                  # longest first (Experiment.cost), so that the workers finish together
                  for p in sorted(problems, key=lambda p: -experiment(p).cost)]
-        tasks.append(("stability", ratios, str(out), _existing(out, None, skip)))
+        tasks.append(("stability", ratios, str(out), _existing(out, None, skip),
+                      stability_schemes(schemes)))
         progress.say(f"{len(problems)} problems and the stability outputs: "
                      f"{len(tasks)} tasks on {runner} (their lines come when each is done)")
         state = {"wrote": False, "rows": None}

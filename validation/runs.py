@@ -22,7 +22,7 @@ import numpy as np
 import hfdi
 
 from .errors import error_norms
-from .experiments import ENERGY_LIMIT, SCHEME_ORDER, experiment
+from .experiments import ENERGY_LIMIT, PAPER_SCHEMES, experiment
 from .reference import cached_reference, default_atol, default_cache_dir
 
 __all__ = ["RunRecord", "run_experiment", "integrate", "make_record", "problem_reference", "table_run",
@@ -171,7 +171,7 @@ def table_run(problem: str, scheme: str, target: float | None, t_end=None, param
     return make_record(problem, scheme, target, model, result, reference, rtol)
 
 
-def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=None,
+def run_tables(problems, schemes=PAPER_SCHEMES, targets=None, t_end=None, params=None,
                eps=True, runner=None, progress=None, say=None, rtols=None,
                run_progress=None) -> dict:
     """Every run of the paper's tables of several problems (their targets unless
@@ -182,8 +182,11 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
     ----------
     problems : sequence of str
     schemes, targets, t_end, params
-        Schemes, target iteration counts (every scheme), end time (default
-        ``T_o``) and model parameters (every problem).
+        Schemes (default the paper's three), target iteration counts (every
+        scheme; default :meth:`Experiment.table_targets`: the paper's, and
+        :data:`~validation.experiments.OTHER_SCHEME_TARGETS` for a scheme it
+        did not run), end time (default ``T_o``) and model parameters (every
+        problem).
     rtols : sequence of float, optional
         Relative tolerances: the runs are error-controlled, one per rtol
         (combined with each of ``targets`` when both are given).
@@ -226,9 +229,9 @@ def run_tables(problems, schemes=SCHEME_ORDER, targets=None, t_end=None, params=
                     problem_reference(problem, t_end, params)
     tasks = []
     for problem in problems:
-        paper_targets = experiment(problem).targets
+        exp = experiment(problem)
         for scheme in schemes:
-            for target in (targets or ([None] if rtols else paper_targets[scheme])):
+            for target in (targets or ([None] if rtols else exp.table_targets(scheme))):
                 for rtol in (rtols or [None]):
                     task = (problem, scheme, None if target is None else float(target),
                             t_end, params, 1e-12 if eps else None, rtol)
@@ -310,10 +313,10 @@ class ProblemRuns:
     problem : str
         A name of :func:`hfdi.models.get`.
     schemes : sequence of str
-        Schemes of the table runs.
+        Schemes of the table runs (default the paper's three).
     targets : sequence of float, optional
-        Target iteration counts of the table runs (every scheme); the paper's
-        per scheme when omitted.
+        Target iteration counts of the table runs (every scheme); when
+        omitted, :meth:`Experiment.table_targets` per scheme (the paper's).
     t_end : float, optional
         End of the table runs and of the reference; the model's ``T_o`` when
         omitted.
@@ -325,7 +328,7 @@ class ProblemRuns:
     progress : Progress, optional
     """
 
-    def __init__(self, problem, schemes=SCHEME_ORDER, targets=None, t_end=None,
+    def __init__(self, problem, schemes=PAPER_SCHEMES, targets=None, t_end=None,
                  long_t_end=None, params=None, progress=None):
         self.problem = problem
         self.params = dict(params or {})
@@ -346,7 +349,7 @@ class ProblemRuns:
 
     def table_targets(self, scheme: str) -> tuple:
         """Targets of the table runs of ``scheme``."""
-        return self.targets or tuple(float(t) for t in self.experiment.targets[scheme])
+        return self.targets or self.experiment.table_targets(scheme)
 
     def long_targets(self) -> tuple:
         """HFDI targets of the long energy runs."""

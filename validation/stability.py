@@ -1,5 +1,7 @@
 """The paper's Section 3 figures: spectral radius (Fig. 1), period elongation and
-amplitude decay (Fig. 2) of the three schemes, from :func:`hfdi.spectral.spectral_properties`.
+amplitude decay (Fig. 2) of the schemes, from :func:`hfdi.spectral.spectral_properties`:
+the paper's three by default, any scheme of :data:`hfdi.SCHEMES` when asked
+(``hfdi-validate stability --schemes``).
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import numpy as np
 from hfdi.spectral import spectral_properties
 
 from hfdi.files import write_output
-from .experiments import SCHEME_COLOURS, SCHEME_ORDER
+from .experiments import PAPER_SCHEMES, SCHEME_COLOURS, SchemeStyle
 from .figures import figure_png, plt
 from .runs import Progress, scheme_title
 
@@ -31,7 +33,7 @@ _RADIUS_RATIOS = np.logspace(-3, 3, 361)
 _ACCURACY_RATIOS = np.linspace(0.0025, 0.5, 200)
 
 
-def stability_rows(ratios=DEFAULT_RATIOS, schemes=SCHEME_ORDER) -> list:
+def stability_rows(ratios=DEFAULT_RATIOS, schemes=PAPER_SCHEMES) -> list:
     """ρ, PE and AD of each scheme at each ``Δt/T``.
 
     Returns
@@ -77,16 +79,20 @@ def format_stability_table(rows, markdown=False) -> str:
     return "\n".join("  ".join(f.format(c) for f, c in zip(fmt, cells)) for cells in [head, *body])
 
 
-_STYLE = {scheme: (SCHEME_COLOURS[scheme], line)
-          for scheme, line in (("newmark", "-"), ("bathe", "--"), ("hfdi", "-."))}
+#: Line style of each scheme's curves (its colour is :data:`SCHEME_COLOURS`').
+_LINES = SchemeStyle(("-", "--", "-.", ":"), "-")
 
 
-def spectral_radius_figure(schemes=SCHEME_ORDER):
+def _style(scheme):
+    return SCHEME_COLOURS[scheme], _LINES[scheme]
+
+
+def spectral_radius_figure(schemes=PAPER_SCHEMES):
     """Spectral radius ``ρ(A)`` against ``Δt/T`` on a log x axis (paper Fig. 1)."""
     fig, ax = plt.subplots(figsize=(7.0, 4.5))
     for scheme in schemes:
         props = spectral_properties(scheme, _RADIUS_RATIOS)
-        color, style = _STYLE.get(scheme, ("black", "-"))
+        color, style = _style(scheme)
         ax.semilogx(props.ratio, props.spectral_radius, style, color=color,
                     label=scheme_title(scheme))
     ax.set_xlabel(r"$\Delta t / T$ [-]")
@@ -99,12 +105,12 @@ def spectral_radius_figure(schemes=SCHEME_ORDER):
     return fig
 
 
-def accuracy_figure(schemes=SCHEME_ORDER):
+def accuracy_figure(schemes=PAPER_SCHEMES):
     """Period elongation and amplitude decay in percent against ``Δt/T`` (paper Fig. 2)."""
     fig, (ax_pe, ax_ad) = plt.subplots(1, 2, figsize=(10.0, 4.2))
     for scheme in schemes:
         props = spectral_properties(scheme, _ACCURACY_RATIOS)
-        color, style = _STYLE.get(scheme, ("black", "-"))
+        color, style = _style(scheme)
         ax_pe.plot(props.ratio, props.period_elongation, style, color=color,
                    label=scheme_title(scheme))
         ax_ad.plot(props.ratio, props.amplitude_decay, style, color=color,
@@ -123,7 +129,8 @@ def accuracy_figure(schemes=SCHEME_ORDER):
 
 
 def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=None,
-                    json_path=None, exists=None, write=None, rows=None) -> dict:
+                    json_path=None, exists=None, write=None, rows=None,
+                    schemes=PAPER_SCHEMES) -> dict:
     """Write the two PNGs into ``out`` and return the table.
 
     Parameters
@@ -148,6 +155,8 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
         (with ``skip_existing``): neither recomputed nor written. ``exists``,
         ``write`` and ``rows`` let a worker that cannot see ``out`` make what
         its caller did not find there.
+    schemes : sequence of str
+        The schemes of the figures and the table (default the paper's three).
 
     Returns
     -------
@@ -163,6 +172,7 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
         write = write_output
     exists = exists or Path.exists
     figures, written = {}, []
+    schemes = tuple(schemes)
     for key, make in (("radius", spectral_radius_figure), ("accuracy", accuracy_figure)):
         path = out / FIGURE_NAMES[key]
         figures[key] = path
@@ -170,7 +180,7 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
             progress.say(f"figure {path}: exists, skipped")
             continue
         start = time.perf_counter()
-        write(path, figure_png(make()))
+        write(path, figure_png(make(schemes)))
         written.append(path)
         progress.say(f"figure {path} ({time.perf_counter() - start:.1f} s)")
     if json_path is not None and skip_existing and (rows is not None or exists(Path(json_path))):
@@ -178,7 +188,7 @@ def write_stability(out, ratios=DEFAULT_RATIOS, skip_existing=False, progress=No
             rows = json.loads(Path(json_path).read_text())["rows"]
         progress.say(f"stability table {json_path}: exists, skipped")
     if rows is None:
-        rows = stability_rows(ratios)
+        rows = stability_rows(ratios, schemes)
         if json_path is not None:
             write(Path(json_path), json.dumps({"ratios": list(map(float, ratios)),
                                                "rows": rows}, indent=1))

@@ -22,7 +22,8 @@ def _fmt(value, kind):
 
 
 def format_table(records: list) -> str:
-    """A plain-text table in the paper's layout, with the paper's numbers beneath ours."""
+    """A plain-text table in the paper's layout, with the paper's numbers beneath ours
+    (none beneath a scheme the paper did not run, as generalized-α)."""
     lines = []
     problem = records[0].problem if records else ""
     paper = EXPERIMENTS[problem].paper if problem in EXPERIMENTS else {}
@@ -41,8 +42,8 @@ def format_table(records: list) -> str:
             for r in rows:
                 ours.append("div" if r.diverged else _fmt(getattr(r, key), key))
             lines.append(f"  {label:<16}" + "".join(f"{s:>{width}}" for s in ours))
-            if all(r.rtol is not None for r in rows):
-                continue                # error-controlled runs: the paper has none
+            if all(r.rtol is not None for r in rows) or scheme not in paper:
+                continue                # error-controlled runs, or a scheme the paper did not run
             theirs = []
             for r in rows:
                 row = "n/a" if r.rtol is not None else \
