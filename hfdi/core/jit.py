@@ -191,14 +191,18 @@ def _safe_directory(path: Path) -> bool:
     return not info.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
 
 
-@functools.lru_cache(maxsize=None)
 def cache_trusted() -> tuple[bool, str]:
     """``(True, "")`` when the numba cache directory exists (made ``0o700``
     here if missing) and it and its parent are safe (:func:`_safe_directory`);
-    else ``(False, why)``. Decided once per process."""
+    else ``(False, why)``. Decided once per process and directory (the
+    directory follows ``HFDI_CACHE_DIR`` as it is now)."""
     if os.environ.get("HFDI_NO_DISK_CACHE"):
         return False, "HFDI_NO_DISK_CACHE is set"
-    path = numba_cache_dir()
+    return _directory_trusted(numba_cache_dir())
+
+
+@functools.lru_cache(maxsize=None)
+def _directory_trusted(path: Path) -> tuple[bool, str]:
     try:
         path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         path.mkdir(mode=0o700, exist_ok=True)
