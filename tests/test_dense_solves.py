@@ -1,18 +1,40 @@
-"""Dense Newton solves: Cholesky for tangents symmetric to rounding (from
-CHOLESKY_FROM rows on), LU otherwise.
+"""Dense Newton solves (hfdi.linsolve.dense): Cholesky for tangents symmetric
+to rounding (from CHOLESKY_FROM rows on), LU otherwise.
 
-hfdi.linalg.solve and the compiled attempt's hfdi.compiled.lapack.solve must
-take the same route (the same LAPACK routine on the same triangle) and give
-the same solution bit for bit, whatever the matrix: symmetric positive
-definite, symmetric to rounding, symmetric but indefinite (Cholesky fails,
-LU follows), not symmetric, singular, not finite.
+The solve is one function run at both speeds: as plain Python it calls
+scipy's LAPACK wrappers, compiled it calls the same routines of the same
+library. Both take the same route (the same routine on the same triangle)
+and give the same solution bit for bit, whatever the matrix: symmetric
+positive definite, symmetric to rounding, symmetric but indefinite (Cholesky
+fails, LU follows), not symmetric, singular, not finite.
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hfdi import linalg
+from hfdi.linsolve import dense
+from hfdi.linsolve.dense import CHOLESKY_FROM, SYMMETRY_TOLERANCE, work_ints
+
+
+def solve(a, b, solver=dense.solve):
+    """``a⁻¹ b`` by ``solver`` (the solve or its compiled twin), or ``None``
+    where it reports a singular or non-finite matrix."""
+    n = a.shape[0]
+    x = np.array(b, dtype=float)
+    ok = solver(np.ascontiguousarray(a, dtype=float), x, np.zeros((n, n)),
+                np.zeros(n, np.int32), work_ints())
+    return x if ok else None
+
+
+def is_symmetric(a, test=dense.symmetric):
+    return bool(test(np.ascontiguousarray(a, dtype=float), np.empty(a.shape[0])))
+
+
+def compiled(function):
+    pytest.importorskip("numba")
+    from hfdi.core.jit import twin
+    return twin(function)
 
 
 def _spd(n, rng, scale=1.0):
@@ -35,10 +57,10 @@ def _overflowing(n):
 
 def _at_tolerance(rng, n, past):
     """Symmetric positive definite but for one pair, which differs by the
-    limit of :func:`hfdi.linalg.is_symmetric` (the largest float difference
+    limit of :func:`hfdi.linsolve.dense.symmetric` (the largest float difference
     within it), or ``past`` it by the least step of a float."""
     a = _spd(n, rng)
-    limit = linalg.SYMMETRY_TOLERANCE * (np.sqrt(abs(a[4, 4])) * np.sqrt(abs(a[2, 2])))
+    limit = SYMMETRY_TOLERANCE * (np.sqrt(abs(a[4, 4])) * np.sqrt(abs(a[2, 2])))
     a[4, 2] = a[2, 4] + limit
     while abs(a[4, 2] - a[2, 4]) > limit:
         a[4, 2] = np.nextafter(a[4, 2], -np.inf)
@@ -59,7 +81,7 @@ def _cases():
         "spd": (spd, "potrf"),
         "spd_tiny": (_spd(10, rng, 1e-200), "potrf"),
         "spd_huge": (_spd(10, rng, 1e200), "potrf"),
-        "spd_below_the_cholesky_size": (_spd(linalg.CHOLESKY_FROM - 1, rng), "gesv"),
+        "spd_below_the_cholesky_size": (_spd(CHOLESKY_FROM - 1, rng), "gesv"),
         "one": (np.array([[4.0]]), "gesv"),
         "symmetric_to_rounding": (rounded, "potrf"),
         "indefinite": (_indefinite(12, rng), "potrf+gesv"),
@@ -75,15 +97,15 @@ CASES = _cases()
 
 
 def _routes(monkeypatch):
-    """Record which LAPACK routines hfdi.linalg.solve calls."""
+    """Record which LAPACK routines the Python solve calls."""
     called = []
     for name in ("_potrf", "_gesv"):
-        routine = getattr(linalg, name)
+        routine = getattr(dense, name)
 
         def spy(*args, _routine=routine, _name=name, **kwargs):
             called.append(_name[1:])
             return _routine(*args, **kwargs)
-        monkeypatch.setattr(linalg, name, spy)
+        monkeypatch.setattr(dense, name, spy)
     return called
 
 
@@ -92,7 +114,7 @@ def test_the_route_follows_symmetry_and_definiteness(name, monkeypatch):
     a, route = CASES[name]
     b = np.arange(1.0, a.shape[0] + 1.0)
     called = _routes(monkeypatch)
-    x = linalg.solve(a, b)
+    x = solve(a, b)
     assert "+".join(called) == route
     want = np.linalg.solve(a, b)
     # backward error at the level of rounding, whichever route; Cholesky
@@ -106,24 +128,24 @@ def test_the_route_follows_symmetry_and_definiteness(name, monkeypatch):
 
 def test_is_symmetric_holds_each_pair_to_its_own_rows():
     a = np.array([[1.0, 2.0], [2.0, 9.0]])
-    assert linalg.is_symmetric(a)
+    assert is_symmetric(a)
     for delta, expected in ((2.9e-12, True), (3.1e-12, False)):
         b = a.copy()
         b[0, 1] += delta                       # √1 · √9 = 3: limit 3e-12
-        assert linalg.is_symmetric(b) is expected
+        assert is_symmetric(b) is expected
     # a stiff entry does not widen the limit of a soft coupling
     stiff = np.eye(10)
     stiff[0, 0] = 1e10
     stiff[1, 2] = 1e-9
-    assert not linalg.is_symmetric(stiff)
+    assert not is_symmetric(stiff)
     stiff[1, 2] = stiff[2, 1] = 0.5
     stiff[2, 1] += 1e-13
-    assert linalg.is_symmetric(stiff)
-    assert linalg.is_symmetric(np.zeros((3, 3)))
+    assert is_symmetric(stiff)
+    assert is_symmetric(np.zeros((3, 3)))
     for bad in (np.nan, np.inf):
         b = a.copy()
         b[0, 1] = b[1, 0] = bad
-        assert not linalg.is_symmetric(b)
+        assert not is_symmetric(b)
 
 
 def test_a_soft_asymmetry_beside_a_stiff_entry_is_solved_exactly():
@@ -131,37 +153,27 @@ def test_a_soft_asymmetry_beside_a_stiff_entry_is_solved_exactly():
     a[0, 0] = 1e10
     a[1, 2] = 0.009                            # a true asymmetry, not rounding
     b = np.arange(1.0, 11.0)
-    np.testing.assert_allclose(linalg.solve(a, b), np.linalg.solve(a, b), rtol=1e-14)
+    np.testing.assert_allclose(solve(a, b), np.linalg.solve(a, b), rtol=1e-14)
 
 
-def test_singular_symmetric_matrices_still_fail():
-    with pytest.raises(linalg.SingularMatrixError):
-        linalg.solve(np.zeros((3, 3)), np.ones(3))
-    with pytest.raises(linalg.SingularMatrixError):
-        linalg.solve(np.ones((12, 12)), np.ones(12))   # symmetric, rank one
+def test_singular_and_non_finite_matrices_fail_at_both_speeds():
+    for a in (np.zeros((3, 3)), np.ones((12, 12)),     # the second symmetric, rank one
+              np.array([[1.0, np.nan], [np.nan, 1.0]]), np.array([[np.inf, 0.0], [0.0, 1.0]])):
+        assert solve(a, np.ones(a.shape[0])) is None
+        assert solve(a, np.ones(a.shape[0]), compiled(dense.solve)) is None
 
 
 # -- the compiled path --------------------------------------------------------------------
-
-numba = pytest.importorskip("numba")
-
-
-def _compiled_solve(a, b):
-    from hfdi.compiled.lapack import solve, work_arrays
-    lu, pivots, ints = work_arrays(a.shape[0])
-    x = np.array(b, dtype=float)
-    return x if solve(np.ascontiguousarray(a), x, lu, pivots, ints) else None
-
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_the_compiled_solve_is_the_python_solve_bit_for_bit(name):
     a, _ = CASES[name]
     b = np.linspace(-1.0, 2.0, a.shape[0])
-    np.testing.assert_array_equal(_compiled_solve(a, b), linalg.solve(a, b))
+    np.testing.assert_array_equal(solve(a, b, compiled(dense.solve)), solve(a, b))
 
 
 def test_the_compiled_symmetry_test_decides_as_the_python_one():
-    from hfdi.compiled.lapack import symmetric
+    symmetric = compiled(dense.symmetric)
     rng = np.random.default_rng(3)
     for n in (1, 2, 5, 21):
         for _ in range(300):
@@ -170,19 +182,16 @@ def test_the_compiled_symmetry_test_decides_as_the_python_one():
             a[np.diag_indices(n)] *= 10.0 ** rng.integers(-8, 9, n)   # rows of other scales
             i, j = rng.integers(0, n, 2)
             a[i, j] *= 1.0 + rng.choice([0.0, 1e-13, 9.9e-13, 1.01e-12, 1e-11, 1e-3, -2.0])
-            assert symmetric(a, np.empty(n)) == linalg.is_symmetric(a)
+            assert is_symmetric(a, symmetric) == is_symmetric(a)
     for a in (_overflowing(12), _at_tolerance(rng, 12, False), _at_tolerance(rng, 12, True)):
-        assert symmetric(a, np.empty(12)) == linalg.is_symmetric(a)
+        assert is_symmetric(a, symmetric) == is_symmetric(a)
 
 
-def test_the_compiled_solve_fails_where_the_python_one_raises():
-    for a in (np.zeros((3, 3)), np.ones((12, 12)), np.array([[1.0, np.nan], [np.nan, 1.0]]),
-              np.array([[np.inf, 0.0], [0.0, 1.0]])):
-        assert _compiled_solve(a, np.ones(a.shape[0])) is None
-
-
-def test_the_compiled_finiteness_test_reads_every_layout():
-    from hfdi.compiled.lapack import all_finite
+def test_the_finiteness_tests_agree_with_numpy_at_both_speeds():
+    """The compiled tests read the floats' exponent bits (vectors and C-ordered
+    matrices, as the stepping code holds them)."""
+    from hfdi.core.arrays import all_finite, all_finite_matrix
+    tests = (all_finite, all_finite_matrix, compiled(all_finite), compiled(all_finite_matrix))
     rng = np.random.default_rng(5)
     base = rng.standard_normal((9, 14))
     for bad in (None, np.nan, np.inf, -np.inf):
@@ -190,12 +199,17 @@ def test_the_compiled_finiteness_test_reads_every_layout():
             a = base.copy()
             if bad is not None:
                 a.flat[where] = bad
-            views = (a, a[:, ::2], a[::3], a.T, a[2], a[:, 3], a.reshape(-1), a.reshape(-1)[1:],
-                     a[:, 1:], a.reshape(-1)[::2])    # the last two: strided, over 64 entries
-            for view in views:
-                assert all_finite(view) == bool(np.all(np.isfinite(view))), (bad, where)
-    assert all_finite(np.array([1.7976931348623157e308, -5e-324, -0.0]))
-    assert all_finite(np.empty(0)) and all_finite(np.empty((0, 4)))
+            want = bad is None
+            for test in tests[1::2]:
+                assert test(a) == want, (bad, where)
+            for row in a:
+                for test in tests[::2]:
+                    assert test(row) == bool(np.all(np.isfinite(row))), (bad, where)
+    for test in tests[::2]:
+        assert test(np.array([1.7976931348623157e308, -5e-324, -0.0]))
+        assert test(np.empty(0))
+    for test in tests[1::2]:
+        assert test(np.empty((0, 4)))
 
 
 def test_a_difference_that_overflows_is_not_symmetric_and_warns_nothing():
@@ -203,5 +217,5 @@ def test_a_difference_that_overflows_is_not_symmetric_and_warns_nothing():
     a = np.array([[1.0, 1.5e308], [-1.5e308, 1.0]])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert not linalg.is_symmetric(a)
-        assert not linalg.is_symmetric(np.array([[1.0, np.inf], [np.inf, 1.0]]))
+        assert not is_symmetric(a)
+        assert not is_symmetric(np.array([[1.0, np.inf], [np.inf, 1.0]]))

@@ -1,4 +1,4 @@
-"""Short steps (hfdi.corrector.SHORT_STEP): steps far shorter than the step
+"""Short steps (hfdi.core.estimate.SHORT_STEP): steps far shorter than the step
 proposed, forced by a landing point a few rounding units away.
 
 Before they were taken apart, a step of 1e-15 after steps of 1e-2 changed
@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 
 import hfdi
-from hfdi.corrector import SHORT_STEP
 from hfdi.models import articulated, dumbbell
-from test_compiled_driver import _assert_same_state
 
 SCHEMES = ["newmark", "bathe", "hfdi"]
 MODES = {"iterations": dict(target_iterations=3), "error": dict(rtol=1e-6),
@@ -77,23 +75,6 @@ def test_communication_points_rounding_units_past_a_breakpoint(scheme):
     assert summed.statistics.steps <= 1.2 * exact.statistics.steps
 
 
-@pytest.mark.parametrize("scheme", SCHEMES)
-def test_both_drivers_take_short_steps_alike(scheme):
-    """The compiled driver hands a short step to the Python driver: the runs
-    stay bit for bit the same."""
-    runs = []
-    for driven in (True, False):
-        itg = hfdi.Integrator(articulated(), scheme, rtol=1e-6, compiled=True)
-        if not driven:
-            itg._driver = None
-        t = 0.0
-        for k in range(60):
-            t += 1e-3 if k % 7 else 1e-3 * SHORT_STEP / 50
-            assert itg.advance(t)
-        runs.append(itg)
-    _assert_same_state(*runs)
-
-
 def test_a_short_step_does_not_become_the_history():
     itg = hfdi.Integrator(dumbbell(), "hfdi", rtol=1e-6)
     assert itg.advance(0.1)
@@ -123,7 +104,7 @@ def test_a_short_advance_before_the_first_step(scheme):
     assert error <= 1.1 * error_direct + 1e-9, (error, error_direct)
 
 
-# -- past a stiff component (hfdi.corrector.SHORT_STEP_RATE) --------------------------
+# -- past a stiff component (hfdi.stepping.attempt.fastest_rate) --------------------------
 K_STIFF = np.array([[1.0 + 1e10, -1e10], [-1e10, 1e10]])    # ω ≈ 1 and ≈ 1.4e5
 
 
@@ -155,10 +136,17 @@ def test_a_short_step_past_a_stiff_mode_leaves_it_alone(scheme):
     def stiff(itg):
         return abs(itg.state.u[1] - itg.state.u[0])
     assert stiff(interrupted) <= 1.1 * max(stiff(plain), 1e-12 * amplitude) + 1e-13
-    # Newmark conserves the energy of a linear system; Bathe's and HFDI's
-    # dissipation depends on the steps taken, which the short step shifts
-    assert abs(interrupted.energy_error - plain.energy_error) <= \
-        0.5 * abs(plain.energy_error) + 1e-8 * plain.total_energy
+    # Newmark conserves the energy of a linear system, up to the solves'
+    # rounding in the stiff mode (ω² = 2e10: 1e-15 of u is 1e-10 of energy);
+    # Bathe's and HFDI's dissipation depends on the steps taken, which the
+    # short step shifts: it stays dissipation (no energy gained) of the plain
+    # run's order (measured 1.0-1.9 times it), where Taylor's step gained 6e-2
+    scale = plain.total_energy
+    if scheme == "newmark":
+        assert abs(interrupted.energy_error - plain.energy_error) <= 1e-8 * scale
+    else:
+        assert interrupted.energy_error <= 1e-12 * scale
+        assert abs(interrupted.energy_error) <= 4 * abs(plain.energy_error) + 1e-12 * scale
     assert np.abs(interrupted.state.u - plain.state.u).max() <= 1e-5
 
 
@@ -166,8 +154,13 @@ def test_the_fastest_rate_bounds_the_linearised_motion():
     """fastest_rate ≥ the largest |λ| of the first-order system's matrix, for dense,
     diagonal and sparse M and C; inf where M's bound is not positive."""
     import scipy.sparse as sp
-    from hfdi.corrector import fastest_rate
     from hfdi.evaluation import Evaluator
+    from hfdi.stepping.attempt import fastest_rate
+
+    def rate_of(system):
+        """fastest_rate at u = 0 from the records of an integrator of ``system``."""
+        itg = hfdi.Integrator(system, "newmark", step=0.1, compiled=False)
+        return fastest_rate(itg._functions(), itg._cfg, itg._data, itg._run, itg._vec)
     rng = np.random.default_rng(5)
     n = 6
     A = rng.standard_normal((n, n))
@@ -178,7 +171,6 @@ def test_the_fastest_rate_bounds_the_linearised_motion():
     for mass in (M, np.diag(np.diag(M)), sp.csr_matrix(M)):
         for damping in (None, C, np.diag(C).copy()):
             system = hfdi.LinearSystem(mass=mass, stiffness=K, damping=damping)
-            ev = Evaluator(system)
             Md = np.diag(mass) if isinstance(mass, np.ndarray) and mass.ndim == 1 else (
                 mass.toarray() if sp.issparse(mass) else mass)
             Cd = np.zeros((n, n)) if damping is None else (
@@ -186,15 +178,15 @@ def test_the_fastest_rate_bounds_the_linearised_motion():
             first_order = np.block([[np.zeros((n, n)), np.eye(n)],
                                     [-np.linalg.solve(Md, K), -np.linalg.solve(Md, Cd)]])
             largest = np.abs(np.linalg.eigvals(first_order)).max()
-            rate = fastest_rate(ev, np.zeros(n))
+            rate = rate_of(system)
             assert largest <= rate < 100 * largest or rate == np.inf
     # a large sparse M (kept sparse) is bounded by Gershgorin: here by 1 − 1.2 < 0,
     # no bound (its smallest eigenvalue is 1 − 0.6·√2 > 0)
     n = 130
     lumpy = sp.lil_matrix(sp.identity(n))
     lumpy[0, 1] = lumpy[1, 0] = lumpy[0, 2] = lumpy[2, 0] = 0.6
-    ev = Evaluator(hfdi.LinearSystem(mass=lumpy.tocsr(), stiffness=sp.identity(n, format="csr")))
-    assert ev.mass_floor() == 0.0 and fastest_rate(ev, np.zeros(n)) == np.inf
+    system = hfdi.LinearSystem(mass=lumpy.tocsr(), stiffness=sp.identity(n, format="csr"))
+    assert Evaluator(system).mass_floor() == 0.0 and rate_of(system) == np.inf
     lumpy[0, 1] = lumpy[1, 0] = lumpy[0, 2] = lumpy[2, 0] = 0.25
-    ev = Evaluator(hfdi.LinearSystem(mass=lumpy.tocsr(), stiffness=sp.identity(n, format="csr")))
-    assert ev.mass_floor() == 0.5 and fastest_rate(ev, np.zeros(n)) == np.sqrt(1.0 / 0.5)
+    system = hfdi.LinearSystem(mass=lumpy.tocsr(), stiffness=sp.identity(n, format="csr"))
+    assert Evaluator(system).mass_floor() == 0.5 and rate_of(system) == np.sqrt(1.0 / 0.5)

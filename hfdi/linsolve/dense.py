@@ -101,7 +101,7 @@ def symmetric(A, roots):
     """Whether the finite ``A`` (N, N) is symmetric to rounding (see
     :data:`SYMMETRY_TOLERANCE`); ``roots`` (N,) is scratch."""
     np.sqrt(np.abs(np.diagonal(A)), out=roots)
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):
         return bool((np.abs(A - A.T) <= SYMMETRY_TOLERANCE * np.multiply.outer(roots, roots))
                     .all())
 
