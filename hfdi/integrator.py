@@ -19,18 +19,14 @@ import time
 
 import numpy as np
 
-from . import checks, compiled as compiled_path
+from . import checks, compiled as compiled_path, run_records
 from .compiled import shadowed
-from .controller import ErrorControl, FixedStep, core_kind
+from .controller import ErrorControl, FixedStep
 from .core import codes
-from .core.arrays import DENSE, DIAGONAL, SPARSE
-from .core.jit import compile_for
-from .core.state import CONFIG, CUSTOM, DATA, FUNCTIONS, MAX_STAGES, RUN, VECTORS
+from .core.state import CONFIG, CUSTOM, DATA, FUNCTIONS, RUN, VECTORS
 from .core.state import HFDI as HFDI_STAGE
-from .evaluation import DENSE_BELOW, Evaluator, ModelError, ModelFault, State, brief
-from .integrator_state import IntegratorState
-from .linsolve.dense import work_ints
-from .linsolve.sparse import General
+from .evaluation import DENSE_BELOW, Evaluator, ModelError, ModelFault, State
+from .integrator_state import IntegratorState, check_state
 from .messages import Status, stop_message
 from .options import (NEWTON_TESTS, breakpoints_of, initial_vector, make_controller,
                       newton_tolerance, optional_positive, time_value)
@@ -263,9 +259,12 @@ class Integrator:
         exact = isinstance(self.scheme, HFDI) and self.scheme.exact_rate(ev.has_load_rate)
         #: the scheme's stages are HFDI's (else affine): the compiled loop's constant
         self._hfdi = self.scheme.stage.py_func(1.0, 0, self.scheme.params()).kind == HFDI_STAGE
-        self._cfg = self._config(exact)
-        self._data = self._arrays()
-        self._vec = self._vectors(n, 0)
+        self._cfg = run_records.config(
+            ev, c, self.scheme, exact_rate=exact, tol=self.tol, floor=self.floor,
+            max_iterations=self.max_iterations, estimated=self.newton_test == "error",
+            energy_limit=self.energy_limit, max_steps=self.max_steps, t_bound=self.t_bound)
+        self._data = run_records.data(ev, c, self.scheme, self.breakpoints)
+        self._vec, self._state_block = run_records.vectors(ev, 0)
         proposed = c.step if self.fixed else \
             min(first_step or default_first_step(ev, K0, self.t0, self.t_bound, self.min_step),
                 self.max_step)
@@ -284,86 +283,6 @@ class Integrator:
         self._run_cpu = time.process_time() - start
 
     # -- the records of the stepping code ------------------------------------------
-    def _config(self, exact_rate):
-        ev, c, scheme = self.ev, self.controller, self.scheme
-        settings = c.settings() if core_kind(c) != CUSTOM else {"controller": CUSTOM}
-        values = dict(
-            n=ev.n, stages=scheme.n_stages, order=scheme.order,
-            velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,
-            m_kind=ev.mass_kind, c_kind=ev.damping_kind, sparse=ev.n >= DENSE_BELOW,
-            exact_rate=exact_rate, tol=self.tol, floor=self.floor,
-            max_iterations=self.max_iterations, estimated=self.newton_test == "error",
-            energy_limit=math.inf if self.energy_limit is None else self.energy_limit,
-            max_steps=self.max_steps,
-            t_bound=math.inf if self.t_bound is None else self.t_bound,
-            mass_floor=ev.mass_floor(), damping_rate=ev.damping_rate())
-        values.update(settings)         # ErrorControl(order=p) overrides the scheme's order
-        return CONFIG.new(**values)
-
-    def _arrays(self):
-        ev, n, c = self.ev, self.ev.n, self.controller
-        empty_vector, empty_matrix = np.zeros(0), np.zeros((0, 0))
-
-        def parts(matrix):
-            if matrix is None:
-                return empty_vector, empty_matrix
-            if isinstance(matrix, np.ndarray) and matrix.ndim == 1:
-                return np.ascontiguousarray(matrix, dtype=float), empty_matrix
-            if isinstance(matrix, np.ndarray):
-                return empty_vector, np.ascontiguousarray(matrix, dtype=float)
-            return empty_vector, matrix                 # sparse: Python only
-
-        Md, Mf = parts(ev.mass)
-        Cd, Cf = parts(ev.damping)
-        error = getattr(c, "error", c)
-        rtol = np.zeros(2 * n)
-        atol = np.zeros(2 * n)
-        if isinstance(error, ErrorControl):
-            rtol[:] = error.rtol
-            atol[:] = error.atol
-        return DATA.new(Md=Md, Mf=Mf, Cd=Cd, Cf=Cf, params=empty_vector,
-                        load_params=empty_vector, held=empty_vector, rtol=rtol, atol=atol,
-                        breakpoints=np.ascontiguousarray(self.breakpoints, dtype=float),
-                        scheme_params=np.ascontiguousarray(self.scheme.params(), dtype=float))
-
-    def _vectors(self, n, rows):
-        """The work arrays of the stepping code, with room for ``rows`` rows."""
-        dense = n < DENSE_BELOW
-        m = n if dense else 0
-        values = {}
-        #: u, v, a, f, p as the rows of one block, whose address a native
-        #: host reads the state at (hfdi.compiled.native)
-        self._state_block = np.zeros((5, n))
-        for row, name in enumerate(("u", "v", "a", "f", "p")):
-            values[name] = self._state_block[row]
-        for name, kind in VECTORS.fields:
-            if name.startswith("row_") or name in values:
-                continue
-            if name in ("error", "ratio"):
-                values[name] = np.zeros(2 * n)
-            elif name in ("pivots", "b_pivots"):
-                values[name] = np.zeros(m, np.int32)
-            elif name in ("ints", "b_ints"):
-                values[name] = work_ints()
-            elif name == "stage_iterations":
-                values[name] = np.zeros(MAX_STAGES, np.int64)
-            elif name == "sparse":
-                values[name] = np.zeros(0) if dense else General(self.ev.bands)
-            elif kind == "matrix":
-                values[name] = np.zeros((m, m))
-            else:
-                values[name] = np.zeros(n)
-        values.update(self._row_arrays(n, rows))
-        return VECTORS.new(**values)
-
-    @staticmethod
-    def _row_arrays(n, rows):
-        return dict(row_t=np.zeros(rows), row_h=np.zeros(rows),
-                    row_iterations=np.zeros(rows, np.int64), row_increment=np.zeros(rows),
-                    row_energy=np.zeros(rows), row_work=np.zeros(rows),
-                    row_u=np.zeros((rows, n)), row_v=np.zeros((rows, n)),
-                    row_a=np.zeros((rows, n)))
-
     def _put_current(self, current: State, previous: State | None = None):
         vec, run = self._vec, self._run
         run.t = current.t
@@ -661,78 +580,9 @@ class Integrator:
         self._run_cpu = saved.statistics.cpu_time
 
     def _check_state(self, saved: IntegratorState):
-        n = self.ev.n
-        if saved.n_dof != n:
-            raise ValueError(f"state has {saved.n_dof} degrees of freedom, this integrator's "
-                             f"model has {n}")
-        if saved.controller != repr(self.controller):
-            raise ValueError(f"state was saved by an integrator with controller "
-                             f"{saved.controller}; this one has {self.controller!r}")
-        if saved.scheme != repr(self.scheme):
-            raise ValueError(f"state was saved by an integrator with scheme "
-                             f"{saved.scheme or 'unknown'}; this one has {self.scheme!r}")
-        if saved.status not in {int(s) for s in Status}:
-            raise ValueError(f"state.status must be one of {sorted(int(s) for s in Status)}, "
-                             f"got {saved.status!r}")
-        if saved.status < 0 and not saved.message:
-            raise ValueError(f"state.status {Status(saved.status).name} (a failure) needs its "
-                             f"message, got an empty one")
-        for label, st in (("current", saved.current), ("previous", saved.previous)):
-            if st is None and label == "previous":
-                continue
-            if not isinstance(st, State):
-                raise ValueError(f"state.{label} must be a State, got {type(st).__name__}")
-            for name in ("u", "v", "a", "f", "p"):
-                value = getattr(st, name)
-                if value is None and name == "f":       # not kept by every scheme
-                    continue
-                if not (isinstance(value, np.ndarray) and value.shape == (n,)
-                        and value.dtype == np.float64 and np.isfinite(value).all()):
-                    raise ValueError(f"state.{label}.{name} must be a finite float array of "
-                                     f"shape ({n},), got {brief(value)}")
-            if not math.isfinite(st.t):
-                raise ValueError(f"state.{label}.t must be finite, got {st.t!r}")
-        if self.t_bound is not None and saved.current.t > self.t_bound:
-            raise ValueError(f"state.current.t = {saved.current.t!r} is beyond t_bound = "
-                             f"{self.t_bound!r}")
-        if saved.current.t < self.t0:
-            raise ValueError(f"state.current.t = {saved.current.t!r} is before this "
-                             f"integrator's t0 = {self.t0!r}")
-        if saved.previous is not None and not saved.previous.t < saved.current.t:
-            raise ValueError(f"state.previous.t = {saved.previous.t!r} must be before "
-                             f"state.current.t = {saved.current.t!r}")
-        st = saved.statistics
-        if not isinstance(st, Statistics):
-            raise ValueError(f"state.statistics must be a Statistics, got "
-                             f"{type(st).__name__}")
-        for name in STATISTICS_FIELDS:
-            value = getattr(st, name)
-            if not (isinstance(value, (int, float)) and value >= 0
-                    if name not in ("t_start", "t_reached") else math.isfinite(value)):
-                raise ValueError(f"state.statistics.{name} must be a finite count >= 0, got "
-                                 f"{value!r}")
-        if saved.grid_steps < 0:
-            raise ValueError(f"state.grid_steps must be >= 0, got {saved.grid_steps!r}")
-        for name in ("work", "energy_error", "energy_scale", "grid_origin"):
-            if not math.isfinite(getattr(saved, name)):
-                raise ValueError(f"state.{name} must be finite, got {getattr(saved, name)!r}")
-        if saved.energy_scale < 0:
-            raise ValueError(f"state.energy_scale must be >= 0, got {saved.energy_scale!r}")
-        for name in ("potential", "initial_potential"):
-            if math.isinf(getattr(saved, name)):     # NaN is the model's "unknown"
-                raise ValueError(f"state.{name} must be finite or NaN (unknown), got "
-                                 f"{getattr(saved, name)!r}")
-        kinetic = self.ev.kinetic_energy(saved.current.v)
-        if not math.isfinite(kinetic):
-            raise ValueError(f"state.current.v has a kinetic energy beyond floating point "
-                             f"({kinetic!r}); no run reaches such a state (Status.OVERFLOW)")
-        if not (math.isfinite(saved.proposed_step) and saved.proposed_step > 0):
-            raise ValueError(f"state.proposed_step must be finite and > 0, got "
-                             f"{saved.proposed_step!r}")
-        for name in ("newton_constant", "newton_guard"):
-            if not getattr(saved, name) >= 0:
-                raise ValueError(f"state.{name} must be >= 0 (inf: none measured), got "
-                                 f"{getattr(saved, name)!r}")
+        check_state(saved, n=self.ev.n, controller=repr(self.controller),
+                    scheme=repr(self.scheme), t0=self.t0, t_bound=self.t_bound,
+                    kinetic_energy=self.ev.kinetic_energy)
         self._check_state_model(saved.current, saved.model_version)
 
     def _check_state_model(self, current: State, saved_version: int) -> None:
@@ -921,7 +771,7 @@ class Integrator:
         if self.failed:             # even at t_stop = t: the run did not get there well
             return False
         if rows is not None and not self._vec.row_t.shape[0]:
-            self._vec = self._vec._replace(**self._row_arrays(self.ev.n, ROWS_PER_CALL))
+            self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
             self._refresh_compiled()
         self._rows = rows
         try:

@@ -8,15 +8,17 @@ only (:mod:`hfdi.serial`), bit for bit.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import serial
-from .evaluation import State
-from .result import Statistics
+from .evaluation import State, brief
+from .messages import Status
+from .result import STATISTICS_FIELDS, Statistics
 
-__all__ = ["IntegratorState", "STATE_FORMAT"]
+__all__ = ["IntegratorState", "STATE_FORMAT", "check_state"]
 
 
 def _clone(obj):
@@ -171,4 +173,83 @@ def _field(mapping, key, kind):
                          f"got {type(value).__name__}")
     return float(value) if kind is float else value
 
+
+def check_state(saved: IntegratorState, *, n: int, controller: str, scheme: str, t0: float,
+                t_bound, kinetic_energy) -> None:
+    """Refuse (ValueError) a state that is not one of an integrator of ``n``
+    degrees of freedom with this ``controller`` and ``scheme`` (their reprs)
+    from ``t0`` to ``t_bound``, or holds values out of their range
+    (``kinetic_energy(v)`` is the model's). Bytes of
+    :meth:`IntegratorState.from_bytes` are data: here their values are checked."""
+    if saved.n_dof != n:
+        raise ValueError(f"state has {saved.n_dof} degrees of freedom, this integrator's "
+                         f"model has {n}")
+    if saved.controller != controller:
+        raise ValueError(f"state was saved by an integrator with controller "
+                         f"{saved.controller}; this one has {controller}")
+    if saved.scheme != scheme:
+        raise ValueError(f"state was saved by an integrator with scheme "
+                         f"{saved.scheme or 'unknown'}; this one has {scheme}")
+    if saved.status not in {int(s) for s in Status}:
+        raise ValueError(f"state.status must be one of {sorted(int(s) for s in Status)}, "
+                         f"got {saved.status!r}")
+    if saved.status < 0 and not saved.message:
+        raise ValueError(f"state.status {Status(saved.status).name} (a failure) needs its "
+                         f"message, got an empty one")
+    for label, st in (("current", saved.current), ("previous", saved.previous)):
+        if st is None and label == "previous":
+            continue
+        if not isinstance(st, State):
+            raise ValueError(f"state.{label} must be a State, got {type(st).__name__}")
+        for name in ("u", "v", "a", "f", "p"):
+            value = getattr(st, name)
+            if value is None and name == "f":       # not kept by every scheme
+                continue
+            if not (isinstance(value, np.ndarray) and value.shape == (n,)
+                    and value.dtype == np.float64 and np.isfinite(value).all()):
+                raise ValueError(f"state.{label}.{name} must be a finite float array of "
+                                 f"shape ({n},), got {brief(value)}")
+        if not math.isfinite(st.t):
+            raise ValueError(f"state.{label}.t must be finite, got {st.t!r}")
+    if t_bound is not None and saved.current.t > t_bound:
+        raise ValueError(f"state.current.t = {saved.current.t!r} is beyond t_bound = "
+                         f"{t_bound!r}")
+    if saved.current.t < t0:
+        raise ValueError(f"state.current.t = {saved.current.t!r} is before this "
+                         f"integrator's t0 = {t0!r}")
+    if saved.previous is not None and not saved.previous.t < saved.current.t:
+        raise ValueError(f"state.previous.t = {saved.previous.t!r} must be before "
+                         f"state.current.t = {saved.current.t!r}")
+    st = saved.statistics
+    if not isinstance(st, Statistics):
+        raise ValueError(f"state.statistics must be a Statistics, got "
+                         f"{type(st).__name__}")
+    for name in STATISTICS_FIELDS:
+        value = getattr(st, name)
+        if not (isinstance(value, (int, float)) and value >= 0
+                if name not in ("t_start", "t_reached") else math.isfinite(value)):
+            raise ValueError(f"state.statistics.{name} must be a finite count >= 0, got "
+                             f"{value!r}")
+    if saved.grid_steps < 0:
+        raise ValueError(f"state.grid_steps must be >= 0, got {saved.grid_steps!r}")
+    for name in ("work", "energy_error", "energy_scale", "grid_origin"):
+        if not math.isfinite(getattr(saved, name)):
+            raise ValueError(f"state.{name} must be finite, got {getattr(saved, name)!r}")
+    if saved.energy_scale < 0:
+        raise ValueError(f"state.energy_scale must be >= 0, got {saved.energy_scale!r}")
+    for name in ("potential", "initial_potential"):
+        if math.isinf(getattr(saved, name)):     # NaN is the model's "unknown"
+            raise ValueError(f"state.{name} must be finite or NaN (unknown), got "
+                             f"{getattr(saved, name)!r}")
+    kinetic = kinetic_energy(saved.current.v)
+    if not math.isfinite(kinetic):
+        raise ValueError(f"state.current.v has a kinetic energy beyond floating point "
+                         f"({kinetic!r}); no run reaches such a state (Status.OVERFLOW)")
+    if not (math.isfinite(saved.proposed_step) and saved.proposed_step > 0):
+        raise ValueError(f"state.proposed_step must be finite and > 0, got "
+                         f"{saved.proposed_step!r}")
+    for name in ("newton_constant", "newton_guard"):
+        if not getattr(saved, name) >= 0:
+            raise ValueError(f"state.{name} must be >= 0 (inf: none measured), got "
+                             f"{getattr(saved, name)!r}")
 

@@ -258,7 +258,7 @@ INPUT_CASES = [
      ["t_eval has 21 points, more than max_steps = 20"]),
     ("scheme-name", "integrate", "unknown scheme name",
      lambda: run(DUMBBELL, "euler"), ValueError,
-     ["scheme", "['bathe', 'hfdi', 'newmark']", "'euler'"]),
+     ["scheme", str(sorted(hfdi.SCHEMES)), "'euler'"]),
     ("option-name", "integrate", "unknown option",
      lambda: run(DUMBBELL, max_step_size=0.1), ValueError,
      ["unknown option(s) max_step_size", "allowed:", "max_step"]),
@@ -270,7 +270,7 @@ INPUT_CASES = [
      ["first_step", "> 0", "got -1.0"]),
     ("max-iterations", "integrate", "max_iterations < 1",
      lambda: run(DUMBBELL, max_iterations=0), ValueError,
-     ["max_iterations", "integer >= 1", "got 0"]),
+     ["max_iterations", "an integer in [1, 2147483647]", "got 0"]),
     ("max-halvings", "integrate", "max_halvings < 0",
      lambda: run(DUMBBELL, max_halvings=-1), ValueError,
      ["max_halvings", "integer >= 0", "got -1"]),
@@ -540,7 +540,7 @@ def test_every_matrix_input_has_the_same_check(value, message):
     model's mass go through one check (``checks.square_matrix``, as
     ``System``'s do): the same refusal, naming each its parameter."""
     import sympy
-    from hfdi.linalg import normalise_matrix
+    from hfdi.evaluation import normalise_matrix
     from hfdi.models.symbolic import EnergyModel
     x, y = sympy.symbols("x y")
     for name, make in (
@@ -774,7 +774,8 @@ def test_stopped_integrator_keeps_its_state_and_stays_stopped():
     # further calls neither move nor loop
     assert not itg.step()
     assert not itg.advance(5.0)
-    assert itg.state is state and itg.statistics.steps == steps and itg.message == message
+    assert itg.state.t == state.t and np.array_equal(itg.state.u, state.u)
+    assert itg.statistics.steps == steps and itg.message == message
     assert np.all(np.isfinite(state.u)) and np.all(np.isfinite(state.a))
 
 

@@ -23,7 +23,6 @@ changed from Python.
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 from llvmlite import ir

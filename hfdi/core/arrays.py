@@ -15,8 +15,6 @@ matrices (scipy) occur in Python only.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from scipy.linalg import blas as _blas
 

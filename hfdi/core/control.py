@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from .codes import STOP_FIXED_FAILED, STOP_HALVINGS, STOP_MIN_STEP, STOP_NONE
 from .jit import jitable
 from .state import COMBINED, ERROR, FIXED, ITERATION

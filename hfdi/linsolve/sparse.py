@@ -16,8 +16,6 @@ builders of a model with sparse kernels) is a :class:`General` in
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp

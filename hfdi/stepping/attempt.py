@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from ..core.arrays import all_finite, axpy, copy, dot, kinetic, lincomb, row_sum_max, times
 from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFLOW,
                           SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
@@ -24,7 +22,7 @@ from ..core.state import FIXED, MAX_STAGES
 from .stages import (affine_end, affine_setup, force_into, hfdi_end, hfdi_setup, load_into,
                      mass_solve, newton, one_sided, stiffness_of)
 
-__all__ = ["attempt", "accept", "short_step", "fastest_rate", "SHORT_STEP_RATE", "refresh",
+__all__ = ["attempt", "accept", "taylor_step", "fastest_rate", "SHORT_STEP_RATE", "refresh",
            "stop", "energy_overflows"]
 
 #: Taylor's expansion is explicit: a short step is taken by it only where

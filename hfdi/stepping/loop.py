@@ -20,7 +20,7 @@ from ..core.control import (adapt, clip, error_adapt, is_breakpoint, iteration_s
                             uses_error)
 from ..core.estimate import error_norm, is_short, local_error, velocity_noise
 from ..core.jit import entry, jitable
-from ..core.state import COMBINED, ERROR, FIXED, ITERATION
+from ..core.state import COMBINED, ERROR, FIXED
 from .attempt import (SHORT_STEP_RATE, _is_shape_fault, accept, attempt, fastest_rate, stop,
                       taylor_step)
 

@@ -1,0 +1,102 @@
+"""The records of an integrator's run (:mod:`hfdi.core.state`), made from its
+model, scheme and controller: what the stepping code reads and writes."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .controller import ErrorControl, core_kind
+from .core.state import CONFIG, CUSTOM, DATA, MAX_STAGES, VECTORS
+from .evaluation import DENSE_BELOW
+from .linsolve.dense import work_ints
+from .linsolve.sparse import General
+
+__all__ = ["config", "data", "vectors", "row_arrays"]
+
+
+def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, estimated,
+           energy_limit, max_steps, t_bound):
+    """:data:`CONFIG` of a run of the model ``ev`` (an Evaluator)."""
+    settings = controller.settings() if core_kind(controller) != CUSTOM else \
+        {"controller": CUSTOM}
+    values = dict(
+        n=ev.n, stages=scheme.n_stages, order=scheme.order,
+        velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,
+        m_kind=ev.mass_kind, c_kind=ev.damping_kind, sparse=ev.n >= DENSE_BELOW,
+        exact_rate=exact_rate, tol=tol, floor=floor, max_iterations=max_iterations,
+        estimated=estimated, energy_limit=math.inf if energy_limit is None else energy_limit,
+        max_steps=max_steps, t_bound=math.inf if t_bound is None else t_bound,
+        mass_floor=ev.mass_floor(), damping_rate=ev.damping_rate())
+    values.update(settings)         # ErrorControl(order=p) overrides the scheme's order
+    return CONFIG.new(**values)
+
+
+def _parts(matrix):
+    """A mass or damping matrix as (diagonal, full) of :data:`DATA`."""
+    empty_vector, empty_matrix = np.zeros(0), np.zeros((0, 0))
+    if matrix is None:
+        return empty_vector, empty_matrix
+    if isinstance(matrix, np.ndarray) and matrix.ndim == 1:
+        return np.ascontiguousarray(matrix, dtype=float), empty_matrix
+    if isinstance(matrix, np.ndarray):
+        return empty_vector, np.ascontiguousarray(matrix, dtype=float)
+    return empty_vector, matrix                 # sparse: Python only
+
+
+def data(ev, controller, scheme, breakpoints):
+    """:data:`DATA` of a run: M and C, the error control's tolerances, the
+    breakpoints and the scheme's parameters (the model's kernel data is set
+    when the run goes compiled)."""
+    n = ev.n
+    Md, Mf = _parts(ev.mass)
+    Cd, Cf = _parts(ev.damping)
+    error = getattr(controller, "error", controller)
+    rtol, atol = np.zeros(2 * n), np.zeros(2 * n)
+    if isinstance(error, ErrorControl):
+        rtol[:] = error.rtol
+        atol[:] = error.atol
+    empty = np.zeros(0)
+    return DATA.new(Md=Md, Mf=Mf, Cd=Cd, Cf=Cf, params=empty, load_params=empty, held=empty,
+                    rtol=rtol, atol=atol,
+                    breakpoints=np.ascontiguousarray(breakpoints, dtype=float),
+                    scheme_params=np.ascontiguousarray(scheme.params(), dtype=float))
+
+
+def vectors(ev, rows):
+    """``(VECTORS, state_block)``: the work arrays of the stepping code, with room
+    for ``rows`` rows; ``u, v, a, f, p`` are the rows of ``state_block`` (5, N),
+    whose address a native host reads the state at (:mod:`hfdi.compiled.native`)."""
+    n = ev.n
+    dense = n < DENSE_BELOW
+    m = n if dense else 0
+    block = np.zeros((5, n))
+    values = {name: block[row] for row, name in enumerate(("u", "v", "a", "f", "p"))}
+    for name, kind in VECTORS.fields:
+        if name.startswith("row_") or name in values:
+            continue
+        if name in ("error", "ratio"):
+            values[name] = np.zeros(2 * n)
+        elif name in ("pivots", "b_pivots"):
+            values[name] = np.zeros(m, np.int32)
+        elif name in ("ints", "b_ints"):
+            values[name] = work_ints()
+        elif name == "stage_iterations":
+            values[name] = np.zeros(MAX_STAGES, np.int64)
+        elif name == "sparse":
+            values[name] = np.zeros(0) if dense else General(ev.bands)
+        elif kind == "matrix":
+            values[name] = np.zeros((m, m))
+        else:
+            values[name] = np.zeros(n)
+    values.update(row_arrays(n, rows))
+    return VECTORS.new(**values), block
+
+
+def row_arrays(n, rows):
+    """The ``row_*`` arrays of :data:`VECTORS` with room for ``rows`` rows."""
+    return dict(row_t=np.zeros(rows), row_h=np.zeros(rows),
+                row_iterations=np.zeros(rows, np.int64), row_increment=np.zeros(rows),
+                row_energy=np.zeros(rows), row_work=np.zeros(rows),
+                row_u=np.zeros((rows, n)), row_v=np.zeros((rows, n)),
+                row_a=np.zeros((rows, n)))
