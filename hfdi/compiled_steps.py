@@ -1,0 +1,173 @@
+"""How an :class:`~hfdi.Integrator` runs its steps compiled: the choice of the
+path, the compiled loop's call (and the Python steps where a kernel raised),
+and the C function a native host steps it through.
+
+:class:`CompiledSteps` is a part of :class:`~hfdi.Integrator` (a base class of
+it), kept apart from the rest of the integrator's bookkeeping.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import compiled as compiled_path
+from .compiled import shadowed
+from .core import codes
+from .core.state import CONFIG, DATA, FUNCTIONS, RUN, VECTORS
+from .evaluation import DENSE_BELOW
+from .messages import Status
+from .stepping.loop import advance_affine, advance_hfdi
+from .system import HeldLoad
+
+__all__ = ["CompiledSteps"]
+
+
+class CompiledSteps:
+    """The compiled path of an :class:`~hfdi.Integrator`."""
+
+    # -- which path ---------------------------------------------------------------
+    def _choose_path(self, compiled, current, K0, T0, potential):
+        """Compiled when the model's kernels compute it (or ``compiled=True``
+        demands it), else the model through the Evaluator, with compiled
+        kernels inside where they can serve (a sparse model's)."""
+        ev = self.ev
+        initial = compiled_path.InitialValues(
+            current.t, current.u, current.v, current.f, K0, T0, potential,
+            math.inf if self.t_bound is None else self.t_bound)
+        if compiled is False:
+            return
+        if ev.n >= DENSE_BELOW:
+            compiled_path.use_sparse_kernels(ev, compiled, initial)
+            return
+        reason, kernels = compiled_path.compiled_reason(self, initial)
+        if reason:
+            compiled_path.refused(compiled, reason, "the compiled path cannot run")
+            return
+        self._use_compiled(kernels)
+
+    def _use_compiled(self, kernels):
+        """Run the loop compiled with ``kernels`` (:class:`hfdi.compiled.CompiledKernels`)."""
+        ev, scheme = self.ev, self.scheme
+        load = kernels.load if kernels.load is not None else compiled_path.zero_load
+        rate = kernels.load_rate if self._cfg.exact_rate else load
+        functions = FUNCTIONS.new(force=kernels.force, stiffness=kernels.stiffness,
+                                  stiffness_derivative=kernels.stiffness_derivative,
+                                  potential_energy=kernels.potential_energy, load=load,
+                                  load_rate=rate, stage=scheme.stage)
+        fn = compiled_path.function_struct(functions)
+        held = isinstance(ev.extra_load, HeldLoad)
+        self._cfg.has_held = held
+        self._kernels = kernels
+        self._data = self._data._replace(
+            params=np.ascontiguousarray(kernels.params, dtype=float),
+            load_params=np.ascontiguousarray(
+                kernels.load_params if kernels.load_params is not None else
+                compiled_path.zero_load_params(ev.n), dtype=float),
+            held=np.zeros(ev.n) if held else np.zeros(0))
+        self._compiled_call = [fn, CONFIG.pack(self._cfg), None, None]
+        self._advance_compiled = advance_hfdi if self._hfdi else advance_affine
+        self._refresh_compiled()
+
+    def _refresh_compiled(self):
+        """The compiled structs of the data and vectors (after either was replaced)."""
+        call = self._compiled_call
+        if call is not None:
+            call[2] = DATA.compiled(self._data)
+            call[3] = VECTORS.compiled(self._vec)
+
+    # -- a C function of the compiled loop ---------------------------------------------
+    def native_advance(self):
+        """This integrator's compiled loop behind a C function
+        (:class:`hfdi.compiled.NativeAdvance`), for a host that steps it without
+        Python (an FMU's native layer).
+
+        Raises
+        ------
+        ValueError
+            When the steps do not run compiled (:attr:`compiled`).
+        """
+        if self._compiled_call is None:
+            raise ValueError("integrator must run compiled (Integrator.compiled), it does not")
+        from .compiled.native import NativeAdvance
+        fn, cfg, data, vec = self._compiled_call
+        return NativeAdvance(self, fn, cfg, data, vec, self._data.held, self._run,
+                             self._state_block, self._hfdi)
+
+    def _native_ready(self) -> str:
+        """Why a native host may not take the next steps now (``""``: it may)."""
+        if self._compiled_call is None:
+            return "the steps do not run compiled"
+        if self.failed:
+            return "the run has failed"
+        if self._model_version is not None and \
+                self.system.parameter_version != self._model_version:
+            return "the model changed since the last step"
+        if shadowed(self.system):
+            return "a method of the model is replaced on the instance"
+        if not self._held_ready():
+            return "the held load is not a finite vector of N values"
+        return ""
+
+    def _native_synced(self, cpu_time: float) -> None:
+        """After a native host took steps (:meth:`NativeAdvance.sync`)."""
+        self._run_cpu += cpu_time
+        if self.finished and self._run.status >= 0:
+            self._run.status = int(Status.SUCCESS)
+            self._message = f"reached t_bound = {self.t_bound!r}"
+
+    def _shadowed(self) -> bool:
+        """Whether a method of the model was replaced on the instance since the
+        run began compiled: the rest of the run is the Python steps', said once."""
+        name = shadowed(self.system)
+        if name:
+            compiled_path.say_once(f"{type(self.system).__name__}.{name} is replaced on the "
+                                   f"instance", "{reason}; the rest of the run takes its steps "
+                                   "in Python, which call it")
+            self._compiled_call = None
+        return bool(name)
+
+    def _held_ready(self) -> bool:
+        """A held load's value into ``DATA.held``; false when it is not a finite
+        (N,) vector (the Python steps then meet it and say so)."""
+        if not self._cfg.has_held:
+            return True
+        try:
+            value = np.asarray(self.ev.extra_load.source(), dtype=float)
+        except Exception:
+            return False
+        if value.shape != (self.ev.n,) or not np.isfinite(value).all():
+            return False
+        self._data.held[:] = value
+        return True
+
+    def _compiled_steps(self, t_stop, max_accepted):
+        fn, cfg, data, vec = self._compiled_call
+        run = RUN.pack(self._run)
+        vectors = self._vec
+        saved = [getattr(vectors, name).copy() for name in _SNAPSHOT]
+        while True:
+            try:
+                reason = self._advance_compiled(fn, cfg, data, run, vec, t_stop, max_accepted)
+            except Exception as exc:
+                # a kernel raised: its steps of this call are lost with it. The
+                # rest of the run is the Python steps', where a raising model
+                # fails an attempt
+                for name, value in zip(_SNAPSHOT, saved):
+                    getattr(vectors, name)[:] = value
+                self._compiled_call = None
+                compiled_path.say_once(f"{type(exc).__name__}: {exc}", (
+                    "a compiled kernel raised {reason}; the rest of the run takes its steps "
+                    "in Python"))
+                self._python_steps(t_stop, max_accepted)
+                return
+            RUN.unpack(run, self._run)
+            self._hand_on_rows()
+            if reason != codes.ROWS_FULL:
+                return
+            saved = [getattr(vectors, name).copy() for name in _SNAPSHOT]
+
+
+#: The vectors a call of the compiled loop may leave half written when a kernel raises.
+_SNAPSHOT = ("u", "v", "a", "f", "p", "u_previous", "v_previous", "a_previous", "f_previous",
+             "p_previous")
