@@ -14,6 +14,7 @@ import numpy as np
 from . import compiled as compiled_path
 from .compiled import shadowed
 from .core import codes
+from .core.jit import compiling
 from .core.state import CONFIG, DATA, FUNCTIONS, RUN, VECTORS
 from .evaluation import DENSE_BELOW
 from .messages import Status
@@ -55,7 +56,8 @@ class CompiledSteps:
                                   stiffness_derivative=kernels.stiffness_derivative,
                                   potential_energy=kernels.potential_energy, load=load,
                                   load_rate=rate, stage=scheme.stage)
-        fn = compiled_path.function_struct(functions)
+        with compiling(f"the kernels of model {type(self.system).__name__}"):
+            fn = compiled_path.function_struct(functions)
         held = isinstance(ev.extra_load, HeldLoad)
         self._cfg.has_held = held
         self._kernels = kernels
@@ -148,7 +150,10 @@ class CompiledSteps:
         saved = [getattr(vectors, name).copy() for name in _SNAPSHOT]
         while True:
             try:
-                reason = self._advance_compiled(fn, cfg, data, run, vec, t_stop, max_accepted)
+                with compiling("the integrator's loop for "
+                               + ("HFDI's stages" if self._hfdi else "affine stages")):
+                    reason = self._advance_compiled(fn, cfg, data, run, vec, t_stop,
+                                                    max_accepted)
             except Exception as exc:
                 # a kernel raised: its steps of this call are lost with it. The
                 # rest of the run is the Python steps', where a raising model

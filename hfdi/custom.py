@@ -12,7 +12,7 @@ import numpy as np
 from .controller import Attempt
 from .core import codes
 from .core.control import is_breakpoint, limit
-from .core.estimate import is_short, local_error, velocity_noise
+from .core.estimate import is_short, velocity_noise
 from .evaluation import ModelFault
 from .messages import Status, attempt_message, stop_message
 from .stepping import attempt as stepping
@@ -86,7 +86,7 @@ def _try(itg, proposed, t_limit, landing=None):
     attempt.kept = ({name: getattr(vec, name).copy() for name in _KEPT},
                     {name: getattr(run, name) for name in _KEPT_RUN})
     if converged and itg.controller.uses_error_estimate:
-        local_error(run, vec, h, cfg.order)
+        stepping.estimate_error(cfg, data, run, vec, h)
         attempt.error = vec.error.copy()
         attempt.y_start = np.concatenate([vec.u, vec.v])
         attempt.y_end = np.concatenate([vec.u_new, vec.v_new])

@@ -35,6 +35,7 @@ from .result import STATISTICS_FIELDS, Statistics
 from .schemes import HFDI, Scheme, get_scheme
 from .stepping import attempt as stepping
 from .stepping.loop import advance as advance_python
+from .stepping.stages import AFFINE_STAGES, HFDI_STAGES
 from .system import SecondOrderSystem
 
 __all__ = ["Integrator", "ROWS_PER_CALL"]
@@ -257,7 +258,8 @@ class Integrator(CompiledSteps):
                 f"potential_energy or leave energy_limit=None")
         exact = isinstance(self.scheme, HFDI) and self.scheme.exact_rate(ev.has_load_rate)
         #: the scheme's stages are HFDI's (else affine): the compiled loop's constant
-        self._hfdi = self.scheme.stage.py_func(1.0, 0, self.scheme.params()).kind == HFDI_STAGE
+        self._hfdi = HFDI_STAGES if self.scheme.stage.py_func(
+            1.0, 0, self.scheme.params()).kind == HFDI_STAGE else AFFINE_STAGES
         self._cfg = run_records.config(
             ev, c, self.scheme, exact_rate=exact, tol=self.tol, floor=self.floor,
             max_iterations=self.max_iterations, estimated=self.newton_test == "error",

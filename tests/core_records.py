@@ -35,9 +35,12 @@ def predict(current, previous, s):
     return out
 
 
-def local_error(current, previous, new, h, order):
-    """The error estimate of the step from ``current`` to ``new`` (2N: u, v)."""
+def local_error(current, previous, new, h, order, acceleration=None):
+    """The error estimate of the step from ``current`` to ``new`` (2N: u, v),
+    with the states' accelerations or ``acceleration(state)``."""
     from hfdi.core.estimate import local_error as core_local_error
     run, vec = records(current, previous, new)
-    core_local_error(run, vec, h, order)
+    accelerate = acceleration or (lambda state: state.a)
+    core_local_error(run, vec, h, order, accelerate(current),
+                     accelerate(previous) if previous is not None else current.a)
     return vec.error.copy()

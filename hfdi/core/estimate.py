@@ -62,27 +62,29 @@ def velocity_history_factor(sigma, order):
 
 
 @jitable
-def local_error(run, vec, h, order):
+def local_error(run, vec, h, order, a, a_previous):
     """The estimate of the local error of ``u`` and ``v`` of the step from the
     current state to ``VECTORS.*_new`` into ``VECTORS.error`` (2N): the new
     state minus the quartic ``Q`` with ``Q(0) = u``, ``Q'(0) = v``,
     ``Q''(0) = a``, ``Q'(−H) = v_{n−1}``, ``Q''(−H) = a_{n−1}`` (Milne's
     device, no extra evaluation); the velocity's difference divided by
     :func:`velocity_history_factor`. Without history the Taylor polynomial
-    ``u + h v + h² a/2`` (and ``v + h a``), erring on the safe side."""
+    ``u + h v + h² a/2`` (and ``v + h a``), erring on the safe side. ``a``
+    and ``a_previous`` are the accelerations at ``t`` and ``t_previous``
+    (the state's, or the equation of motion's where the state's lags)."""
     n = vec.u.shape[0]
     eu, ev = vec.error[:n], vec.error[n:]
     Q, dQ = vec.tmp, vec.work
     lincomb(Q, 1.0, vec.u, h, vec.v)
-    axpy(Q, 0.5 * h * h, vec.a)
-    lincomb(dQ, 1.0, vec.v, h, vec.a)
+    axpy(Q, 0.5 * h * h, a)
+    lincomb(dQ, 1.0, vec.v, h, a)
     factor = 1.0
     if run.has_previous:
         H = run.t - run.t_previous
         r2, r3 = vec.rhs, vec.residual
         lincomb(r2, 1.0, vec.v_previous, -1.0, vec.v)
-        axpy(r2, H, vec.a)
-        lincomb(r3, 1.0, vec.a_previous, -1.0, vec.a)
+        axpy(r2, H, a)
+        lincomb(r3, 1.0, a_previous, -1.0, a)
         s2 = h * h
         # Q += s³ c3 + s⁴ c4, dQ += 3 s² c3 + 4 s³ c4, with
         # c3 = r2/H² + r3/(3H), c4 = (2 r2 + H r3)/(4 H³)

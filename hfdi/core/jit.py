@@ -33,6 +33,7 @@ Where the check fails the code is compiled in memory, and that is said once.
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import hashlib
 import logging
@@ -46,8 +47,8 @@ from pathlib import Path
 
 from ..files import cache_dir
 
-__all__ = ["jitable", "twin", "native", "primitive", "python_only", "entry", "JIT_OPTIONS", "compile_for",
-           "numba_cache_dir", "cache_trusted"]
+__all__ = ["jitable", "twin", "native", "primitive", "python_only", "entry", "JIT_OPTIONS",
+           "compiling", "numba_cache_dir", "cache_trusted"]
 
 _log = logging.getLogger("hfdi")
 
@@ -124,7 +125,9 @@ def twin(function):
         return made
     kind, source = _CORE[function]
     options = dict(JIT_OPTIONS)
-    if kind == "inline":
+    mode = os.environ.get("HFDI_INLINE_EXPERIMENT", "all")
+    is_primitive = source is not function
+    if kind == "inline" and (mode == "all" or (mode == "orchestration" and not is_primitive)):
         options["inline"] = "always"
     clone = _clone(source)
     made = _TWINS[function] = _numba().njit(**options)(clone)
@@ -342,7 +345,7 @@ def entry(function=None, **options):
     with :data:`JIT_OPTIONS`), cached on disk where :func:`cache_trusted`; the
     core functions it calls are their twins (:func:`twin`). Made when first
     used and compiled at the first call with new argument types; see
-    :func:`compile_for` for the notice of a first compilation."""
+    :func:`compiling` for the notice of a first compilation."""
     def wrap(fn):
         return _Entry(fn, options)
     return wrap if function is None else wrap(function)
@@ -358,17 +361,33 @@ def _say_uncached(why):
                      "every process", why)
 
 
-def compile_for(dispatcher, *args, what="the integrator's compiled loop") -> None:
-    """Make sure ``dispatcher`` has code for ``args`` (loaded from the disk cache,
-    or compiled) before a run calls it; a compilation is said once per process
-    on stderr (a log record at WARNING), with the time it took."""
-    types = tuple(_numba().typeof(a) for a in args)
-    if types in dispatcher.overloads:
+@contextlib.contextmanager
+def compiling(what: str):
+    """Within this context numba may compile ``what``: when it does (code not
+    found in the disk cache), say so once per process on stderr, as a log
+    record at WARNING of the logger ``hfdi``, when the compilation begins and
+    again with the time it took."""
+    if what in _SAID:
+        yield
         return
-    start = time.perf_counter()
-    dispatcher.compile(types)
-    elapsed = time.perf_counter() - start
-    if not dispatcher.stats.cache_hits.get(types) and what not in _SAID:
-        _SAID.add(what)
-        _log.warning("hfdi: compiled %s in %.1f s (once: kept in %s)", what, elapsed,
-                     numba_cache_dir() if cache_trusted()[0] else "memory only")
+    _numba()                    # imported with the cache's locator installed
+    from numba.core import event
+
+    class Notice(event.Listener):
+        began = None
+
+        def on_start(self, _):
+            if self.began is None:
+                self.began = time.perf_counter()
+                _log.warning("hfdi: compiling %s (once: the code is kept in %s) ...", what,
+                             numba_cache_dir() if cache_trusted()[0] else "memory only")
+
+        def on_end(self, _):
+            pass
+
+    notice = Notice()
+    with event.install_listener("numba:compile", notice):
+        yield
+    _SAID.add(what)             # compiled or loaded: not watched again
+    if notice.began is not None:
+        _log.warning("hfdi: compiled %s in %.1f s", what, time.perf_counter() - notice.began)

@@ -108,6 +108,7 @@ CONFIG = Scalars("Config", [
     ("order", "i8", 2),                 # its order (the error rule's exponent)
     ("velocity_gain", "f8", 3.0),       # h Σ|coefficients of u in v| (docs/algorithm.md)
     ("keeps_force", "b1", False),       # the state keeps f(u) (HFDI, generalized-α)
+    ("lagged_acceleration", "b1", False),   # the state's a is not M⁻¹(p − C v − f) (gen.-α)
     ("m_kind", "i8", 1),                # kinds of M and C (hfdi.core.arrays)
     ("c_kind", "i8", 0),
     ("sparse", "b1", False),            # sparse tangents (Python only)
@@ -232,6 +233,8 @@ VECTORS = Arrays("Vectors", [
     ("p_mid", "vector"),
     *[(f"{name}_saved", "vector") for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid")],
     ("p_stage", "vector"),          # the load at the stage's load time
+    ("a_equation", "vector"),       # M⁻¹(p − C v − f) at t and t_previous, for the
+    ("a_equation_previous", "vector"),  # estimate where CONFIG.lagged_acceleration
     ("p_rate", "vector"),           # HFDI's p' at the step's end
     ("trial", "vector"),            # the Newton iterate
     *[(name, "vector") for name in ("rhs", "residual", "du", "g", "vd", "kv", "tmp", "work",

@@ -33,6 +33,11 @@ class Scheme:
         control's allowance for the corrector's remaining error).
     keeps_force : bool
         Whether a step needs ``f(u_n)`` of its start (kept in the state).
+    lagged_acceleration : bool
+        Whether the state's ``a`` is the scheme's own variable rather than the
+        equation of motion's acceleration at ``t`` (generalized-α's lags it by
+        ``(α_f − α_m) h``): the error estimate then takes the equation of
+        motion's (docs/algorithm.md, "Error control").
     stage : numba dispatcher
         The stage function (:func:`stage_function`).
     """
@@ -42,6 +47,7 @@ class Scheme:
     stage_fractions: tuple = (1.0,)
     velocity_gain = 3.0
     keeps_force = False
+    lagged_acceleration = False
     stage = None
 
     @property

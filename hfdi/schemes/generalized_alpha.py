@@ -47,6 +47,7 @@ class GeneralizedAlpha(Scheme):
     name = "generalized_alpha"
     order = 2
     keeps_force = True
+    lagged_acceleration = True
     stage = staticmethod(generalized_alpha_stage)
 
     def __init__(self, rho_inf: float = 0.8):

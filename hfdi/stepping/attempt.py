@@ -16,13 +16,13 @@ from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFL
                           SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
                           STOP_OVERFLOW, STOP_POTENTIAL_LOST)
 from ..core.control import is_breakpoint
-from ..core.estimate import is_short, predict
+from ..core.estimate import is_short, local_error, predict
 from ..core.jit import jitable
 from ..core.state import FIXED, MAX_STAGES
 from .stages import (affine_end, affine_setup, force_into, hfdi_end, hfdi_setup, load_into,
                      mass_solve, newton, one_sided, stiffness_of)
 
-__all__ = ["attempt", "accept", "taylor_step", "fastest_rate", "SHORT_STEP_RATE", "refresh",
+__all__ = ["attempt", "accept", "estimate_error", "taylor_step", "fastest_rate", "SHORT_STEP_RATE", "refresh",
            "stop", "energy_overflows"]
 
 #: Taylor's expansion is explicit: a short step is taken by it only where
@@ -52,8 +52,9 @@ def _failed(run, outcome, stage, iterations):
 def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
     """One attempt at the step from ``RUN.t`` to ``t_end`` (``left``: it lands on
     a load breakpoint, whose load is taken from the left): every stage,
-    predictor then Newton. ``hfdi``: the scheme's stages are HFDI's, else
-    affine (a constant of the compiled code, which then holds one kind only). Returns the outcome (:mod:`hfdi.core.codes`, also in
+    predictor then Newton. ``hfdi``: the kind of the scheme's stages,
+    :data:`~hfdi.stepping.stages.HFDI_STAGES` or ``AFFINE_STAGES``. Returns
+    the outcome (:mod:`hfdi.core.codes`, also in
     ``RUN.a_outcome``); on success the end state is in ``VECTORS.*_new`` (the
     first of two stages' in ``*_mid``), the corrections in
     ``RUN.a_iterations`` and ``VECTORS.stage_iterations``, and Newton's memory
@@ -80,7 +81,7 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
         if outcome != OK:
             return _failed(run, outcome, s, total)
         predict(run, vec, h if st.time == 1.0 else st.time * h, vec.trial)
-        if hfdi:
+        if hfdi is not None:
             outcome = hfdi_setup(fn, cfg, data, run, vec, h, t_end, left)
         else:
             outcome = affine_setup(fn, cfg, data, run, vec, st)
@@ -95,7 +96,7 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
             return _failed(run, outcome, s, total)
         newton_error = max(newton_error, error)
         last = s == cfg.stages - 1
-        if hfdi:
+        if hfdi is not None:
             outcome = hfdi_end(fn, cfg, data, run, vec, h)
         elif last:
             outcome = affine_end(fn, cfg, data, run, vec, st, vec.u_new, vec.v_new, vec.a_new)
@@ -111,7 +112,7 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
                 outcome = load_into(fn, cfg, data, run, one_sided(t_end, t_end, left), vec.p_new)
                 if outcome != OK:
                     return _failed(run, outcome, s, total)
-            if cfg.keeps_force and not hfdi:
+            if cfg.keeps_force and hfdi is None:
                 outcome = force_into(fn, cfg, data, run, vec.u_new, vec.f_new)
                 if outcome != OK:
                     return _failed(run, outcome, s, total)
@@ -120,6 +121,32 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
     run.newton_constant = constant
     run.newton_guard = guard
     return OK
+
+
+@jitable
+def _equation_acceleration(cfg, data, vec, v, f, p, out):
+    """``out = M⁻¹ (p − C v − f)``; false when the mass solve fails."""
+    times(cfg.c_kind, data.Cd, data.Cf, v, out)
+    lincomb(out, 1.0, p, -1.0, out)
+    axpy(out, -1.0, f)
+    return mass_solve(cfg, data, vec, out)
+
+
+@jitable
+def estimate_error(cfg, data, run, vec, h):
+    """The local error estimate of the attempt just made, into ``VECTORS.error``
+    (:func:`hfdi.core.estimate.local_error`). Where the state's acceleration
+    lags (``CONFIG.lagged_acceleration``) the estimate's derivative data are
+    the equation of motion's accelerations at ``t`` and ``t_previous``, from
+    the kept ``f`` and ``p``; the state's where a mass solve fails."""
+    if cfg.lagged_acceleration:
+        now, before = vec.a_equation, vec.a_equation_previous
+        if _equation_acceleration(cfg, data, vec, vec.v, vec.f, vec.p, now) and (
+                not run.has_previous or _equation_acceleration(
+                    cfg, data, vec, vec.v_previous, vec.f_previous, vec.p_previous, before)):
+            local_error(run, vec, h, cfg.order, now, before)
+            return
+    local_error(run, vec, h, cfg.order, vec.a, vec.a_previous)
 
 
 @jitable

@@ -18,11 +18,12 @@ from ..core.codes import (FIRST_STEP_FAILED, HALVINGS_EXHAUSTED, MAX_STEPS, MODE
                           STOP_NONE, STOP_SHORT_FAILED, STOP_SHORT_NOT_FINITE, SUCCESS)
 from ..core.control import (adapt, clip, error_adapt, is_breakpoint, iteration_search, limit,
                             uses_error)
-from ..core.estimate import error_norm, is_short, local_error, velocity_noise
+from ..core.estimate import error_norm, is_short, velocity_noise
 from ..core.jit import entry, jitable
 from ..core.state import COMBINED, ERROR, FIXED
-from .attempt import (SHORT_STEP_RATE, _is_shape_fault, accept, attempt, fastest_rate, stop,
-                      taylor_step)
+from .attempt import (SHORT_STEP_RATE, _is_shape_fault, accept, attempt, estimate_error,
+                      fastest_rate, stop, taylor_step)
+from .stages import AFFINE_STAGES, HFDI_STAGES
 
 __all__ = ["try_attempt", "take_step", "advance", "advance_hfdi", "advance_affine",
            "status_of"]
@@ -47,7 +48,7 @@ def try_attempt(fn, cfg, data, run, vec, proposed, t_limit, t_end, clipped, hfdi
     left = t_end == t_limit and is_breakpoint(data, t_end)
     outcome = attempt(fn, cfg, data, run, vec, t_end, left, hfdi)
     if outcome == OK and uses_error(cfg):
-        local_error(run, vec, run.a_h, cfg.order)
+        estimate_error(cfg, data, run, vec, run.a_h)
         run.a_err = error_norm(data, vec, velocity_noise(cfg.velocity_gain, run.a_newton_error,
                                                          vec, run.a_h))
     return outcome
@@ -324,11 +325,11 @@ def advance_hfdi(fn, cfg, data, run, vec, t_stop, max_accepted):
     """:func:`advance` compiled for a scheme of HFDI's stage: ``cfg`` and ``run``
     as one-element structured arrays (:meth:`hfdi.core.records.Scalars.pack`),
     ``data``, ``vec`` and ``fn`` as their compiled structs."""
-    return advance(fn, cfg[0], data, run[0], vec, t_stop, max_accepted, True)
+    return advance(fn, cfg[0], data, run[0], vec, t_stop, max_accepted, HFDI_STAGES)
 
 
 @entry
 def advance_affine(fn, cfg, data, run, vec, t_stop, max_accepted):
     """:func:`advance` compiled for a scheme of affine stages (as
     :func:`advance_hfdi`): a run compiles only the stages its scheme takes."""
-    return advance(fn, cfg[0], data, run[0], vec, t_stop, max_accepted, False)
+    return advance(fn, cfg[0], data, run[0], vec, t_stop, max_accepted, AFFINE_STAGES)

@@ -32,7 +32,7 @@ from ..linsolve.dense import gesv, getrf, getrs, getrs_columns, solve
 from ..linsolve.sparse import (general_affine_tangent, general_hfdi_setup, general_hfdi_tangent,
                                general_mass_solve, general_solve, general_velocity)
 
-__all__ = ["CONSTANT_MEMORY", "convergence_test", "newton", "force_into", "stiffness_of",
+__all__ = ["CONSTANT_MEMORY", "HFDI_STAGES", "AFFINE_STAGES", "convergence_test", "newton", "force_into", "stiffness_of",
            "derivative_of", "load_into", "one_sided", "mass_solve", "affine_setup",
            "affine_end", "hfdi_setup", "hfdi_end"]
 
@@ -41,6 +41,11 @@ __all__ = ["CONSTANT_MEMORY", "convergence_test", "newton", "force_into", "stiff
 #: constant shrinks by this factor; a run of one correction divides the guard
 #: by it.
 CONSTANT_MEMORY = 0.9
+#: The kind of a scheme's stages as the stepping code's argument ``hfdi``
+#: takes it: HFDI's (True) or affine (None). Compiled code then holds the
+#: code of one kind only: numba removes the branch of an ``is None`` test on
+#: a constant argument, where a test of its truth would compile both.
+HFDI_STAGES, AFFINE_STAGES = True, None
 _EPS = float(np.finfo(float).eps)
 
 
@@ -175,7 +180,7 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
     du = vec.du
     previous = math.inf
     for k in range(1, cfg.max_iterations + 1):
-        if hfdi:
+        if hfdi is not None:
             outcome, J = _hfdi_residual(fn, cfg, data, run, vec, u, h)
         else:
             outcome, J = _affine_residual(fn, cfg, data, run, vec, u, st)
