@@ -37,13 +37,16 @@ class CompiledSteps:
             current.t, current.u, current.v, current.f, K0, T0, potential,
             math.inf if self.t_bound is None else self.t_bound)
         if compiled is False:
+            self._not_compiled = "compiled=False"
             return
         if ev.n >= DENSE_BELOW:
             compiled_path.use_sparse_kernels(ev, compiled, initial)
+            self._not_compiled = f"the system has {ev.n} degrees of freedom (N ≥ {DENSE_BELOW})"
             return
         reason, kernels = compiled_path.compiled_reason(self, initial)
         if reason:
             compiled_path.refused(compiled, reason, "the compiled path cannot run")
+            self._not_compiled = str(reason)
             return
         self._use_compiled(kernels)
 
@@ -58,8 +61,11 @@ class CompiledSteps:
                                   load_rate=rate, stage=scheme.stage)
         with compiling(f"the kernels of model {type(self.system).__name__}"):
             fn = compiled_path.function_struct(functions)
+        # the compiled loop adds a held load's value (DATA.held) to its compiled
+        # load; the Python steps call the Evaluator's load, which adds it itself
         held = isinstance(ev.extra_load, HeldLoad)
-        self._cfg.has_held = held
+        cfg = CONFIG.pack(self._cfg)
+        cfg["has_held"] = held
         self._kernels = kernels
         self._data = self._data._replace(
             params=np.ascontiguousarray(kernels.params, dtype=float),
@@ -67,9 +73,14 @@ class CompiledSteps:
                 kernels.load_params if kernels.load_params is not None else
                 compiled_path.zero_load_params(ev.n), dtype=float),
             held=np.zeros(ev.n) if held else np.zeros(0))
-        self._compiled_call = [fn, CONFIG.pack(self._cfg), None, None]
+        self._compiled_call = [fn, cfg, None, None]
         self._advance_compiled = advance_hfdi if self._hfdi else advance_affine
         self._refresh_compiled()
+
+    def _leave_compiled(self, reason: str):
+        """The rest of the run takes its steps in Python, for ``reason``."""
+        self._compiled_call = None
+        self._not_compiled = reason
 
     def _refresh_compiled(self):
         """The compiled structs of the data and vectors (after either was replaced)."""
@@ -126,13 +137,14 @@ class CompiledSteps:
             compiled_path.say_once(f"{type(self.system).__name__}.{name} is replaced on the "
                                    f"instance", "{reason}; the rest of the run takes its steps "
                                    "in Python, which call it")
-            self._compiled_call = None
+            self._leave_compiled(f"{type(self.system).__name__}.{name} is replaced on the "
+                                 "instance")
         return bool(name)
 
     def _held_ready(self) -> bool:
         """A held load's value into ``DATA.held``; false when it is not a finite
         (N,) vector (the Python steps then meet it and say so)."""
-        if not self._cfg.has_held:
+        if not self._data.held.size:
             return True
         try:
             value = np.asarray(self.ev.extra_load.source(), dtype=float)
@@ -160,7 +172,7 @@ class CompiledSteps:
                 # fails an attempt
                 for name, value in zip(_SNAPSHOT, saved):
                     getattr(vectors, name)[:] = value
-                self._compiled_call = None
+                self._leave_compiled(f"a compiled kernel raised {type(exc).__name__}: {exc}")
                 compiled_path.say_once(f"{type(exc).__name__}: {exc}", (
                     "a compiled kernel raised {reason}; the rest of the run takes its steps "
                     "in Python"))

@@ -38,12 +38,15 @@ from .stepping.loop import advance as advance_python
 from .stepping.stages import AFFINE_STAGES, HFDI_STAGES
 from .system import SecondOrderSystem
 
-__all__ = ["Integrator", "ROWS_PER_CALL"]
+__all__ = ["Integrator", "ROWS_PER_CALL", "STEPS_PER_CALL"]
 
 #: Rows of accepted steps the stepping code writes per call before it hands
 #: them over (and Python gets control back: Ctrl-C is seen between calls).
 ROWS_PER_CALL = 2048
-_EVERY = np.iinfo(np.int64).max
+#: At most this many accepted steps per call of the stepping code: between
+#: calls control is back in Python, where a KeyboardInterrupt is seen (a
+#: compiled loop cannot be interrupted), at a cost of about a µs per call.
+STEPS_PER_CALL = 10_000
 
 
 class Integrator(CompiledSteps):
@@ -279,6 +282,7 @@ class Integrator(CompiledSteps):
         self._rows = None               # a callable taking blocks of rows (advance(rows=))
         self._python_functions = None
         self._compiled_call = None      # (fn, cfg array, data, vec) of the compiled loop
+        self._not_compiled = ""         # why the steps run in Python
         self._choose_path(compiled, current, K0, T0, potential)
         self._absorb_counts()
         self._run_cpu = time.process_time() - start
@@ -321,8 +325,11 @@ class Integrator(CompiledSteps):
         :class:`hfdi.compiled.SparseKernels`."""
         return self._compiled_call is not None or self.ev.kernels is not None
 
-    #: The former name of :attr:`compiled`: the whole run of steps is compiled.
-    driven = compiled
+    @property
+    def not_compiled_reason(self) -> str:
+        """Why the steps run in Python (``""`` while they run compiled): the
+        reason the compiled path was refused at the start, or left during the run."""
+        return "" if self._compiled_call is not None else self._not_compiled
 
     def _functions(self):
         """The model as the Python steps call it."""
@@ -692,7 +699,7 @@ class Integrator(CompiledSteps):
                 if not self._follow_model():
                     return False
                 accepted = self._run.accepted
-                self._steps(t_stop, 1 if callback is not None else _EVERY)
+                self._steps(t_stop, 1 if callback is not None else STEPS_PER_CALL)
                 if callback is not None and self._run.accepted > accepted and (
                         not self.failed or self._run.status == Status.ENERGY_GROWTH):
                     callback(self)

@@ -426,13 +426,13 @@ def compiled_reason(integrator, initial: InitialValues):
                 f"controllers"), None
     if ev.extra_load is not None and not isinstance(ev.extra_load, HeldLoad):
         return "an extra_load is given that is not a hfdi.HeldLoad", None
+    kernels, why = kernels_of(system)
+    if why:
+        return why, None
     name = shadowed(system)
     if name:
         return (f"{type(system).__name__}.{name} is replaced on the instance, which its "
                 f"compiled kernels do not compute"), None
-    kernels, why = kernels_of(system)
-    if why:
-        return why, None
     if kernels.load is None and type(system).load is not SecondOrderSystem.load:
         return f"model {type(system).__name__} has no compiled load", None
     if integrator._cfg.exact_rate and kernels.load_rate is None:
@@ -516,7 +516,7 @@ def follow_model(integrator) -> None:
     if why:
         say_once(str(why), "after the model changed: {reason}; the rest of the run takes its "
                  "steps in Python")
-        integrator._compiled_call = None
+        integrator._leave_compiled(f"after the model changed: {why}")
         return
     params = np.ascontiguousarray(kernels.params, dtype=float)
     data = integrator._data

@@ -1,4 +1,4 @@
-"""advance as a C function (hfdi.compiled.NativeAdvance) against advance itself.
+"""advance as a C function (Integrator.native_advance(), hfdi.compiled.NativeAdvance) against advance itself.
 
 A host calls the function through its address, as the FMU's native layer
 does (here through ctypes): every call that takes its step must leave, after
@@ -14,17 +14,29 @@ import pytest
 
 import hfdi
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
-from test_compiled_driver import _assert_same_state
-from test_compiled_step import case
+from test_compiled_path import _assert_same_state
 
 numba = pytest.importorskip("numba")
-from hfdi.compiled import NativeAdvance  # noqa: E402
 from hfdi.compiled.native import NOT_TAKEN, TAKEN  # noqa: E402
 
 PROBLEMS = {"dumbbell": (dumbbell, 0.01, 0.2), "tetrahedra": (tetrahedra, 2.5, 5.0),
             "articulated": (articulated, 0.06, 0.2), "toss_rule": (toss_rule, 0.003, 0.012)}
 MODES = {"fixed": dict(step=1 / 40), "iterations": dict(target_iterations=3),
          "error": dict(rtol=1e-6), "combined": dict(target_iterations=3, rtol=1e-5)}
+
+
+def case(problem, mode):
+    """``(make, t_end, options)`` of a run of ``problem`` in ``mode``: the long
+    horizon for the iteration-count mode, else the short one; a fixed step is
+    given as a fraction of the horizon."""
+    make, short, long = PROBLEMS[problem]
+    t_end = long if mode == "iterations" else short
+    options = dict(MODES[mode])
+    if mode == "fixed":
+        options["step"] *= t_end
+    return make, t_end, options
+
+
 _FUNCTION = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, ctypes.c_double)
 
 
@@ -38,7 +50,7 @@ class Host:
 
     def __init__(self, itg, max_steps_per_call=None, applied=None):
         self.itg = itg
-        self.native = NativeAdvance(itg)
+        self.native = itg.native_advance()
         self.function = _FUNCTION(self.native.function_address)
         self.max_steps_per_call = max_steps_per_call
         self.applied = applied
@@ -66,14 +78,22 @@ class Host:
         return ok
 
 
-@pytest.mark.parametrize("mode", list(MODES))
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-@pytest.mark.parametrize("problem", list(PROBLEMS))
+def _cases():
+    """Every model x scheme x mode; the quick tier on the two smallest models."""
+    for problem in PROBLEMS:
+        for scheme in hfdi.SCHEMES:
+            for mode in MODES:
+                slow = problem in ("tetrahedra", "toss_rule")
+                yield pytest.param(problem, scheme, mode, id=f"{problem}-{scheme}-{mode}",
+                                   marks=[pytest.mark.slow] if slow else [])
+
+
+@pytest.mark.parametrize("problem, scheme, mode", list(_cases()))
 def test_native_calls_leave_what_advance_leaves_bit_for_bit(problem, scheme, mode):
-    make, t_end, options = case(problem, mode, PROBLEMS, MODES)
+    make, t_end, options = case(problem, mode)
     host = Host(hfdi.Integrator(make(), scheme, compiled=True, t_bound=t_end, **options))
     plain = hfdi.Integrator(make(), scheme, compiled=True, t_bound=t_end, **options)
-    assert host.itg.driven
+    assert host.itg.compiled
     # communication points between and across internal steps, the last t_bound
     for t_stop in np.linspace(0.0, t_end, 41)[1:]:
         assert host.advance(t_stop) == plain.advance(t_stop)
@@ -143,7 +163,7 @@ def test_held_load_changed_between_arms():
                 value[:] = 50.0 * np.sin(k + np.arange(6))
                 itg.load_changed()
                 if host is not None:
-                    assert host.native.arm() == ("" if k else "the first step is pending")
+                    assert host.native.arm() == ""
             assert (host.advance(t) if host is not None else itg.advance(t))
         if host is not None:
             host.native.sync()
@@ -168,21 +188,21 @@ def test_sync_counts_what_the_calls_did():
 
 def test_arm_says_why_not_and_bad_input_is_refused():
     itg = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True)
-    native = NativeAdvance(itg)
-    assert "first step" in native.arm() and not native.armed
+    native = itg.native_advance()
+    assert native.arm() == "" and native.armed      # the first step too runs natively
     assert itg.advance(0.01)
     with pytest.raises(ValueError, match="max_steps_per_call must be >= 1"):
         native.arm(0)
     assert native.arm() == "" and native.armed
     failed = hfdi.Integrator(articulated(), "hfdi", compiled=True, step=0.004, max_iterations=2)
     assert not failed.advance(0.2)
-    assert NativeAdvance(failed).arm() == "the run has failed"
+    assert failed.native_advance().arm() == "the run has failed"
     python = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=False)
-    with pytest.raises(ValueError, match="compiled driver"):
-        NativeAdvance(python)
+    with pytest.raises(ValueError, match="must run compiled"):
+        python.native_advance()
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("scheme", list(hfdi.SCHEMES))
 @pytest.mark.parametrize("make", [dumbbell, articulated], ids=["dumbbell", "articulated"])
 def test_inputs_written_between_calls_are_held_as_load_changed_holds_them(make, scheme):
     """A host writes the held load's new value between calls (an FMU's
@@ -234,7 +254,7 @@ def test_inputs_not_applied_natively_are_handed_to_python():
     bare = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True)
     assert bare.advance(0.01)
     with pytest.raises(ValueError, match="HeldLoad"):
-        NativeAdvance(bare).arm(inputs=np.zeros(4))
+        bare.native_advance().arm(inputs=np.zeros(4))
 
 
 def test_arm_points_the_context_at_the_arrays_of_this_arm():
@@ -245,7 +265,7 @@ def test_arm_points_the_context_at_the_arrays_of_this_arm():
     itg = hfdi.Integrator(dumbbell(), "hfdi", target_iterations=3, compiled=True,
                           extra_load=hfdi.HeldLoad(lambda: applied))
     assert itg.advance(0.01)
-    native = NativeAdvance(itg)
+    native = itg.native_advance()
     function = _FUNCTION(native.function_address)
     first, second = np.zeros(4), np.zeros(4)
     assert native.arm(inputs=first) == "" and native.arm(inputs=second) == ""
