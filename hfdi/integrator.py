@@ -47,6 +47,8 @@ ROWS_PER_CALL = 2048
 #: calls control is back in Python, where a KeyboardInterrupt is seen (a
 #: compiled loop cannot be interrupted), at a cost of about a µs per call.
 STEPS_PER_CALL = 10_000
+#: The largest count a limit may be (the stepping code counts in 64-bit integers).
+MAX_COUNT = 2 ** 62
 
 
 class Integrator(CompiledSteps):
@@ -203,13 +205,13 @@ class Integrator(CompiledSteps):
         if self.t_bound is not None and not self.t_bound > self.t0:
             raise ValueError(f"t_bound must be > t0 = {self.t0}, got {t_bound!r}")
         span = None if self.t_bound is None else self.t_bound - self.t0
-        self.max_steps = checks.integer("max_steps", max_steps, 1)
+        max_steps = checks.integer("max_steps", max_steps, 1, MAX_COUNT)
         self.energy_limit = optional_positive("energy_limit", energy_limit)
         u_scale = float(getattr(system, "u_scale", 1.0) or 1.0)
         self.controller = c = make_controller(
             controller, rtol, atol, target_iterations, step, span, min_step, max_step,
             max_halvings, first_step_trials, u_scale, self.scheme, self.t0, self.t_bound,
-            self.max_steps)
+            max_steps)
         c.prepare(ev.n, self.scheme.order)
         self.min_step, self.max_step = c.min_step, c.max_step
         self.fixed = isinstance(c, FixedStep)
@@ -266,7 +268,7 @@ class Integrator(CompiledSteps):
         self._cfg = run_records.config(
             ev, c, self.scheme, exact_rate=exact, tol=self.tol, floor=self.floor,
             max_iterations=self.max_iterations, estimated=self.newton_test == "error",
-            energy_limit=self.energy_limit, max_steps=self.max_steps, t_bound=self.t_bound)
+            energy_limit=self.energy_limit, max_steps=max_steps, t_bound=self.t_bound)
         self._data = run_records.data(ev, c, self.scheme, self.breakpoints)
         self._vec, self._state_block = run_records.vectors(ev, 0)
         proposed = c.step if self.fixed else \
@@ -324,6 +326,19 @@ class Integrator(CompiledSteps):
         called by the steps of a sparse system whose model has
         :class:`hfdi.compiled.SparseKernels`."""
         return self._compiled_call is not None or self.ev.kernels is not None
+
+    @property
+    def max_steps(self) -> int:
+        """The run's limit of attempts (``max_steps``); may be set between calls
+        (an FMU's budget of internal steps per communication step)."""
+        return int(self._cfg.max_steps)
+
+    @max_steps.setter
+    def max_steps(self, value):
+        value = checks.integer("max_steps", value, 1, MAX_COUNT)
+        self._cfg.max_steps = value
+        if self._compiled_call is not None:
+            self._compiled_call[1]["max_steps"] = value
 
     @property
     def not_compiled_reason(self) -> str:
