@@ -2,7 +2,7 @@
 and the large sparse path stays linear in the size.
 
 No wall-clock limits: the tests compare iteration counts with reference
-implementations (the generic pair-potential code, numpy's solver, the sum of
+implementations (numpy's solver, the sum of
 matrices written out), count factorisations, check which linear solver a
 problem gets, and measure memory with tracemalloc.
 """
@@ -17,8 +17,6 @@ import scipy.sparse as sp
 import hfdi
 from hfdi import evaluation, linalg, schemes
 from core_records import predict
-from hfdi.models.dumbbell import Dumbbell
-from hfdi.models.pair import PairPotential
 from validation.experiments import experiment
 
 COUNTERS = ("steps", "accepted", "rejected", "newton_iterations", "first_step_trials",
@@ -36,31 +34,6 @@ def run(model, scheme, target=3.0):
 
 
 # -- reference implementations ------------------------------------------------------------
-class ReferenceDumbbell(Dumbbell):
-    """The dumbbell through the generic, index-based pair-potential code."""
-
-    def __init__(self):
-        super().__init__()
-        self._pair = PairPotential(2, 2, [0], [1])
-        self._pair.dense = False            # np.add.at / bincount scatter, fancy-index gather
-
-    def internal_force(self, u):
-        r = self.distance(u)
-        return self._pair.force(u, self._phi(r, 1))
-
-    def stiffness(self, u):
-        r = self.distance(u)
-        return self._pair.stiffness(u, self._phi(r, 1), self._phi(r, 2))
-
-    def stiffness_derivative(self, u, w):
-        r = self.distance(u)
-        return self._pair.stiffness_derivative(u, np.asarray(w, float), self._phi(r, 1),
-                                               self._phi(r, 2), self._phi(r, 3))
-
-    def potential_energy(self, u):
-        return float(self._phi(self.distance(u), 0).sum())
-
-
 def reference_combine(*terms):
     """``Σ c_i A_i`` as the schemes first wrote it: dense terms, then sparse, then diagonal."""
     terms = [(c, a) for c, a in terms if a is not None and c != 0.0]
@@ -97,13 +70,6 @@ def numpy_solve(a, b):
         except np.linalg.LinAlgError as exc:
             raise linalg.SingularMatrixError(str(exc)) from None
     return linalg.solve(a, b)
-
-
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-def test_scalar_dumbbell_gives_the_counts_of_the_generic_pair_code(scheme):
-    fast, slow = run(hfdi.models.dumbbell(), scheme), run(ReferenceDumbbell(), scheme)
-    assert counts(fast) == counts(slow)
-    np.testing.assert_allclose(fast.u, slow.u, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", ["dumbbell", "tetrahedra", "articulated",

@@ -28,21 +28,12 @@ import numpy as np
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .loads import hat, hat_breakpoints
-from .pair import PairPotential
+from .kernels import compiled_kernels, kernel
+from .loads import hat_breakpoints, hat_load, hat_load_params
+from .pair import pair_derivative_add, pair_force_add, pair_stiffness_add, relative, \
+    scatter_block, scatter_vector
 
 __all__ = ["Articulated", "articulated", "relative_angle"]
-
-# d_k = B_k u: link k's vector (link 0 from mass 1 to mass 2, link 1 from 2 to 3)
-_B = np.zeros((2, 2, 6))
-_B[0, :, 0:2], _B[0, :, 2:4] = -np.eye(2), np.eye(2)
-_B[1, :, 2:4], _B[1, :, 4:6] = -np.eye(2), np.eye(2)
-# Δα = α(d_0) − α(d_1) up to a locally constant multiple of 2π
-_SIGN = np.array([1.0, -1.0])
-# e_x ↦ 1, e_y ↦ i: derivatives of Im F(x + iy) for a holomorphic F
-_E = np.array([1.0, 1.0j])
-_EE = _E[:, None] * _E[None, :]
-
 
 def relative_angle(u):
     """``Δα = α12 − α23`` wrapped to ``(−π, π]``, vectorised over leading axes.
@@ -99,8 +90,8 @@ class Articulated(SecondOrderSystem):
 
     Notes
     -----
-    The axial links are pair potentials ``φ(r) = k_e/2 (r − h)²`` handled by
-    :class:`~hfdi.models.pair.PairPotential`.
+    The axial links are pair potentials ``φ(r) = k_e/2 (r − h)²``, their
+    terms those of :mod:`hfdi.models.pair`.
 
     Hinge term ``W = k_f/2 Δα²``. ``Δα`` is computed by :func:`relative_angle`,
     so it stays continuous when a link angle passes ±π; it differs from
@@ -173,8 +164,7 @@ class Articulated(SecondOrderSystem):
         self.initial_displacement = x0.ravel().copy()
         self.initial_velocity = (np.zeros(6) if v0 is None else
                                  checks.finite_array("articulated v0", v0, (6,)))
-        self._pair = PairPotential(3, 2, [0, 1], [1, 2])
-        lengths = self._pair.geometry(self.initial_displacement)[1]
+        lengths = self.link_lengths(self.initial_displacement)
         if not np.all(lengths > 0):
             k = int(np.flatnonzero(~(lengths > 0))[0])
             raise ValueError(f"articulated positions: neighbouring masses must not coincide "
@@ -182,8 +172,6 @@ class Articulated(SecondOrderSystem):
                              f"{tuple(x0[k].tolist())}")
         self.u_scale = self.h
         self._positions_given = positions is not None
-        self._k_e_pairs = np.full(2, self.k_e)
-        self._zero_pairs = np.zeros(2)
 
     def parameters(self):
         params = {"k_e": self.k_e, "k_f": self.k_f, "h": self.h,
@@ -196,112 +184,50 @@ class Articulated(SecondOrderSystem):
             params["v0"] = tuple(self.initial_velocity.tolist())
         return params
 
+    def params(self):
+        """The kernels' data ``(k_e, k_f, h)``."""
+        return np.array((self.k_e, self.k_f, self.h))
+
+    def load_params(self):
+        """The load's data (:func:`~hfdi.models.loads.hat_load`): the pulse on mass 1 in y."""
+        return hat_load_params(6, [(1, self.load_amplitude, self.load_time)])
+
     # -- geometry --------------------------------------------------------------
     def link_lengths(self, u):
         """Lengths ``(r12, r23)``."""
-        return self._pair.geometry(np.asarray(u, dtype=float))[1]
+        d = np.diff(np.asarray(u, dtype=float).reshape(3, 2), axis=0)
+        return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
 
     def delta_alpha(self, u):
         """``Δα = α12 − α23``, see :func:`relative_angle`."""
         return relative_angle(u)
 
-    @staticmethod
-    def _links(u):
-        """The links as complex numbers ``z_k = d_x + i d_y`` (2,)."""
-        x = u.reshape(3, 2)
-        d = x[1:] - x[:-1]
-        return d[:, 0] + 1j * d[:, 1]
-
-    def _angle_gradient(self, z):
-        """``g = ∂Δα/∂u`` (6,)."""
-        grad = (_E[None, :] / z[:, None]).imag                       # (2 links, 2)
-        return np.einsum("k,kai,ka->i", _SIGN, _B, grad)
-
-    def _angle_hessian(self, z):
-        """``G = ∂²Δα/∂u²`` (6, 6)."""
-        hess = (-_EE[None] / z[:, None, None] ** 2).imag              # (2, 2, 2)
-        return np.einsum("k,kai,kab,kbj->ij", _SIGN, _B, hess, _B)
-
-    def _angle_third(self, z, w):
-        """``D[w] = Σ_c ∂³Δα/∂u_a∂u_b∂u_c w_c`` (6, 6)."""
-        om = _B @ w                                                   # (2, 2)
-        om = om[:, 0] + 1j * om[:, 1]
-        third = (2.0 * _EE[None] * (om / z ** 3)[:, None, None]).imag
-        return np.einsum("k,kai,kab,kbj->ij", _SIGN, _B, third, _B)
-
     # -- mechanics ---------------------------------------------------------------
-    # The hinge terms in scalar arithmetic on the two links (the einsum forms
-    # above, _angle_*, state the same sums); the ±blocks of each link are
-    # scattered by the pair potential's constant scatter matrix, with the
-    # sign s_k of the link in Δα. The link geometry is computed once per call.
-    def _hinge(self, d):
-        """``Δα``, ``s_k ∇α(d_k)`` (2, 2) and the complex link vectors ``z_k``."""
-        (ax, ay), (bx, by) = d.tolist()
-        delta = -math.atan2(ax * by - ay * bx, ax * bx + ay * by)
-        za, zb = complex(ax, ay), complex(bx, by)
-        ga, gb = 1.0 / za, 1.0 / zb                                   # Im(e_a / z)
-        grads = np.array(((ga.imag, ga.real), (-gb.imag, -gb.real)))
-        return delta, grads, za, zb
-
-    @staticmethod
-    def _link_blocks(ca, cb):
-        """``s_k Im(c_k e_a e_b)`` (2, 2, 2) for complex ``c_k`` (s = +1, −1)."""
-        return np.array((((ca.imag, ca.real), (ca.real, -ca.imag)),
-                         ((-cb.imag, -cb.real), (-cb.real, cb.imag))))
-
     def internal_force(self, u):
-        u = np.asarray(u, dtype=float)
-        geometry = self._pair.geometry(u)
-        f = self._pair.force(u, self.k_e * (geometry[1] - self.h), geometry)
-        delta, grads, _, _ = self._hinge(geometry[0])
-        return f + self.k_f * delta * self._pair.scatter_vectors(grads)
+        return articulated_force(np.asarray(u, dtype=float), self.params())
 
     def stiffness(self, u):
-        u = np.asarray(u, dtype=float)
-        geometry = self._pair.geometry(u)
-        K = self._pair.stiffness(u, self.k_e * (geometry[1] - self.h), self._k_e_pairs,
-                                 geometry)
-        delta, grads, za, zb = self._hinge(geometry[0])
-        g = self._pair.scatter_vectors(grads)
-        G = self._pair._scatter(self._link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2))
-        return K + self.k_f * (np.outer(g, g) + delta * G)
+        return articulated_stiffness(np.asarray(u, dtype=float), self.params())
 
     def stiffness_derivative(self, u, w):
-        u = np.asarray(u, dtype=float)
-        w = np.asarray(w, dtype=float)
-        geometry = self._pair.geometry(u)
-        T = self._pair.stiffness_derivative(u, w, self.k_e * (geometry[1] - self.h),
-                                            self._k_e_pairs, self._zero_pairs, geometry)
-        delta, grads, za, zb = self._hinge(geometry[0])
-        g = self._pair.scatter_vectors(grads)
-        G = self._pair._scatter(self._link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2))
-        (oax, oay), (obx, oby) = self._pair.relative(w).tolist()
-        D = self._pair._scatter(self._link_blocks(2.0 * complex(oax, oay) / za ** 3,
-                                                  2.0 * complex(obx, oby) / zb ** 3))
-        Gw = G @ w
-        hinge = (g @ w) * G + np.outer(g, Gw) + np.outer(Gw, g) + delta * D
-        return T + self.k_f * hinge
-
-    def compiled_kernels(self):
-        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.articulated_kernels`;
-        imports numba)."""
-        from ..compiled.models import articulated_kernels
-        return articulated_kernels(self)
+        return articulated_stiffness_derivative(np.asarray(u, dtype=float),
+                                                np.asarray(w, dtype=float), self.params())
 
     def potential_energy(self, u):
-        u = np.asarray(u, dtype=float)
-        r = self.link_lengths(u)
-        return float(0.5 * self.k_e * np.sum((r - self.h) ** 2)
-                     + 0.5 * self.k_f * relative_angle(u) ** 2)
+        return articulated_potential_energy(np.asarray(u, dtype=float), self.params())
+
+    def compiled_kernels(self):
+        """The kernels below compiled, with the hat load (imports numba)."""
+        return compiled_kernels(articulated_force, articulated_stiffness,
+                                articulated_stiffness_derivative, articulated_potential_energy,
+                                self.params(), load_params=self.load_params())
 
     def load_breakpoints(self):
         """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
         return hat_breakpoints(self.load_time)
 
     def load(self, t):
-        p = np.zeros(6)
-        p[1] = hat(t, self.load_amplitude, self.load_time)
-        return p
+        return hat_load(float(t), self.load_params())
 
     def quantities(self, t, u, v):
         """Positions and the hinge angle, vectorised over times.
@@ -318,6 +244,109 @@ class Articulated(SecondOrderSystem):
         """
         u = np.atleast_2d(np.asarray(u, dtype=float))
         return {"u": u, "delta_alpha": relative_angle(u)[:, None]}
+
+
+# -- the kernels: params = (k_e, k_f, h) ---------------------------------------------
+# Links 0 (mass 1 → 2) and 1 (mass 2 → 3) in the plane; the hinge's Δα and its
+# derivatives through the complex link vectors z = d_x + i d_y (see the class
+# notes): ∇α = (Im 1/z, Re 1/z), blocks s_k Im(c e_a e_b).
+
+@kernel
+def _hinge(u):
+    """``Δα`` and the complex link vectors ``z_0``, ``z_1``."""
+    ax, ay = u[2] - u[0], u[3] - u[1]
+    bx, by = u[4] - u[2], u[5] - u[3]
+    delta = -math.atan2(ax * by - ay * bx, ax * bx + ay * by)
+    return delta, complex(ax, ay), complex(bx, by)
+
+
+@kernel
+def _hinge_gradient(za, zb):
+    """``g = ∂Δα/∂u`` (6,)."""
+    ga = 1.0 / za
+    gb = 1.0 / zb
+    g = np.zeros(6)
+    scatter_vector(g, 0, 1, 2, (ga.imag, ga.real))
+    scatter_vector(g, 1, 2, 2, (-gb.imag, -gb.real))
+    return g
+
+
+@kernel
+def _link_blocks(ca, cb):
+    """``scatter(s_k Im(c_k e_a e_b))`` (6, 6) for complex ``c_0 = ca``, ``c_1 = cb``."""
+    out = np.zeros((6, 6))
+    H = np.empty((2, 2))
+    H[0, 0], H[0, 1], H[1, 0], H[1, 1] = ca.imag, ca.real, ca.real, -ca.imag
+    scatter_block(out, 0, 1, 2, H)
+    H[0, 0], H[0, 1], H[1, 0], H[1, 1] = -cb.imag, -cb.real, -cb.real, cb.imag
+    scatter_block(out, 1, 2, 2, H)
+    return out
+
+
+@kernel
+def articulated_force(u, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    f = np.zeros(6)
+    for link in range(2):
+        r, d = relative(u, link, link + 1, 2)
+        pair_force_add(f, link, link + 1, 2, d, r, k_e * (r - h))
+    delta, za, zb = _hinge(u)
+    g = _hinge_gradient(za, zb)
+    c = k_f * delta
+    for i in range(6):
+        f[i] += c * g[i]
+    return f
+
+
+@kernel
+def articulated_stiffness(u, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    K = np.zeros((6, 6))
+    for link in range(2):
+        r, d = relative(u, link, link + 1, 2)
+        pair_stiffness_add(K, link, link + 1, 2, d, r, k_e * (r - h), k_e)
+    delta, za, zb = _hinge(u)
+    g = _hinge_gradient(za, zb)
+    G = _link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2)
+    for i in range(6):
+        for j in range(6):
+            K[i, j] += k_f * (g[i] * g[j] + delta * G[i, j])
+    return K
+
+
+@kernel
+def articulated_stiffness_derivative(u, w, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    T = np.zeros((6, 6))
+    for link in range(2):
+        r, d = relative(u, link, link + 1, 2)
+        wd = relative(w, link, link + 1, 2)[1]
+        pair_derivative_add(T, link, link + 1, 2, d, r, wd, k_e * (r - h), k_e, 0.0)
+    delta, za, zb = _hinge(u)
+    g = _hinge_gradient(za, zb)
+    G = _link_blocks(-1.0 / za ** 2, -1.0 / zb ** 2)
+    oa = complex(w[2] - w[0], w[3] - w[1])
+    ob = complex(w[4] - w[2], w[5] - w[3])
+    D = _link_blocks(2.0 * oa / za ** 3, 2.0 * ob / zb ** 3)
+    Gw = G @ w
+    gw = 0.0
+    for i in range(6):
+        gw += g[i] * w[i]
+    for i in range(6):
+        for j in range(6):
+            T[i, j] += k_f * (gw * G[i, j] + g[i] * Gw[j] + Gw[i] * g[j] + delta * D[i, j])
+    return T
+
+
+@kernel
+def articulated_potential_energy(u, params):
+    k_e, k_f, h = params[0], params[1], params[2]
+    stretch = 0.0
+    for link in range(2):
+        r = relative(u, link, link + 1, 2)[0]
+        stretch += (r - h) * (r - h)
+    delta = _hinge(u)[0]
+    return 0.5 * k_e * stretch + 0.5 * k_f * (delta * delta)
 
 
 def articulated(**params) -> Articulated:

@@ -14,7 +14,8 @@ import numpy as np
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .pair import PairPotential
+from .kernels import compiled_kernels, kernel
+from .loads import hat_load_params
 
 __all__ = ["Dumbbell", "dumbbell"]
 
@@ -65,93 +66,123 @@ class Dumbbell(SecondOrderSystem):
                              f"must be > 0), got {tuple(self.initial_displacement.tolist())}")
         self.rest_length = self.sigma * math.sqrt(5.0 / 3.0)
         self.u_scale = self.rest_length
-        self._pair = PairPotential(2, 2, [0], [1])
 
     def parameters(self):
         return {"A": self.A, "sigma": self.sigma, "masses": tuple(self.masses)}
 
-    # φ(r) and its derivatives
-    def _phi(self, r, order):
-        A, s = self.A, self.sigma
-        s3, s5 = s ** 3, s ** 5
-        if order == 0:
-            return A * (s5 / r ** 5 - s3 / r ** 3)
-        if order == 1:
-            return A * (-5 * s5 / r ** 6 + 3 * s3 / r ** 4)
-        if order == 2:
-            return A * (30 * s5 / r ** 7 - 12 * s3 / r ** 5)
-        return A * (-210 * s5 / r ** 8 + 60 * s3 / r ** 6)
+    def params(self):
+        """The kernels' data ``(A, σ)``."""
+        return np.array((self.A, self.sigma))
 
     def distance(self, u):
-        return self._pair.geometry(np.asarray(u, float))[1]
-
-    # f, K and T of the single bond in scalar arithmetic: with one pair of
-    # particles in the plane the numpy versions spend nearly all their time
-    # in call overhead. ``d = x2 − x1``, ``H = a I + b d dᵀ``; the blocks of
-    # particle 1 and 2 are ``±H`` (see pair.py for the formulas).
-    def _bond(self, u):
-        x1, y1, x2, y2 = np.asarray(u, dtype=float).tolist()
-        dx, dy = x2 - x1, y2 - y1
-        return dx, dy, math.sqrt(dx * dx + dy * dy)
-
-    def _derivatives(self, r):
-        """The first three derivatives of the bond potential at ``r`` as floats."""
-        A, s = self.A, self.sigma
-        s3, s5 = s ** 3, s ** 5
-        r4, r6 = r ** 4, r ** 6
-        return (A * (-5 * s5 / r6 + 3 * s3 / r4),
-                A * (30 * s5 / r ** 7 - 12 * s3 / r ** 5),
-                A * (-210 * s5 / r ** 8 + 60 * s3 / r6))
+        return _bond(np.asarray(u, dtype=float))[2]
 
     def internal_force(self, u):
-        dx, dy, r = self._bond(u)
-        A, s = self.A, self.sigma
-        q = A * (-5 * s ** 5 / r ** 6 + 3 * s ** 3 / r ** 4) / r
-        fx, fy = q * dx, q * dy
-        return np.array((-fx, -fy, fx, fy))
-
-    @staticmethod
-    def _blocks(hxx, hxy, hyy):
-        """The 4 x 4 matrix with blocks ``[[H, -H], [-H, H]]`` of a symmetric 2 x 2 ``H``."""
-        return np.array(((hxx, hxy, -hxx, -hxy), (hxy, hyy, -hxy, -hyy),
-                         (-hxx, -hxy, hxx, hxy), (-hxy, -hyy, hxy, hyy)))
+        return dumbbell_force(np.asarray(u, dtype=float), self.params())
 
     def stiffness(self, u):
-        dx, dy, r = self._bond(u)
-        d1, d2, _ = self._derivatives(r)
-        a = d1 / r
-        b = (d2 - a) / (r * r)
-        return self._blocks(a + b * dx * dx, b * dx * dy, a + b * dy * dy)
+        return dumbbell_stiffness(np.asarray(u, dtype=float), self.params())
 
     def stiffness_derivative(self, u, w):
-        dx, dy, r = self._bond(u)
-        w1x, w1y, w2x, w2y = np.asarray(w, dtype=float).tolist()
-        wx, wy = w2x - w1x, w2y - w1y
-        d1, d2, d3 = self._derivatives(r)
-        s = dx * wx + dy * wy
-        b = (d2 - d1 / r) / (r * r)
-        db = (d3 - d2 / r + d1 / (r * r)) / (r * r) - 2.0 * (d2 - d1 / r) / (r * r * r)
-        c = db * s / r
-        bs = b * s
-        return self._blocks(2.0 * b * wx * dx + c * dx * dx + bs,
-                            b * (wx * dy + dx * wy) + c * dx * dy,
-                            2.0 * b * wy * dy + c * dy * dy + bs)
-
-    def compiled_kernels(self):
-        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.dumbbell_kernels`;
-        imports numba)."""
-        from ..compiled.models import dumbbell_kernels
-        return dumbbell_kernels(self)
+        return dumbbell_stiffness_derivative(np.asarray(u, dtype=float),
+                                             np.asarray(w, dtype=float), self.params())
 
     def potential_energy(self, u):
-        r = self._bond(u)[2]
-        A, s = self.A, self.sigma
-        return A * (s ** 5 / r ** 5 - s ** 3 / r ** 3)
+        return dumbbell_potential_energy(np.asarray(u, dtype=float), self.params())
+
+    def compiled_kernels(self):
+        """The kernels below compiled, with the zero load (imports numba)."""
+        return compiled_kernels(dumbbell_force, dumbbell_stiffness,
+                                dumbbell_stiffness_derivative, dumbbell_potential_energy,
+                                self.params(), load_params=hat_load_params(self.n_dof))
 
     def quantities(self, t, u, v):
         u = np.atleast_2d(u)
         r = np.hypot(u[:, 2] - u[:, 0], u[:, 3] - u[:, 1])
         return {"u": u, "stretch": ((r - self.rest_length) / self.rest_length)[:, None]}
+
+
+# -- the kernels: params = (A, σ) ---------------------------------------------------
+# The single bond in scalar arithmetic: ``d = x2 − x1``, ``H = a I + b d dᵀ``;
+# the blocks of particle 1 and 2 are ``±H`` (see pair.py for the formulas).
+
+@kernel
+def _bond(u):
+    dx = u[2] - u[0]
+    dy = u[3] - u[1]
+    return dx, dy, math.sqrt(dx * dx + dy * dy)
+
+
+@kernel
+def _bond_derivatives(A, s, r):
+    """The first three derivatives of the bond potential at ``r``."""
+    s3 = math.pow(s, 3.0)
+    s5 = math.pow(s, 5.0)
+    r4 = math.pow(r, 4.0)
+    r6 = math.pow(r, 6.0)
+    return (A * (-5 * s5 / r6 + 3 * s3 / r4),
+            A * (30 * s5 / math.pow(r, 7.0) - 12 * s3 / math.pow(r, 5.0)),
+            A * (-210 * s5 / math.pow(r, 8.0) + 60 * s3 / r6))
+
+
+@kernel
+def _bond_blocks(hxx, hxy, hyy):
+    """The 4 x 4 matrix with blocks ``[[H, -H], [-H, H]]`` of a symmetric 2 x 2 ``H``."""
+    out = np.empty((4, 4))
+    H = ((hxx, hxy), (hxy, hyy))
+    for a in range(2):
+        for b in range(2):
+            out[a, b] = H[a][b]
+            out[a + 2, b + 2] = H[a][b]
+            out[a, b + 2] = -H[a][b]
+            out[a + 2, b] = -H[a][b]
+    return out
+
+
+@kernel
+def dumbbell_force(u, params):
+    A, s = params[0], params[1]
+    dx, dy, r = _bond(u)
+    q = A * (-5 * math.pow(s, 5.0) / math.pow(r, 6.0)
+             + 3 * math.pow(s, 3.0) / math.pow(r, 4.0)) / r
+    f = np.empty(4)
+    f[0] = -(q * dx)
+    f[1] = -(q * dy)
+    f[2] = q * dx
+    f[3] = q * dy
+    return f
+
+
+@kernel
+def dumbbell_stiffness(u, params):
+    dx, dy, r = _bond(u)
+    d1, d2, _ = _bond_derivatives(params[0], params[1], r)
+    a = d1 / r
+    b = (d2 - a) / (r * r)
+    return _bond_blocks(a + b * dx * dx, b * dx * dy, a + b * dy * dy)
+
+
+@kernel
+def dumbbell_stiffness_derivative(u, w, params):
+    dx, dy, r = _bond(u)
+    wx = w[2] - w[0]
+    wy = w[3] - w[1]
+    d1, d2, d3 = _bond_derivatives(params[0], params[1], r)
+    s = dx * wx + dy * wy
+    b = (d2 - d1 / r) / (r * r)
+    db = (d3 - d2 / r + d1 / (r * r)) / (r * r) - 2.0 * (d2 - d1 / r) / (r * r * r)
+    c = db * s / r
+    bs = b * s
+    return _bond_blocks(2.0 * b * wx * dx + c * dx * dx + bs,
+                        b * (wx * dy + dx * wy) + c * dx * dy,
+                        2.0 * b * wy * dy + c * dy * dy + bs)
+
+
+@kernel
+def dumbbell_potential_energy(u, params):
+    A, s = params[0], params[1]
+    r = _bond(u)[2]
+    return A * (math.pow(s, 5.0) / math.pow(r, 5.0) - math.pow(s, 3.0) / math.pow(r, 3.0))
 
 
 def dumbbell(**params) -> Dumbbell:

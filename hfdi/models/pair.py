@@ -1,4 +1,4 @@
-"""Central pair potentials between particles, vectorised over pairs.
+"""Central pair potentials between particles: the pair terms of the kernels.
 
 For a pair potential ``φ(r)`` of the distance ``r = |d|``, ``d = x_j − x_i``,
 the force on the relative coordinate is ``φ'(r) e`` (``e = d/r``), its Hessian
@@ -7,136 +7,104 @@ directional derivative of ``H w`` along the relative coordinate is
 ``b (w dᵀ + d wᵀ) + (b'/r)(d·w) d dᵀ + b (d·w) I``, with
 ``b' = (φ''' − φ''/r + φ'/r²)/r² − 2(φ'' − φ'/r)/r³``.
 The particle quantities follow by scattering ``±`` these pieces onto the
-blocks of particles ``i`` and ``j``.
+blocks of particles ``i`` and ``j``: the pair's vector goes to ``+j`` and
+``−i``, its ``dim × dim`` block to ``+(i,i)``, ``+(j,j)``, ``−(i,j)``, ``−(j,i)``.
 
-For the small systems of the benchmarks the gather ``d = x_j − x_i`` and the
-scatters are dense matrix products with constant 0/±1 matrices, built once:
-one BLAS call each instead of fancy indexing, ``np.add.at`` and ``bincount``
-(whose fixed costs dominate at a few dozen unknowns). Larger systems keep the
-index-based gather and scatter, whose memory is linear in the pairs.
+Each function is a kernel (:mod:`hfdi.models.kernels`): the particle models'
+``f``, ``K`` and ``T`` call them, as plain Python and compiled alike. The
+terms are scattered entry by entry as they are formed: a small array per
+pair would cost an allocation, more than the pair's arithmetic.
 """
 from __future__ import annotations
 
-import numpy as np
+import math
 
-__all__ = ["PairPotential"]
+from .kernels import kernel
 
-_add_reduce = np.add.reduce
-
-#: Systems whose dense scatter matrix (``n_dof² × pairs·dim²``) has at most
-#: this many entries use the dense products.
-DENSE_SCATTER_MAX = 1 << 18
+__all__ = ["relative", "pair_force_add", "pair_stiffness_add", "pair_derivative_add",
+           "scatter_vector", "scatter_block"]
 
 
-class PairPotential:
-    """Scatter pair terms onto a system of particles.
+@kernel
+def relative(u, i, j, dim):
+    """``(r, d)`` of the pair (i, j) in ``dim`` (2 or 3) dimensions, ``d`` a tuple."""
+    d0 = u[j * dim] - u[i * dim]
+    d1 = u[j * dim + 1] - u[i * dim + 1]
+    r2 = 0.0
+    r2 += d0 * d0
+    r2 += d1 * d1
+    if dim == 2:
+        return math.sqrt(r2), (d0, d1, 0.0)
+    d2 = u[j * dim + 2] - u[i * dim + 2]
+    r2 += d2 * d2
+    return math.sqrt(r2), (d0, d1, d2)
 
-    Parameters
-    ----------
-    n_particles, dim : int
-    i, j : array_like of int (m,)
-        The particles of each pair.
-    """
 
-    def __init__(self, n_particles: int, dim: int, i, j):
-        self.n_particles, self.dim = int(n_particles), int(dim)
-        self.i = np.asarray(i, dtype=int)
-        self.j = np.asarray(j, dtype=int)
-        self.n_dof = self.n_particles * self.dim
-        m, dim, n = self.i.size, self.dim, self.n_dof
-        self.n_pairs = m
-        eye = np.eye(self.dim)
-        self._eye = eye
-        d = np.arange(self.dim)
-        rows_i = (self.i[:, None] * self.dim + d)            # (m, dim)
-        rows_j = (self.j[:, None] * self.dim + d)
+@kernel
+def scatter_vector(f, i, j, dim, q):
+    """``f += q`` at particle ``j``, ``−q`` at particle ``i``."""
+    for k in range(dim):
+        f[j * dim + k] += q[k]
+        f[i * dim + k] -= q[k]
 
-        def block(r, c):
-            return (r[:, :, None] * n + c[:, None, :]).ravel()
-        self._blocks = (block(rows_i, rows_i), block(rows_j, rows_j),
-                        block(rows_i, rows_j), block(rows_j, rows_i))
-        self._rows_i, self._rows_j = rows_i.ravel(), rows_j.ravel()
-        self.dense = n * n * m * dim * dim <= DENSE_SCATTER_MAX
-        if self.dense:
-            # gather: d.ravel() = G u;  scatter of pair vectors: f = Gᵀ q.ravel()
-            G = np.zeros((m * dim, n))
-            G[np.arange(m * dim), self._rows_j] += 1.0
-            G[np.arange(m * dim), self._rows_i] -= 1.0
-            self._gather = G
-            self._gather_t = np.ascontiguousarray(G.T)
-            # scatter of pair blocks: K.ravel() = P H.ravel(), H (m, dim, dim)
-            P = np.zeros((n * n, m * dim * dim))
-            cols = np.arange(m * dim * dim)
-            for index, sign in zip(self._blocks, (1.0, 1.0, -1.0, -1.0)):
-                P[index, cols] += sign
-            self._scatter_matrix = P
 
-    # -- geometry ----------------------------------------------------------
-    def relative(self, u):
-        """Relative vectors ``d`` (m, dim) of the pairs."""
-        if self.dense:
-            return (self._gather @ u).reshape(self.n_pairs, self.dim)
-        x = u.reshape(self.n_particles, self.dim)
-        return x[self.j] - x[self.i]
+@kernel(inline=True)
+def scatter_entry(K, i, j, dim, a, b, h):
+    """Entry ``(a, b)`` of a pair's block, ``h``, to +(i,i), +(j,j), −(i,j), −(j,i)."""
+    K[i * dim + a, i * dim + b] += h
+    K[j * dim + a, j * dim + b] += h
+    K[i * dim + a, j * dim + b] -= h
+    K[j * dim + a, i * dim + b] -= h
 
-    def geometry(self, u):
-        """Relative vectors ``d`` (m, dim) and distances ``r`` (m,)."""
-        d = self.relative(u)
-        return d, np.sqrt(_add_reduce(d * d, axis=1))
 
-    # -- scatter -----------------------------------------------------------
-    def scatter_vectors(self, q):
-        """``Σ_pairs`` of ``+q`` at particle ``j`` and ``−q`` at particle ``i``, (N,)."""
-        if self.dense:
-            return self._gather_t @ q.reshape(-1)
-        f = np.zeros(self.n_dof)
-        np.add.at(f, self._rows_j, q.ravel())
-        np.add.at(f, self._rows_i, -q.ravel())
-        return f
+@kernel
+def scatter_block(K, i, j, dim, H):
+    """The block ``H`` (dim, dim) of the pair (i, j) scattered into ``K``."""
+    for a in range(dim):
+        for b in range(dim):
+            scatter_entry(K, i, j, dim, a, b, H[a, b])
 
-    def _scatter(self, blocks):
-        n = self.n_dof
-        if self.dense:
-            return (self._scatter_matrix @ blocks.reshape(-1)).reshape(n, n)
-        flat = blocks.ravel()
-        out = np.bincount(self._blocks[0], flat, n * n)
-        out += np.bincount(self._blocks[1], flat, n * n)
-        out -= np.bincount(self._blocks[2], flat, n * n)
-        out -= np.bincount(self._blocks[3], flat, n * n)
-        return out.reshape(n, n)
 
-    # -- force, tangent and its derivative -----------------------------------
-    # Each takes the geometry (d, r) a model has already computed, or u.
-    def force(self, u, dphi, geometry=None):
-        """Internal force for pair forces ``dphi = φ'(r)`` (m,)."""
-        d, r = self.geometry(u) if geometry is None else geometry
-        return self.scatter_vectors((dphi / r)[:, None] * d)
+@kernel
+def pair_force_add(f, i, j, dim, d, r, dphi):
+    """``f += (φ'/r) d`` at j, minus at i."""
+    c = dphi / r
+    for k in range(dim):
+        q = c * d[k]
+        f[j * dim + k] += q
+        f[i * dim + k] -= q
 
-    def stiffness(self, u, dphi, ddphi, geometry=None):
-        """Tangent for ``φ'`` and ``φ''`` given per pair."""
-        d, r = self.geometry(u) if geometry is None else geometry
-        a = dphi / r
-        b = (ddphi - a) / (r * r)
-        H = (b[:, None] * d)[:, :, None] * d[:, None, :]             # b d dᵀ
-        H.reshape(self.n_pairs, -1)[:, ::self.dim + 1] += a[:, None]  # + a I
-        return self._scatter(H)
 
-    def stiffness_derivative(self, u, w, dphi, ddphi, dddphi, geometry=None):
-        """``d(K(u) w)/du`` for the first three derivatives of ``φ`` given per pair.
+@kernel
+def pair_stiffness_add(K, i, j, dim, d, r, dphi, ddphi):
+    """``K += scatter(a I + b d dᵀ)``, ``a = φ'/r``, ``b = (φ'' − a)/r²``."""
+    a = dphi / r
+    b = (ddphi - a) / (r * r)
+    for p in range(dim):
+        for q in range(dim):
+            h = (b * d[p]) * d[q]
+            if p == q:
+                h += a
+            scatter_entry(K, i, j, dim, p, q, h)
 
-        With ``x = b w_d``, ``s = d·w_d`` and ``y = x + (b_r s / r) d``, ``b_r``
-        the derivative of ``b`` by ``r``, the block is ``x dᵀ + d yᵀ + b s I``.
-        """
-        d, r = self.geometry(u) if geometry is None else geometry
-        wd = self.relative(w)
-        s = _add_reduce(d * wd, axis=1)
-        r2 = r * r
-        t = ddphi - dphi / r
-        b = t / r2
-        db = (dddphi - ddphi / r + dphi / r2) / r2 - 2.0 * t / (r2 * r)
-        x = b[:, None] * wd
-        y = x + (db * s / r)[:, None] * d
-        Td = x[:, :, None] * d[:, None, :]
-        Td += d[:, :, None] * y[:, None, :]
-        Td.reshape(self.n_pairs, -1)[:, ::self.dim + 1] += (b * s)[:, None]
-        return self._scatter(Td)
+
+@kernel
+def pair_derivative_add(T, i, j, dim, d, r, wd, dphi, ddphi, dddphi):
+    """``T += scatter(x dᵀ + d yᵀ + b s I)`` with ``x = b w_d``, ``s = d·w_d`` and
+    ``y = x + (b' s / r) d``."""
+    s = 0.0
+    for k in range(dim):
+        s += d[k] * wd[k]
+    r2 = r * r
+    t = ddphi - dphi / r
+    b = t / r2
+    db = (dddphi - ddphi / r + dphi / r2) / r2 - 2.0 * t / (r2 * r)
+    c = db * s / r
+    for p in range(dim):
+        xp = b * wd[p]
+        for q in range(dim):
+            yq = b * wd[q] + c * d[q]
+            h = xp * d[q] + d[p] * yq
+            if p == q:
+                h += b * s
+            scatter_entry(T, i, j, dim, p, q, h)

@@ -27,207 +27,15 @@ joined by hardening springs, sparse).
 from __future__ import annotations
 
 import copy
-import math
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
-import scipy.sparse as sp
 import sympy
-from sympy.core.function import AppliedUndef
 
-from .. import checks
 from ..system import SecondOrderSystem
+from . import sympy_input as _in
 
 __all__ = ["EnergyModel", "elastic_pendulum", "spring_chain"]
-
-
-# -- input checks -------------------------------------------------------------
-
-def _symbols(value, what, length=None):
-    """A tuple of distinct sympy Symbols from a Symbol or a sequence of them."""
-    if isinstance(value, sympy.Symbol):
-        value = (value,)
-    elif isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
-        raise ValueError(f"{what} must be a sympy Symbol or a sequence of them, got {value!r}")
-    items = tuple(sympy.Matrix(value)) if isinstance(value, sympy.MatrixBase) else tuple(value)
-    bad = [s for s in items if not isinstance(s, sympy.Symbol)]
-    if bad:
-        raise ValueError(f"{what} must be sympy Symbols (e.g. sympy.symbols('x y')), "
-                         f"got {bad[0]!r} of type {type(bad[0]).__name__}")
-    if not items:
-        raise ValueError(f"{what} must not be empty")
-    if length is not None and len(items) != length:
-        raise ValueError(f"{what} must have one symbol per degree of freedom ({length}), "
-                         f"got {len(items)}")
-    seen = set()
-    for s in items:
-        if s in seen:
-            raise ValueError(f"{what} contains the symbol {s} more than once")
-        seen.add(s)
-    return items
-
-
-def _items(value) -> list:
-    """The entries of a sympy Matrix or a sequence (flattened), or ``[value]``."""
-    if isinstance(value, sympy.MatrixBase):
-        return list(value)
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return list(np.ravel(np.asarray(value, dtype=object)))
-    return [value]
-
-
-def _expression(value, what):
-    """``value`` as a scalar sympy expression (numbers allowed, strings not)."""
-    if isinstance(value, (str, bytes)):
-        # parsing strings would create symbols by name behind the user's back
-        raise ValueError(f"{what} must be a sympy expression, not a string: {value!r}")
-    try:
-        expr = sympy.sympify(value, strict=True)
-    except (sympy.SympifyError, TypeError):
-        raise ValueError(f"{what} must be a sympy expression, got {value!r}") from None
-    if not isinstance(expr, sympy.Expr) or isinstance(expr, sympy.MatrixBase):
-        raise ValueError(f"{what} must be a scalar sympy expression, got "
-                         f"{type(expr).__name__}: {expr!r}")
-    undefined = expr.atoms(AppliedUndef)
-    if undefined:
-        raise ValueError(f"{what} contains undefined functions {sorted(map(str, undefined))}; "
-                         "write them out as expressions of the symbols")
-    # Only the free symbols are renamed before the expressions are printed as
-    # code (by lambdify, and for the compiled kernels): the name of a bound
-    # variable (of Sum, Product, Integral, Lambda, Subs), or of a sympy.codegen
-    # node, would be written into that code verbatim, so a name could be code.
-    for node in sympy.preorder_traversal(expr):
-        bound = getattr(node, "bound_symbols", None)
-        if bound:
-            raise ValueError(
-                f"{what} contains {type(node).__name__} over the bound variable(s) "
-                f"{sorted(map(str, bound))}: expressions with bound variables (Sum, Product, "
-                f"Integral, Lambda, Subs) are not taken; write them out (e.g. with .doit())")
-        if type(node).__module__.startswith("sympy.codegen"):
-            raise ValueError(f"{what} contains the code-generation node "
-                             f"{type(node).__name__}: write it as a sympy expression")
-        # a number that is not real (I, sqrt(-2), log(-2)): the compiled
-        # functions would return complex values, whose imaginary part a
-        # model's real arrays drop
-        if node.is_number and node.is_extended_real is False:
-            raise ValueError(f"{what} must be real, got the complex number {node} in "
-                             f"{str(expr):.200}")
-    hidden = expr.atoms(sympy.Symbol) - expr.free_symbols
-    if hidden:
-        raise ValueError(f"{what} contains the symbols {sorted(map(str, hidden))} other than "
-                         "as free symbols: write the expression out in its symbols")
-    return expr
-
-
-def _real(value, what):
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a real number, got {value!r}") from None
-    if not math.isfinite(out):
-        raise ValueError(f"{what} must be finite, got {value!r}")
-    return out
-
-
-def _square_or_diagonal(value, n, what, positive_diagonal=False):
-    """A mass or damping matrix: 1-D diagonal (n,), dense (n, n) or sparse (n, n),
-    checked by :func:`hfdi.checks.square_matrix`; a copy, in CSR form when sparse."""
-    out = checks.square_matrix(what, value, n, to_match=f" to match the {n} degrees of freedom")
-    if sp.issparse(out):
-        return sp.csr_matrix(out, dtype=float, copy=True)
-    if positive_diagonal and out.ndim == 1 and not np.all(out > 0):
-        raise ValueError(f"{what} given as a diagonal must be positive, got {out}")
-    return np.array(out)
-
-
-def _vector(value, n, what):
-    arr = np.zeros(n) if value is None else np.array(value, dtype=float)
-    if arr.shape != (n,):
-        raise ValueError(f"{what} must have shape ({n},), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite")
-    return arr
-
-
-# -- layout of a symmetric matrix from its upper-triangle entries ------------
-
-class _SymmetricLayout:
-    """Where the compiled upper-triangle values go in the full ``n × n`` matrix.
-
-    The compiled function returns one value per structurally non-zero entry
-    ``(i, j)`` with ``i <= j``; :meth:`dense` and :meth:`csr` mirror them with
-    one fancy-indexing operation, so no Python loop runs per entry.
-    """
-
-    def __init__(self, n, rows, cols):
-        rows = np.asarray(rows, dtype=np.intp)
-        cols = np.asarray(cols, dtype=np.intp)
-        off = rows != cols
-        full_rows = np.concatenate([rows, cols[off]])
-        full_cols = np.concatenate([cols, rows[off]])
-        source = np.concatenate([np.arange(rows.size), np.flatnonzero(off)])
-        order = np.lexsort((full_cols, full_rows))  # CSR order: by row, then column
-        self.n = n
-        self.rows = full_rows[order]
-        self.cols = full_cols[order]
-        self.source = source[order]
-        self.flat = self.rows * n + self.cols
-        index_dtype = np.int32 if n * n < np.iinfo(np.int32).max else np.int64
-        self.indices = self.cols.astype(index_dtype)
-        self.indptr = np.concatenate(
-            [[0], np.cumsum(np.bincount(self.rows, minlength=n))]).astype(index_dtype)
-
-    @property
-    def nnz(self):
-        return int(self.rows.size)
-
-    def dense(self, values):
-        out = np.zeros(self.n * self.n)
-        out[self.flat] = values[self.source]
-        return out.reshape(self.n, self.n)
-
-    def csr(self, values):
-        # fresh index arrays: a caller that edits the structure in place must not
-        # change the pattern of later evaluations
-        return sp.csr_matrix((values[self.source], self.indices.copy(), self.indptr.copy()),
-                             shape=(self.n, self.n))
-
-
-def _compile(args, exprs, what):
-    """The numpy function of ``exprs`` (lambdify), or a ValueError naming
-    ``what`` when an expression has a function numpy lacks."""
-    from sympy.printing.codeprinter import PrintMethodNotImplementedError
-    try:
-        return sympy.lambdify(args, exprs, modules="numpy", cse=True)
-    except PrintMethodNotImplementedError as exc:
-        raise ValueError(f"the model's {what} has no numerical form: "
-                         f"{str(exc).splitlines()[0]}") from None
-
-
-# -- the model ------------------------------------------------------------------
-
-def _without_impulses(expr):
-    """``expr`` with every ``DiracDelta`` as 0.
-
-    Derivatives of ``Max``, ``Min``, ``Abs``, ``sign`` and ``Heaviside`` bring
-    ``DiracDelta`` (the second derivative of a contact ``Max(0, x)``, say),
-    which has no numerical value: neither numpy nor Python has it. Away from
-    the kink it is 0, as a ``Piecewise`` written out would give; at the kink
-    itself ``Heaviside(0)`` is sympy's 1/2 on both paths.
-    """
-    if not expr.has(sympy.DiracDelta):
-        return expr
-    return expr.replace(sympy.DiracDelta, lambda *args: sympy.Integer(0))
-
-
-def _right_rate(rate):
-    """A derived load rate as HFDI reads it: at a kink of the load the right
-    limit (a step leaves its start forwards), so ``Heaviside(0) = 1`` (sympy
-    and numpy take 1/2); and without the impulses of a jump (``DiracDelta``,
-    which has no numerical value: a jump of the load is a breakpoint, not a
-    rate)."""
-    rate = _without_impulses(rate)
-    return rate.replace(sympy.Heaviside, lambda arg, *rest: sympy.Heaviside(arg, 1))
 
 
 class EnergyModel(SecondOrderSystem):
@@ -344,19 +152,19 @@ class EnergyModel(SecondOrderSystem):
                  initial_displacement=None, initial_velocity=None,
                  name: str = "energy_model", u_scale: float = 1.0,
                  observation_time: float | None = None, sparse: bool = False):
-        dofs = _symbols(dofs, "dofs")
+        dofs = _in.symbols(dofs, "dofs")
         n = len(dofs)
-        energy = _expression(energy, "energy")
+        energy = _in.expression(energy, "energy")
 
         parameters = {} if parameters is None else parameters
         if not isinstance(parameters, Mapping):
             raise ValueError("parameters must be a dict mapping sympy Symbols to numbers, "
                              f"got {type(parameters).__name__}")
-        param_symbols = _symbols(tuple(parameters), "parameters") if parameters else ()
-        param_values = tuple(_real(parameters[s], f"parameter {s}") for s in param_symbols)
+        param_symbols = _in.symbols(tuple(parameters), "parameters") if parameters else ()
+        param_values = tuple(_in.real(parameters[s], f"parameter {s}") for s in param_symbols)
 
         velocity_symbols = (() if velocities is None
-                            else _symbols(velocities, "velocities", length=n))
+                            else _in.symbols(velocities, "velocities", length=n))
         if time is not None and not isinstance(time, sympy.Symbol):
             raise ValueError(f"time must be a sympy Symbol, got {time!r}")
         time_symbols = () if time is None else (time,)
@@ -391,15 +199,16 @@ class EnergyModel(SecondOrderSystem):
             raise ValueError(f"load_rate must be a callable t -> (N,), got {load_rate!r}")
 
         self.n_dof = n
-        self.mass = _square_or_diagonal(mass, n, "mass", positive_diagonal=True)
-        self.damping = None if damping is None else _square_or_diagonal(damping, n, "damping")
-        self.initial_displacement = _vector(initial_displacement, n, "initial_displacement")
-        self.initial_velocity = _vector(initial_velocity, n, "initial_velocity")
-        self.u_scale = _real(u_scale, "u_scale")
+        self.mass = _in.square_or_diagonal(mass, n, "mass", positive_diagonal=True)
+        self.damping = (None if damping is None else
+                        _in.square_or_diagonal(damping, n, "damping"))
+        self.initial_displacement = _in.vector(initial_displacement, n, "initial_displacement")
+        self.initial_velocity = _in.vector(initial_velocity, n, "initial_velocity")
+        self.u_scale = _in.real(u_scale, "u_scale")
         if self.u_scale <= 0:
             raise ValueError(f"u_scale must be > 0, got {u_scale!r}")
         self.observation_time = (None if observation_time is None
-                                 else _real(observation_time, "observation_time"))
+                                 else _in.real(observation_time, "observation_time"))
         if self.observation_time is not None and self.observation_time <= 0:
             raise ValueError(f"observation_time must be > 0, got {observation_time!r}")
         if not isinstance(name, str):
@@ -436,7 +245,7 @@ class EnergyModel(SecondOrderSystem):
         w_rename = dict(zip(w_user, self._w))
         w_rename.update(rename)
         rates = [] if load_exprs is None else [
-            _right_rate(e.diff(time)) if time is not None else sympy.Integer(0)
+            _in.right_rate(e.diff(time)) if time is not None else sympy.Integer(0)
             for e in load_exprs]
         leftover = [e for e in rates if e.has(sympy.Derivative)]
         if leftover:
@@ -446,12 +255,12 @@ class EnergyModel(SecondOrderSystem):
                 f"{next(iter(leftover[0].atoms(sympy.Derivative)))}); declare the symbols that "
                 f"Abs, sign, re or im act on real (sympy.Symbol(name, real=True))")
         self._exprs = {
-            "V": _without_impulses(energy).xreplace(rename),
+            "V": _in.without_impulses(energy).xreplace(rename),
             "f": [g.xreplace(rename) for g in self.gradient],
             "K": [e.xreplace(rename) for e in k_exprs],
             "T": [e.xreplace(w_rename) for e in t_exprs],
-            "q": [_without_impulses(e).xreplace(rename) for e in quantity_exprs],
-            "p": [] if load_exprs is None else [_without_impulses(e).xreplace(rename)
+            "q": [_in.without_impulses(e).xreplace(rename) for e in quantity_exprs],
+            "p": [] if load_exprs is None else [_in.without_impulses(e).xreplace(rename)
                                                  for e in load_exprs],
             "dp": [e.xreplace(rename) for e in rates],
         }
@@ -462,11 +271,11 @@ class EnergyModel(SecondOrderSystem):
     @staticmethod
     def _parse_load(load, n, allowed):
         """A load given as N sympy expressions of time and the parameters."""
-        items = _items(load)
+        items = _in.items(load)
         if len(items) != n:
             raise ValueError(f"load must be a callable t -> (N,) or {n} sympy expressions "
                              f"(one per degree of freedom), got {len(items)} item(s)")
-        items = [_expression(e, "load") for e in items]
+        items = [_in.expression(e, "load") for e in items]
         unknown = set().union(*(e.free_symbols for e in items)) - allowed
         if unknown:
             names_ = ", ".join(sorted(map(str, unknown)))
@@ -485,10 +294,10 @@ class EnergyModel(SecondOrderSystem):
         for qname, value in quantities.items():
             if not isinstance(qname, str) or not qname:
                 raise ValueError(f"quantity names must be non-empty strings, got {qname!r}")
-            items = _items(value)
+            items = _in.items(value)
             if not items:
                 raise ValueError(f"quantity {qname!r} has no expressions")
-            items = [_expression(e, f"quantity {qname!r}") for e in items]
+            items = [_in.expression(e, f"quantity {qname!r}") for e in items]
             unknown = set().union(*(e.free_symbols for e in items)) - allowed
             if unknown:
                 names_ = ", ".join(sorted(map(str, unknown)))
@@ -513,12 +322,12 @@ class EnergyModel(SecondOrderSystem):
         # Differentiate term by term, each term only by the DOFs it contains:
         # for an energy that is a sum of local terms (springs, bonds) this keeps
         # the work proportional to the number of terms instead of N times it.
-        terms = sympy.Add.make_args(_without_impulses(self.energy))
+        terms = sympy.Add.make_args(_in.without_impulses(self.energy))
         by_dof = {s: [] for s in dofs}
         for term in terms:
             for s in term.free_symbols & dof_set:
                 by_dof[s].append(term)
-        gradient = tuple(_without_impulses(sympy.Add(*[term.diff(s) for term in by_dof[s]]))
+        gradient = tuple(_in.without_impulses(sympy.Add(*[term.diff(s) for term in by_dof[s]]))
                          for s in dofs)
         depends = [g.free_symbols & dof_set for g in gradient]
         k_rows, k_cols, k_exprs = [], [], []
@@ -528,7 +337,7 @@ class EnergyModel(SecondOrderSystem):
                 # ∂g_i/∂u_j is structurally zero unless g_i contains u_j
                 if dofs[j] not in depends[i]:
                     continue
-                e = _without_impulses(gradient[i].diff(dofs[j]))
+                e = _in.without_impulses(gradient[i].diff(dofs[j]))
                 if e == 0:
                     continue
                 k_rows.append(i)
@@ -541,7 +350,7 @@ class EnergyModel(SecondOrderSystem):
         for i, j, e in zip(k_rows, k_cols, k_exprs):
             present = e.free_symbols
             terms = [e.diff(s) * w[k] for k, s in enumerate(dofs) if s in present]
-            te = _without_impulses(sympy.Add(*terms))
+            te = _in.without_impulses(sympy.Add(*terms))
             if te == 0:
                 continue
             t_rows.append(i)
@@ -554,20 +363,20 @@ class EnergyModel(SecondOrderSystem):
                              "DOF symbols real, e.g. sympy.symbols('x y', real=True)")
         self.gradient = gradient
         self.hessian = sympy.ImmutableSparseMatrix(n, n, hessian)
-        self._k_layout = _SymmetricLayout(n, k_rows, k_cols)
-        self._t_layout = _SymmetricLayout(n, t_rows, t_cols)
+        self._k_layout = _in.SymmetricLayout(n, k_rows, k_cols)
+        self._t_layout = _in.SymmetricLayout(n, t_rows, t_cols)
         return k_exprs, t_exprs, w
 
     def _build_functions(self):
         u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
         ex = self._exprs
-        self._fun_v = _compile([u, p], ex["V"], "energy")
-        self._fun_f = _compile([u, p], ex["f"], "internal force (the energy's gradient)")
-        self._fun_k = _compile([u, p], ex["K"], "stiffness")
-        self._fun_t = _compile([u, w, p], ex["T"], "stiffness derivative")
-        self._fun_q = _compile([t, u, v, p], ex["q"], "quantities") if ex["q"] else None
-        self._fun_p = _compile([t, p], ex["p"], "load") if ex.get("p") else None
-        self._fun_dp = _compile([t, p], ex["dp"], "load rate") if ex.get("p") else None
+        self._fun_v = _in.lambdified([u, p], ex["V"], "energy")
+        self._fun_f = _in.lambdified([u, p], ex["f"], "internal force (the energy's gradient)")
+        self._fun_k = _in.lambdified([u, p], ex["K"], "stiffness")
+        self._fun_t = _in.lambdified([u, w, p], ex["T"], "stiffness derivative")
+        self._fun_q = _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None
+        self._fun_p = _in.lambdified([t, p], ex["p"], "load") if ex.get("p") else None
+        self._fun_dp = _in.lambdified([t, p], ex["dp"], "load rate") if ex.get("p") else None
 
     # Generated functions do not pickle; the expressions do, so a copy in
     # another process recompiles them (no new derivation).
@@ -634,7 +443,7 @@ class EnergyModel(SecondOrderSystem):
             if key not in index:
                 known = ", ".join(s.name for s in self.parameter_symbols) or "none"
                 raise ValueError(f"{key!r} is not a parameter of this model (parameters: {known})")
-            current[index[key]] = _real(value, f"parameter {key}")
+            current[index[key]] = _in.real(value, f"parameter {key}")
         self._param_values = tuple(current)
         self.parameter_version += 1
 
@@ -822,9 +631,9 @@ def elastic_pendulum(k: float = 30.0, length: float = 1.0, mass: float = 1.0,
     >>> res.success
     True
     """
-    m = _real(mass, "elastic_pendulum mass")
+    m = _in.real(mass, "elastic_pendulum mass")
     for what, value in (("k", k), ("length", length), ("g", g)):
-        if not _real(value, f"elastic_pendulum {what}") > 0:
+        if not _in.real(value, f"elastic_pendulum {what}") > 0:
             raise ValueError(f"elastic_pendulum {what} must be > 0, got {value!r}")
     if not m > 0:
         raise ValueError(f"elastic_pendulum mass must be > 0, got {mass!r}")
@@ -890,11 +699,11 @@ def spring_chain(n_masses: int = 5, k: float = 1.0, k3: float = 4.0, mass: float
             or n_masses < 1:
         raise ValueError(f"spring_chain n_masses must be an integer >= 1, got {n_masses!r}")
     n = int(n_masses)
-    if not _real(k, "spring_chain k") > 0:
+    if not _in.real(k, "spring_chain k") > 0:
         raise ValueError(f"spring_chain k must be > 0, got {k!r}")
-    if not _real(k3, "spring_chain k3") >= 0:
+    if not _in.real(k3, "spring_chain k3") >= 0:
         raise ValueError(f"spring_chain k3 must be >= 0, got {k3!r}")
-    if not _real(mass, "spring_chain mass") > 0:
+    if not _in.real(mass, "spring_chain mass") > 0:
         raise ValueError(f"spring_chain mass must be > 0, got {mass!r}")
     u = sympy.symbols(f"u1:{n + 1}")
     ks, k3s = sympy.symbols("k k3")

@@ -27,8 +27,9 @@ import numpy as np
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .loads import hat, hat_breakpoints
-from .pair import PairPotential
+from .kernels import compiled_kernels, kernel
+from .loads import hat_breakpoints, hat_load, hat_load_params
+from .pair import pair_derivative_add, pair_force_add, pair_stiffness_add, relative
 
 __all__ = ["Tetrahedra", "tetrahedra"]
 
@@ -123,18 +124,18 @@ class Tetrahedra(SecondOrderSystem):
         self.initial_displacement = x0.ravel().copy()
         self.initial_velocity = (np.zeros(12) if v0 is None else
                                  checks.finite_array("tetrahedra v0", v0, (12,)))
-        self._pair = PairPotential(4, 3, PAIRS_I, PAIRS_J)
-        self.rest_length = self._pair.geometry(self.initial_displacement)[1]
+        self.rest_length = self.distances(self.initial_displacement)
         if not np.all(self.rest_length > 0):
             k = int(np.flatnonzero(~(self.rest_length > 0))[0])
             raise ValueError(f"tetrahedra positions must be four distinct points (every rest "
                              f"length > 0), got particles {PAIRS_I[k] + 1} and {PAIRS_J[k] + 1} "
                              f"both at {tuple(x0[PAIRS_I[k]].tolist())}")
-        self.spring_constant = np.array([self.k_stiff] + [self.k_soft] * 5)
-        # constants of the derivatives of φ: r0³, k/3, −2k
-        self._constants = (self.rest_length ** 3, self.spring_constant / 3.0,
-                           -2.0 * self.spring_constant)
         self._positions_given = positions is not None
+
+    @property
+    def spring_constant(self):
+        """``k`` of the six springs (6,), in the order of the pairs."""
+        return np.array([self.k_stiff] + [self.k_soft] * 5)
 
     def parameters(self):
         params = {"k_stiff": self.k_stiff, "k_soft": self.k_soft,
@@ -147,73 +148,49 @@ class Tetrahedra(SecondOrderSystem):
             params["v0"] = tuple(self.initial_velocity.tolist())
         return params
 
-    # -- pair potential ------------------------------------------------------
-    def _phi(self, r, order):
-        """``φ^{(order)}(r)`` per pair; ``r`` has the pairs on its last axis."""
-        k, r0 = self.spring_constant, self.rest_length
-        q = r0 ** 3 / r
-        if order == 0:
-            return k / 6.0 * (r ** 2 + 2.0 * q - 3.0 * r0 ** 2)
-        if order == 1:
-            return k / 3.0 * (r - q / r)
-        if order == 2:
-            return k / 3.0 * (1.0 + 2.0 * q / r ** 2)
-        return -2.0 * k * q / r ** 3
+    def params(self):
+        """The kernels' data: ``(r0³, k/3, −2k, k, r0)``, six entries each in the
+        order of the pairs."""
+        k = np.array([self.k_stiff] + [self.k_soft] * 5)
+        r0 = self.rest_length
+        return np.concatenate([r0 ** 3, k / 3.0, -2.0 * k, k, r0])
 
-    def _derivatives(self, r, orders):
-        """``φ'`` (``orders == 1``), ``φ''`` (2) and ``φ'''`` (3) per pair, the
-        expressions of :meth:`_phi` with ``q`` formed once and the constants
-        ``r0³``, ``k/3`` and ``−2k`` formed with the model."""
-        r03, k3, m2k = self._constants
-        q = r03 / r
-        out = [k3 * (r - q / r)]
-        if orders >= 2:
-            out.append(k3 * (1.0 + 2.0 * q / (r * r)))
-        if orders == 3:
-            out.append(m2k * q / (r * r * r))
-        return out
+    def load_params(self):
+        """The load's data (:func:`~hfdi.models.loads.hat_load`): the pulse on particle 1 in x."""
+        return hat_load_params(12, [(0, self.load_amplitude, self.load_time)])
 
     def distances(self, u):
         """Pair distances ``r`` (6,) in the order 12, 13, 14, 23, 24, 34."""
-        return self._pair.geometry(np.asarray(u, dtype=float))[1]
+        x = np.asarray(u, dtype=float).reshape(4, 3)
+        d = x[list(PAIRS_J)] - x[list(PAIRS_I)]
+        return np.sqrt(np.einsum("pk,pk->p", d, d))
 
     # -- mechanics -----------------------------------------------------------
-    # the pair geometry is computed once per call and handed to the pair terms
     def internal_force(self, u):
-        u = np.asarray(u, dtype=float)
-        geometry = self._pair.geometry(u)
-        return self._pair.force(u, self._derivatives(geometry[1], 1)[0], geometry)
+        return tetrahedra_force(np.asarray(u, dtype=float), self.params())
 
     def stiffness(self, u):
-        u = np.asarray(u, dtype=float)
-        geometry = self._pair.geometry(u)
-        d1, d2 = self._derivatives(geometry[1], 2)
-        return self._pair.stiffness(u, d1, d2, geometry)
+        return tetrahedra_stiffness(np.asarray(u, dtype=float), self.params())
 
     def stiffness_derivative(self, u, w):
-        u = np.asarray(u, dtype=float)
-        geometry = self._pair.geometry(u)
-        d1, d2, d3 = self._derivatives(geometry[1], 3)
-        return self._pair.stiffness_derivative(u, np.asarray(w, dtype=float), d1, d2, d3,
-                                               geometry)
-
-    def compiled_kernels(self):
-        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.tetrahedra_kernels`;
-        imports numba)."""
-        from ..compiled.models import tetrahedra_kernels
-        return tetrahedra_kernels(self)
+        return tetrahedra_stiffness_derivative(np.asarray(u, dtype=float),
+                                               np.asarray(w, dtype=float), self.params())
 
     def potential_energy(self, u):
-        return float(self._phi(self.distances(u), 0).sum())
+        return tetrahedra_potential_energy(np.asarray(u, dtype=float), self.params())
+
+    def compiled_kernels(self):
+        """The kernels below compiled, with the hat load (imports numba)."""
+        return compiled_kernels(tetrahedra_force, tetrahedra_stiffness,
+                                tetrahedra_stiffness_derivative, tetrahedra_potential_energy,
+                                self.params(), load_params=self.load_params())
 
     def load_breakpoints(self):
         """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
         return hat_breakpoints(self.load_time)
 
     def load(self, t):
-        p = np.zeros(12)
-        p[0] = hat(t, self.load_amplitude, self.load_time)
-        return p
+        return hat_load(float(t), self.load_params())
 
     def quantities(self, t, u, v):
         """Positions and the six interaction forces (Eq. 46), vectorised over times.
@@ -234,8 +211,60 @@ class Tetrahedra(SecondOrderSystem):
         x = u.reshape(-1, 4, 3)
         d = x[:, PAIRS_J] - x[:, PAIRS_I]                      # (n, 6, 3)
         r = np.sqrt(np.einsum("npk,npk->np", d, d))
-        f = (self._phi(r, 1) / r)[:, :, None] * d
+        k, r0 = self.spring_constant, self.rest_length
+        f = ((k / 3.0 * (r - r0 ** 3 / r ** 2)) / r)[:, :, None] * d
         return {"u": u, "f": f.reshape(-1, 18)}
+
+
+# -- the kernels: params = (r0³, k/3, −2k, k, r0), six entries each ------------------
+# φ' = k/3 (r − q/r), φ'' = k/3 (1 + 2 q/r²), φ''' = −2k q/r³ with q = r0³/r.
+
+@kernel
+def tetrahedra_force(u, params):
+    f = np.zeros(12)
+    for p in range(6):
+        i, j = PAIRS_I[p], PAIRS_J[p]
+        r, d = relative(u, i, j, 3)
+        q = params[p] / r
+        pair_force_add(f, i, j, 3, d, r, params[6 + p] * (r - q / r))
+    return f
+
+
+@kernel
+def tetrahedra_stiffness(u, params):
+    K = np.zeros((12, 12))
+    for p in range(6):
+        i, j = PAIRS_I[p], PAIRS_J[p]
+        r, d = relative(u, i, j, 3)
+        q = params[p] / r
+        k3 = params[6 + p]
+        pair_stiffness_add(K, i, j, 3, d, r, k3 * (r - q / r), k3 * (1.0 + 2.0 * q / (r * r)))
+    return K
+
+
+@kernel
+def tetrahedra_stiffness_derivative(u, w, params):
+    T = np.zeros((12, 12))
+    for p in range(6):
+        i, j = PAIRS_I[p], PAIRS_J[p]
+        r, d = relative(u, i, j, 3)
+        wd = relative(w, i, j, 3)[1]
+        q = params[p] / r
+        k3 = params[6 + p]
+        pair_derivative_add(T, i, j, 3, d, r, wd, k3 * (r - q / r),
+                            k3 * (1.0 + 2.0 * q / (r * r)), params[12 + p] * q / (r * r * r))
+    return T
+
+
+@kernel
+def tetrahedra_potential_energy(u, params):
+    V = 0.0
+    for p in range(6):
+        r = relative(u, PAIRS_I[p], PAIRS_J[p], 3)[0]
+        k, r0 = params[18 + p], params[24 + p]
+        q = params[p] / r
+        V += k / 6.0 * (r * r + 2.0 * q - 3.0 * (r0 * r0))
+    return V
 
 
 def tetrahedra(**params) -> Tetrahedra:

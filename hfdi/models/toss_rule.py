@@ -47,7 +47,8 @@ import scipy.sparse as sp
 
 from .. import checks
 from ..system import SecondOrderSystem
-from .loads import hat, hat_breakpoints
+from .kernels import compiled, compiled_kernels, kernel
+from .loads import hat_breakpoints, hat_load, hat_load_params
 
 __all__ = ["TossRule", "toss_rule", "MAX_ELEMENTS"]
 
@@ -55,31 +56,6 @@ __all__ = ["TossRule", "toss_rule", "MAX_ELEMENTS"]
 #: (2.4 kB per DOF measured, docs/performance.md). More is refused up front
 #: rather than left to exhaust the memory of the machine.
 MAX_ELEMENTS = 1_000_000
-
-
-# The constant part B of the map from the element DOFs
-# d_e = (u_i, v_i, α_i, u_j, v_j, α_j) to the reduced coordinates
-# y = (u_ξ, v_ξ, α_o, χ), before the 1/h_e scaling of rows 0, 1 and 3.
-_B = np.array([[-1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-               [0.0, -1.0, 0.0, 0.0, 1.0, 0.0],
-               [0.0, 0.0, 0.5, 0.0, 0.0, 0.5],
-               [0.0, 0.0, -1.0, 0.0, 0.0, 1.0]])
-# A symmetric reduced matrix H is stored by its independent entries in this
-# order; only the (u_ξ, v_ξ, α_o) block couples, χ enters alone through EJ χ².
-_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2), (3, 3))
-# Bᵀ H B = Σ_pairs H_ij (B_iᵀ B_j + B_jᵀ B_i) (once on the diagonal): row c of
-# _BB is the flattened 6×6 contribution of the c-th independent entry.
-_BB = np.array([(np.outer(_B[i], _B[j]) + (np.outer(_B[j], _B[i]) if i != j else 0.0)).ravel()
-                for i, j in _PAIRS])
-# The kernels compute the entries in this order instead: the pairs of
-# x = (u_ξ, v_ξ, α_o) with the α_o column last, so that the three entries fed
-# by ∇²k (its α_o row r = (r_p, r_q, r_α)) are the contiguous rows 3:6 in the
-# order of r, and the gradient products are ∇k[_I] ∇k[_J].
-_KERNEL_PAIRS = ((0, 0), (1, 1), (0, 1), (0, 2), (1, 2), (2, 2), (3, 3))
-_I = np.array([i for i, _ in _KERNEL_PAIRS[:6]])
-_J = np.array([j for _, j in _KERNEL_PAIRS[:6]])
-# _KERNEL_ROW[c]: row of the kernel layout holding the c-th entry of _PAIRS.
-_KERNEL_ROW = np.array([_KERNEL_PAIRS.index(pair) for pair in _PAIRS])
 
 
 class TossRule(SecondOrderSystem):
@@ -197,7 +173,6 @@ class TossRule(SecondOrderSystem):
         # per element so the kernels hold for any initial polygon.
         self._S = dxy[:, 1] / h
         self._C = dxy[:, 0] / h
-        self._alpha_hat = np.arctan2(self._S, self._C)
         self._h = h
         self._inv_h = 1.0 / h
 
@@ -217,64 +192,18 @@ class TossRule(SecondOrderSystem):
 
     # -- set-up ------------------------------------------------------------
     def _build_pattern(self):
-        """Fixed CSR pattern of the banded tangent and the linear maps into it.
-
-        Everything that does not depend on ``u`` is done here once, so that
-        each call of ``f``, ``K`` or ``T`` is elementwise work on (N_el,)
-        arrays followed by one sparse matrix–vector product:
-
-        * ``_force_map`` (N, 4 N_el) takes the reduced gradients
-          ``∂W/∂y`` (stored as (4, N_el)) to ``f``; it holds ``h_e D_e`` and
-          ``Bᵀ`` and sums at the shared nodes.
-        * ``_tangent_map`` (nnz, 7 N_el) takes the independent entries of
-          the reduced element matrices (stored as (7, N_el) in the order of
-          ``_PAIRS``) to the data array of the CSR tangent; it holds
-          ``h_e D_e … D_e``, ``Bᵀ … B`` and the sums at the shared nodes.
-        """
-        n, n_el = self.n_dof, self.n_elements
-        dofs = self._dofs
-        e = np.arange(n_el)
-        # D_e = diag(1/h_e, 1/h_e, 1, 1/h_e) as a (N_el, 4) array
-        d = np.ones((n_el, 4))
-        d[:, [0, 1, 3]] = self._inv_h[:, None]
-        h = self._h
-
-        # f: f[dofs[e, a]] += h_e d_i B[i, a] g[i, e]
-        i_idx, a_idx = np.nonzero(_B)
-        self._force_map = sp.csr_matrix(
-            ((h[:, None] * d[:, i_idx] * _B[i_idx, a_idx]).ravel(),
-             (dofs[:, a_idx].ravel(), (i_idx[None, :] * n_el + e[:, None]).ravel())),
-            shape=(n, 4 * n_el))
-
-        # Tangent pattern: all 6×6 couplings of each element, sorted as CSR.
-        rows = np.repeat(dofs, 6, axis=1).ravel().astype(np.int64)
-        cols = np.tile(dofs, (1, 6)).ravel().astype(np.int64)
+        """The fixed CSR pattern of the banded tangent: every coupling of each
+        element's six DOFs, sorted; a template of the result, and where each
+        element's couplings lie in its data (:meth:`element_positions`)."""
+        n = self.n_dof
+        rows = np.repeat(self._dofs, 6, axis=1).ravel().astype(np.int64)
+        cols = np.tile(self._dofs, (1, 6)).ravel().astype(np.int64)
         keys = np.unique(rows * n + cols)
         idx_dtype = np.int32 if max(n, keys.size) < 2 ** 31 - 1 else np.int64
         self._csr_indices = (keys % n).astype(idx_dtype)
         self._csr_indptr = np.concatenate(
             [[0], np.cumsum(np.bincount(keys // n, minlength=n))]).astype(idx_dtype)
         self._nnz = keys.size
-        slot = self.element_positions()
-
-        # K data: data[slot[e, m]] += h_e d_i d_j _BB[c, m] sym[c, e], (i, j) = _PAIRS[c]
-        pair_scale = np.stack([h * d[:, i] * d[:, j] for i, j in _PAIRS], axis=1)
-        c_idx, m_idx = np.nonzero(_BB)
-        tangent_map = sp.csr_matrix(
-            ((pair_scale[:, c_idx] * _BB[c_idx, m_idx]).ravel(),
-             (slot[:, m_idx].ravel(), (c_idx[None, :] * n_el + e[:, None]).ravel())),
-            shape=(self._nnz, len(_PAIRS) * n_el))
-        # The kernels lay the entries out in the order of _KERNEL_PAIRS: renumber
-        # the columns in place, keeping the stored order of every row (and so
-        # the order of the sums of the matrix-vector product).
-        cols = tangent_map.indices
-        tangent_map.indices = (_KERNEL_ROW[cols // n_el] * n_el + cols % n_el).astype(cols.dtype)
-        tangent_map.has_sorted_indices = False
-        self._tangent_map = tangent_map
-
-        # Rigidities of (ε, γ), broadcast over (2, rows, N_el) kernel arrays.
-        self._R2 = np.array([self.EA, self.GA])[:, None, None]
-
         # Template of the result: sorted, canonical CSR with the fixed pattern.
         # Each K or T is a shallow copy that gets its own data and index
         # arrays, which skips the checks of the csr_matrix constructor.
@@ -282,67 +211,12 @@ class TossRule(SecondOrderSystem):
                                   self._csr_indptr.copy()), shape=(n, n))
         assert template.has_sorted_indices and template.has_canonical_format
         self._csr_template = template
-
-    # -- kinematics and element kernels ------------------------------------
-    def _reduced(self, u):
-        """Reduced coordinates ``u_ξ, v_ξ, α_o, χ`` of every element, each (…, N_el).
-
-        ``u`` has shape (…, N); with the node-by-node ordering a reshape to
-        (…, N_el + 1, 3) gives the nodal values without any gather.
-        """
-        U = np.asarray(u, dtype=float)
-        U = U.reshape(U.shape[:-1] + (self.n_elements + 1, 3))
-        # (u_j − u_i, v_j − v_i, α_j − α_i) / h_e in one go: columns p, q, χ
-        dh = (U[..., 1:, :] - U[..., :-1, :]) * self._inv_h[:, None]
-        a = 0.5 * (U[..., 1:, 2] + U[..., :-1, 2])
-        return dh[..., 0], dh[..., 1], a, dh[..., 2]
-
-    def _strains(self, p, q, a):
-        """``ε``, ``γ`` (Eqs. 51–52) and ``cos β``, ``sin β`` with ``β = α_o + α̂``."""
-        # C_e cos α − S_e sin α = cos(α + α̂) and C_e sin α + S_e cos α = sin(α + α̂)
-        beta = a + self._alpha_hat
-        cb, sb = np.cos(beta), np.sin(beta)
-        eps = np.cos(a) - 1.0 + cb * p + sb * q
-        gam = -np.sin(a) - sb * p + cb * q
-        return eps, gam, cb, sb
-
-    def _strain_derivatives(self, u):
-        """Strains and their derivatives w.r.t. ``x = (u_ξ, v_ξ, α_o)``.
-
-        Returns, for ``k = ε`` and ``k = γ``, a tuple ``(R, k, g, r, t)``:
-        the rigidity, the strain (N_el,), the gradient ``g = ∂k/∂x``, the
-        α_o-row ``r = ∂²k/∂x∂α_o`` of the Hessian and the third derivatives
-        ``t = ∂³k/∂x∂α_o²``, each a (3, N_el) array (rows ``p, q, α``). Every
-        other second or third derivative is zero because ``k`` is linear in
-        ``u_ξ, v_ξ``. Since ``∂ε/∂α_o = γ`` and ``∂γ/∂α_o = −(1 + ε)``:
-        ``r_ε = g_γ``, ``r_γ = −g_ε``, ``t_ε = −g_ε``, ``t_γ = −g_γ``; all of
-        them are views of one (4, 3, N_el) array ``(g_ε, g_γ, −g_ε, −g_γ)``.
-        """
-        p, q, a, chi = self._reduced(u)
-        eps, gam, cb, sb = self._strains(p, q, a)
-        y = np.empty((4, 3) + eps.shape)
-        y[0, 0] = cb
-        y[0, 1] = sb
-        y[0, 2] = gam
-        np.negative(sb, out=y[1, 0])
-        y[1, 1] = cb
-        np.negative(1.0 + eps, out=y[1, 2])
-        np.negative(y[:2], out=y[2:])
-        return chi, ((self.EA, eps, y[0], y[1], y[2]),
-                     (self.GA, gam, y[1], y[2], y[3]))
-
-    def _assemble(self, sym):
-        """Global CSR matrix from reduced element matrices.
-
-        ``sym`` (7, N_el) holds the entries of the reduced symmetric element
-        matrices ``∂²W/∂y²`` in the order of ``_KERNEL_PAIRS``.
-        """
-        return self.csr_from_data(self._tangent_map @ sym.ravel())
+        self._slots = self.element_positions()
 
     def element_positions(self):
         """Where each element's couplings lie in the data of the tangent's CSR
         pattern: ``positions[e, 6 a + b]`` for the coupling of its DOFs ``a``
-        and ``b`` (int64, (N_el, 36); made on demand, for compiled kernels)."""
+        and ``b`` (int64, (N_el, 36))."""
         dofs = self._dofs
         rows = np.repeat(dofs, 6, axis=1)
         cols = np.tile(dofs, (1, 6))
@@ -365,7 +239,42 @@ class TossRule(SecondOrderSystem):
         out.indptr = self._csr_indptr.copy()
         return out
 
-    # -- mechanics ---------------------------------------------------------
+    def params(self):
+        """The kernels' data ``(N_el, EA, GA, EJ, h_e …, 1/h_e …, cos α̂_e …, sin α̂_e …)``
+        (4 + 4 N_el entries)."""
+        return np.concatenate([[self.n_elements, self.EA, self.GA, self.EJ],
+                               self._h, self._inv_h, self._C, self._S])
+
+    def load_params(self):
+        """The load's data (:func:`~hfdi.models.loads.hat_load`): force and moment at node 0."""
+        return hat_load_params(self.n_dof, [(1, self.force_amplitude, self.load_time),
+                                            (2, self.moment_amplitude, self.load_time)])
+
+    # -- the elements, all at once ----------------------------------------------
+    # The Python methods call the element kernels below on (N_el,) arrays:
+    # each element's numbers are those the compiled loops form, operation for
+    # operation, and every entry of f, K and T sums at most two elements'
+    # contributions, which round alike in either order.
+    def _reduced(self, u):
+        """Reduced coordinates ``u_ξ, v_ξ, α_o, χ`` of every element, each (…, N_el)."""
+        U = np.asarray(u, dtype=float)
+        U = U.reshape(U.shape[:-1] + (self.n_elements + 1, 3))
+        i, j = U[..., :-1, :], U[..., 1:, :]
+        return beam_reduced(i[..., 0], i[..., 1], i[..., 2], j[..., 0], j[..., 1], j[..., 2],
+                            self._inv_h)
+
+    def _elements(self):
+        """``(EA, GA, EJ)`` and the per-element ``h, 1/h, cos α̂, sin α̂`` of :meth:`params`."""
+        params, n = self.params(), self.n_elements
+        return params[1:4], (params[4:4 + n], params[4 + n:4 + 2 * n],
+                             params[4 + 2 * n:4 + 3 * n], params[4 + 3 * n:])
+
+    def _assemble(self, values):
+        """The CSR matrix of the element blocks of ``values`` (7, N_el) (:func:`beam_block`)."""
+        block = np.array(_BLOCK_SIGN)[:, None] * np.asarray(values)[list(_BLOCK_VALUE)]
+        return self.csr_from_data(np.bincount(self._slots.ravel(), block.T.ravel(),
+                                              self._nnz))
+
     def element_strains(self, u):
         """Centre strains ``ε``, ``γ``, ``χ`` of every element (Eqs. 51–53).
 
@@ -378,100 +287,73 @@ class TossRule(SecondOrderSystem):
         eps, gam, chi : ndarray (…, N_el)
         """
         p, q, a, chi = self._reduced(u)
-        eps, gam, _, _ = self._strains(p, q, a)
+        eps, gam, _, _ = beam_strains(p, q, a, self._C, self._S)
         return eps, gam, chi
 
     def compiled_kernels(self):
-        """Compiled kernels of f, K, T, V and the load (:func:`hfdi.compiled.models.toss_rule_kernels`;
-        imports numba)."""
-        from ..compiled.models import toss_rule_kernels
-        return toss_rule_kernels(self)
+        """The kernels below compiled (dense ``K`` and ``T``), with the hat loads
+        (imports numba)."""
+        return compiled_kernels(toss_rule_force, toss_rule_stiffness,
+                                toss_rule_stiffness_derivative, toss_rule_potential_energy,
+                                self.params(), load_params=self.load_params())
 
     def compiled_sparse_kernels(self):
-        """Compiled f and CSR K, T for large beams
-        (:func:`hfdi.compiled.models.toss_rule_sparse_kernels`; imports numba)."""
-        from ..compiled.models import toss_rule_sparse_kernels
-        return toss_rule_sparse_kernels(self)
+        """Compiled f and CSR K, T for large beams: element loops that add each
+        element's 6 × 6 block straight into the data array of the tangent's CSR
+        pattern. O(N_el) time, no temporary per element (imports numba)."""
+        from ..compiled import SparseKernels
+        params = np.ascontiguousarray(self.params(), dtype=np.float64)
+        slots = np.ascontiguousarray(self._slots, dtype=np.int64)
+        nnz, as_vector = int(self._nnz), np.ascontiguousarray
+        force, stiffness_data, derivative_data = (compiled(toss_rule_force),
+                                                  compiled(toss_rule_stiffness_data),
+                                                  compiled(toss_rule_stiffness_derivative_data))
+
+        def stiffness(u):
+            return self.csr_from_data(stiffness_data(as_vector(u, dtype=np.float64), params,
+                                                     slots, nnz))
+
+        def stiffness_derivative(u, w):
+            return self.csr_from_data(derivative_data(
+                as_vector(u, dtype=np.float64), as_vector(w, dtype=np.float64), params, slots,
+                nnz))
+
+        return SparseKernels(lambda u: force(as_vector(u, dtype=np.float64), params),
+                             stiffness, stiffness_derivative)
 
     def potential_energy(self, u):
         """Strain energy ``V = Σ_e ½ h_e (EA ε² + GA γ² + EJ χ²)`` (Eq. 50, one-point rule)."""
-        eps, gam, chi = self.element_strains(u)
-        return float(0.5 * np.sum(self._h * (self.EA * eps ** 2 + self.GA * gam ** 2
-                                             + self.EJ * chi ** 2)))
+        (EA, GA, EJ), (h, _, c, s) = self._elements()
+        p, q, a, chi = self._reduced(u)
+        # the sum in element order, as the kernel's loop forms it
+        return 0.5 * float(np.cumsum(beam_energy(EA, GA, EJ, h, p, q, a, chi, c, s))[-1])
 
     def internal_force(self, u):
         """``f = ∂V/∂u``, shape (N,)."""
+        (EA, GA, EJ), (h, _, c, s) = self._elements()
         p, q, a, chi = self._reduced(u)
-        eps, gam, cb, sb = self._strains(p, q, a)
-        EA_eps, GA_gam = self.EA * eps, self.GA * gam
-        # ∂W/∂y with y = (u_ξ, v_ξ, α_o, χ); the map applies h_e D_e and Bᵀ
-        g = np.empty((4, self.n_elements))
-        g[0] = EA_eps * cb - GA_gam * sb
-        g[1] = EA_eps * sb + GA_gam * cb
-        g[2] = EA_eps * gam - GA_gam * (1.0 + eps)
-        g[3] = self.EJ * chi
-        return self._force_map @ g.ravel()
+        g0, g1, half, bend = beam_force(EA, GA, EJ, h, p, q, a, chi, c, s)
+        f = np.zeros((self.n_elements + 1, 3))
+        f[:-1, 0] -= g0
+        f[:-1, 1] -= g1
+        f[:-1, 2] += half - bend
+        f[1:, 0] += g0
+        f[1:, 1] += g1
+        f[1:, 2] += half + bend
+        return f.ravel()
 
     def stiffness(self, u):
-        """``K = ∂²V/∂u²``, scipy CSR (N, N), symmetric and banded.
-
-        In reduced coordinates ``Σ_k R_k (∇k ∇kᵀ + k ∇²k) + EJ e_χ e_χᵀ``
-        over ``k ∈ {ε, γ}``.
-        """
-        _, ((R_e, k_e, g_e, r_e, _), (R_g, k_g, g_g, r_g, _)) = self._strain_derivatives(u)
-        # Both strains at once: leading axis (ε, γ); rows as in _KERNEL_PAIRS.
-        R = np.array((R_e, R_g), dtype=float)[:, None]
-        g, r = np.array((g_e, g_g)), np.array((r_e, r_g))
-        Rk = R * np.array((k_e, k_g))
-        P = R[:, None] * (g[:, _I] * g[:, _J])           # R ∇k ∇kᵀ
-        Q = Rk[:, None] * r                              # R k ∇²k, its α_o row
-        # ∇²k is non-zero only in its α_o row and column, rows 3:6; the sums
-        # in the order ε then γ, each gradient term before its ∇²k term.
-        return self._assemble(self._kernel_sum(P, Q, self.EJ))
-
-    def _kernel_sum(self, P, Q, curvature):
-        """Independent entries of the reduced matrices (rows as in ``_KERNEL_PAIRS``):
-        ``P`` (gradient terms) and ``Q`` (its α_o row, ``∇²k`` terms) of ε then γ,
-        summed in that order, and the curvature entry."""
-        sym = np.empty((len(_KERNEL_PAIRS), self.n_elements))
-        head, alpha = sym[:6], sym[3:6]
-        head[...] = P[0]
-        alpha += Q[0]
-        head += P[1]
-        alpha += Q[1]
-        sym[6] = curvature
-        return sym
+        """``K = ∂²V/∂u²``, scipy CSR (N, N), symmetric and banded."""
+        (EA, GA, EJ), (h, inv_h, c, s) = self._elements()
+        p, q, a, _ = self._reduced(u)
+        return self._assemble(beam_stiffness(EA, GA, EJ, h, inv_h, p, q, a, c, s))
 
     def stiffness_derivative(self, u, w):
-        """``T(u)[w] = ∂(K(u) w)/∂u``, scipy CSR (N, N), same pattern as ``K``.
-
-        In reduced coordinates, for each strain ``k ∈ {ε, γ}`` with rigidity
-        ``R_k`` and ``z`` the reduced image of ``w``,
-        ``R_k (∇²k z ∇kᵀ + ∇k (∇²k z)ᵀ + (∇k·z) ∇²k + k ∇³k[z])``; the
-        curvature term is quadratic, so it contributes nothing.
-        """
-        _, ((R_e, k_e, g_e, r_e, t_e), (R_g, k_g, g_g, r_g, t_g)) = self._strain_derivatives(u)
+        """``T(u)[w] = ∂(K(u) w)/∂u``, scipy CSR (N, N), same pattern as ``K``."""
+        (EA, GA, _), (h, inv_h, c, s) = self._elements()
+        p, q, a, _ = self._reduced(u)
         zp, zq, za, _ = self._reduced(w)
-        # Both strains at once: leading axis (ε, γ); rows as in _KERNEL_PAIRS.
-        R = np.array((R_e, R_g), dtype=float)[:, None]
-        y = np.array((g_e, g_g, r_e, r_g, t_e, t_g))
-        g, r, t = y[0:2], y[2:4], y[4:6]
-        # ∇k·z, r·z and t·z in one go
-        yz = y[:, 0] * zp + y[:, 1] * zq + y[:, 2] * za
-        # ∇²k z, with ∇²k = e_α rᵀ + r e_αᵀ − r_α e_α e_αᵀ: (r_p z_α, r_q z_α, r·z)
-        Hz = np.empty_like(g)
-        np.multiply(r[:, :2], za, out=Hz[:, :2])
-        Hz[:, 2] = yz[2:4]
-        P = R[:, None] * (Hz[:, _I] * g[:, _J] + g[:, _I] * Hz[:, _J])
-        # (∇k·z) ∇²k + k ∇³k[z]; ∇³k[z] has the same α_o-only structure
-        # with row (t_p z_α, t_q z_α, t·z)
-        Rgz, Rk = R * yz[0:2], R * np.array((k_e, k_g))
-        Q = Rgz[:, None] * r
-        S = np.empty_like(Q)
-        np.multiply(Rk[:, None] * t[:, :2], za, out=S[:, :2])
-        np.multiply(Rk, yz[4:6], out=S[:, 2])
-        Q += S
-        return self._assemble(self._kernel_sum(P, Q, 0.0))
+        return self._assemble(beam_derivative(EA, GA, h, inv_h, p, q, a, zp, zq, za, c, s))
 
     def load_breakpoints(self):
         """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
@@ -479,10 +361,7 @@ class TossRule(SecondOrderSystem):
 
     def load(self, t):
         """``p(t)``: force ``F(t)`` in +y and moment ``M(t)`` at the left end node (chosen)."""
-        p = np.zeros(self.n_dof)
-        p[1] = hat(t, self.force_amplitude, self.load_time)
-        p[2] = hat(t, self.moment_amplitude, self.load_time)
-        return p
+        return hat_load(float(t), self.load_params())
 
     # -- output --------------------------------------------------------------
     def _centre(self, values):
@@ -515,7 +394,7 @@ class TossRule(SecondOrderSystem):
         u = np.atleast_2d(np.asarray(u, dtype=float))
         v = np.atleast_2d(np.asarray(v, dtype=float))
         p, q, a, chi = self._reduced(u)
-        eps, _, _, _ = self._strains(p, q, a)
+        eps, _, _, _ = beam_strains(p, q, a, self._C, self._S)
         _, _, a_t, _ = self._reduced(v)
         return {"u": u,
                 "alpha_mv": a.mean(axis=-1)[:, None],
@@ -529,6 +408,250 @@ class TossRule(SecondOrderSystem):
                 "shear_factor": self.shear_factor, "rho": self.rho,
                 "force_amplitude": self.force_amplitude,
                 "moment_amplitude": self.moment_amplitude, "load_time": self.load_time}
+
+
+# -- the kernels: params = (N_el, EA, GA, EJ, h_e …, 1/h_e …, cos α̂_e …, sin α̂_e …) -------
+# Element e joins nodes e and e + 1 (DOFs 3e … 3e + 5). Its reduced
+# coordinates y = (u_ξ, v_ξ, α_o, χ) = L_e d_e with L_e = D_e B (see the
+# module notes); f_e = h_e L_eᵀ ∇W, K_e = h_e L_eᵀ ∇²W L_e and
+# T_e = h_e L_eᵀ ∇³W[L_e w_e] L_e, the reduced derivatives of
+# W = ½ (EA ε² + GA γ² + EJ χ²) from ∂ε/∂α_o = γ, ∂γ/∂α_o = −(1 + ε).
+# The element functions are elementwise: numbers in the compiled loops over
+# the elements, (N_el,) arrays in the Python methods.
+
+@kernel
+def beam_reduced(ui, vi, ai, uj, vj, aj, inv_h):
+    """``(u_ξ, v_ξ, α_o, χ)`` of an element from the values at its nodes i and j."""
+    return (uj - ui) * inv_h, (vj - vi) * inv_h, 0.5 * (aj + ai), (aj - ai) * inv_h
+
+
+@kernel
+def beam_strains(p, q, a, cos_hat, sin_hat):
+    """``ε``, ``γ`` and their gradients ``∇ε = (cb, sb, γ)``, ``∇γ = (−sb, cb, −(1 + ε))``
+    in ``(u_ξ, v_ξ, α_o)``, ``cb``, ``sb`` the cosine and sine of ``β = α_o + α̂`` by
+    the addition theorem: one sine and cosine per element, not two."""
+    ca, sa = np.cos(a), np.sin(a)
+    cb, sb = ca * cos_hat - sa * sin_hat, sa * cos_hat + ca * sin_hat
+    eps = ca - 1.0 + cb * p + sb * q
+    gam = -sa - sb * p + cb * q
+    return eps, gam, (cb, sb, gam), (-sb, cb, -(1.0 + eps))
+
+
+@kernel
+def beam_energy(EA, GA, EJ, h, p, q, a, chi, cos_hat, sin_hat):
+    """``h_e (EA ε² + GA γ² + EJ χ²)``, twice the element's energy."""
+    eps, gam, _, _ = beam_strains(p, q, a, cos_hat, sin_hat)
+    return h * (EA * (eps * eps) + GA * (gam * gam) + EJ * (chi * chi))
+
+
+@kernel
+def beam_force(EA, GA, EJ, h, p, q, a, chi, cos_hat, sin_hat):
+    """``h L_eᵀ (∇W, EJ χ)`` as ``(g_u, g_v, half, bend)``: ``∓g_u``, ``∓g_v`` on the
+    translations of nodes i and j, ``half ∓ bend`` on their rotations."""
+    eps, gam, g_eps, g_gam = beam_strains(p, q, a, cos_hat, sin_hat)
+    EA_eps, GA_gam = EA * eps, GA * gam
+    return (EA_eps * g_eps[0] + GA_gam * g_gam[0], EA_eps * g_eps[1] + GA_gam * g_gam[1],
+            0.5 * h * (EA_eps * g_eps[2] + GA_gam * g_gam[2]), EJ * chi)
+
+
+@kernel
+def _alpha_entry(r, i, j):
+    """Entry ``(i, j)`` of a 3 × 3 matrix non-zero in its α_o row and column
+    only, that row being ``r`` (``∇²k`` with ``r = ±∇`` of the other strain)."""
+    if j == 2:
+        return r[i]
+    if i == 2:
+        return r[j]
+    return 0.0
+
+
+@kernel
+def _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, i, j):
+    """``(∇²W)_ij`` in ``(u_ξ, v_ξ, α_o)``: ``∇²ε`` has the α_o row ∇γ, ``∇²γ`` the row −∇ε."""
+    return (EA * (g_eps[i] * g_eps[j] + eps * _alpha_entry(g_gam, i, j))
+            + GA * (g_gam[i] * g_gam[j] + gam * _alpha_entry(m_eps, i, j)))
+
+
+@kernel
+def beam_block(h, inv_h, r00, r01, r11, r02, r12, r22, r33):
+    """The seven numbers of ``h L_eᵀ red L_e`` for the symmetric reduced ``red``
+    whose χ row and column are zero but for ``r33``; :data:`_BLOCK_VALUE` and
+    :data:`_BLOCK_SIGN` place them in the 6 × 6 block."""
+    q, r = 0.25 * h * r22, inv_h * r33
+    return (inv_h * r00, inv_h * r01, inv_h * r11, 0.5 * r02, 0.5 * r12, q + r, q - r)
+
+
+@kernel
+def beam_stiffness(EA, GA, EJ, h, inv_h, p, q, a, cos_hat, sin_hat):
+    """The element's tangent block (:func:`beam_block`) from ``∇²W``."""
+    eps, gam, g_eps, g_gam = beam_strains(p, q, a, cos_hat, sin_hat)
+    m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
+    return beam_block(h, inv_h, _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, 0, 0),
+                      _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, 0, 1),
+                      _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, 1, 1),
+                      _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, 0, 2),
+                      _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, 1, 2),
+                      _stiffness_entry(EA, GA, eps, gam, g_eps, g_gam, m_eps, 2, 2), EJ)
+
+
+@kernel
+def _row_image(r, zp, zq, za):
+    """``M z`` for the 3 × 3 ``M`` non-zero in its α_o row and column only, that row ``r``."""
+    return r[0] * za, r[1] * za, r[0] * zp + r[1] * zq + r[2] * za
+
+
+@kernel
+def _strain_third(t, zp, zq, za):
+    """``∇³k[z]``'s α_o row, ``t = −∇k`` its third derivatives."""
+    return _row_image(t, zp, zq, za)
+
+
+@kernel
+def _derivative_entry(R, k, g, r, Hz, gz, third, i, j):
+    """``R (∇²k z ∇kᵀ + ∇k (∇²k z)ᵀ + (∇k·z) ∇²k + k ∇³k[z])_ij``."""
+    return R * (Hz[i] * g[j] + g[i] * Hz[j] + gz * _alpha_entry(r, i, j)
+                + k * _alpha_entry(third, i, j))
+
+
+@kernel
+def beam_derivative(EA, GA, h, inv_h, p, q, a, zp, zq, za, cos_hat, sin_hat):
+    """The element's block of ``T[w]`` (:func:`beam_block`) from ``∇³W[z]``, ``z`` the
+    reduced image of ``w`` (the curvature term is quadratic: no third derivative)."""
+    eps, gam, g_eps, g_gam = beam_strains(p, q, a, cos_hat, sin_hat)
+    m_eps = (-g_eps[0], -g_eps[1], -g_eps[2])
+    m_gam = (-g_gam[0], -g_gam[1], -g_gam[2])
+    r00 = r01 = r11 = r02 = r12 = r22 = 0.0
+    # per strain k (rigidity R): ∇²k's α_o row r (∇γ for ε, −∇ε for γ), ∇³k's t = −∇k
+    for which in range(2):
+        if which == 0:
+            R, k, g, r, t = EA, eps, g_eps, g_gam, m_eps
+        else:
+            R, k, g, r, t = GA, gam, g_gam, m_eps, m_gam
+        Hz = _row_image(r, zp, zq, za)
+        gz = g[0] * zp + g[1] * zq + g[2] * za
+        third = _strain_third(t, zp, zq, za)
+        r00 += _derivative_entry(R, k, g, r, Hz, gz, third, 0, 0)
+        r01 += _derivative_entry(R, k, g, r, Hz, gz, third, 0, 1)
+        r11 += _derivative_entry(R, k, g, r, Hz, gz, third, 1, 1)
+        r02 += _derivative_entry(R, k, g, r, Hz, gz, third, 0, 2)
+        r12 += _derivative_entry(R, k, g, r, Hz, gz, third, 1, 2)
+        r22 += _derivative_entry(R, k, g, r, Hz, gz, third, 2, 2)
+    return beam_block(h, inv_h, r00, r01, r11, r02, r12, r22, 0.0)
+
+
+def _block_layout():
+    """``(value, sign)`` of each entry ``6 a + b`` of an element block: the values
+    of :func:`beam_block` ``(x_00, x_01, x_11, y_0, y_1, d, o)`` at ``±`` in
+    ``h L_eᵀ red L_e`` (L_e has ∓1/h_e (u_ξ, v_ξ) on the translations of nodes
+    i and j, 1/2 (α_o) and ∓1/h_e (χ) on their rotations)."""
+    value, sign = [0] * 36, [1.0] * 36
+
+    def put(a, b, k, s):
+        value[6 * a + b], sign[6 * a + b] = k, s
+    for t in range(2):
+        for s in range(2):
+            k = t + s
+            put(t, s, k, 1.0), put(3 + t, 3 + s, k, 1.0)
+            put(t, 3 + s, k, -1.0), put(3 + t, s, k, -1.0)
+        for a, b in ((t, 2), (t, 5), (2, t), (5, t)):
+            put(a, b, 3 + t, -1.0)
+        for a, b in ((3 + t, 2), (3 + t, 5), (2, 3 + t), (5, 3 + t)):
+            put(a, b, 3 + t, 1.0)
+    put(2, 2, 5, 1.0), put(5, 5, 5, 1.0), put(2, 5, 6, 1.0), put(5, 2, 6, 1.0)
+    return tuple(value), tuple(sign)
+
+
+_BLOCK_VALUE, _BLOCK_SIGN = _block_layout()
+
+
+@kernel
+def _element(params, u, e):
+    """``(h, 1/h, cos α̂, sin α̂)`` and the reduced coordinates of element ``e`` at ``u``."""
+    n_el = int(params[0])
+    h, inv_h = params[4 + e], params[4 + n_el + e]
+    i = 3 * e
+    return ((h, inv_h, params[4 + 2 * n_el + e], params[4 + 3 * n_el + e]),
+            beam_reduced(u[i], u[i + 1], u[i + 2], u[i + 3], u[i + 4], u[i + 5], inv_h))
+
+
+@kernel
+def toss_rule_force(u, params):
+    n_el = int(params[0])
+    f = np.zeros(3 * (n_el + 1))
+    for e in range(n_el):
+        (h, _, c, s), (p, q, a, chi) = _element(params, u, e)
+        g0, g1, half, bend = beam_force(params[1], params[2], params[3], h, p, q, a, chi, c, s)
+        base = 3 * e
+        f[base] -= g0
+        f[base + 1] -= g1
+        f[base + 3] += g0
+        f[base + 4] += g1
+        f[base + 2] += half - bend
+        f[base + 5] += half + bend
+    return f
+
+
+@kernel
+def _element_block(u, w, params, e):
+    """The numbers of element ``e``'s block of ``K`` (``w`` empty) or of ``T[w]``."""
+    (h, inv_h, c, s), (p, q, a, _) = _element(params, u, e)
+    if w.size == 0:
+        return beam_stiffness(params[1], params[2], params[3], h, inv_h, p, q, a, c, s)
+    _, (zp, zq, za, _) = _element(params, w, e)
+    return beam_derivative(params[1], params[2], h, inv_h, p, q, a, zp, zq, za, c, s)
+
+
+@kernel
+def _dense(u, w, params):
+    n_el = int(params[0])
+    out = np.zeros((3 * (n_el + 1), 3 * (n_el + 1)))
+    for e in range(n_el):
+        values = _element_block(u, w, params, e)
+        for m in range(36):
+            out[3 * e + m // 6, 3 * e + m % 6] += _BLOCK_SIGN[m] * values[_BLOCK_VALUE[m]]
+    return out
+
+
+@kernel
+def _data(u, w, params, slots, nnz):
+    data = np.zeros(nnz)
+    for e in range(int(params[0])):
+        values = _element_block(u, w, params, e)
+        for m in range(36):
+            data[slots[e, m]] += _BLOCK_SIGN[m] * values[_BLOCK_VALUE[m]]
+    return data
+
+
+@kernel
+def toss_rule_stiffness(u, params):
+    return _dense(u, np.empty(0), params)
+
+
+@kernel
+def toss_rule_stiffness_derivative(u, w, params):
+    return _dense(u, w, params)
+
+
+@kernel
+def toss_rule_stiffness_data(u, params, slots, nnz):
+    """The data array (nnz,) of ``K`` in the CSR pattern whose positions ``slots``
+    (N_el, 36) gives for each element's couplings."""
+    return _data(u, np.empty(0), params, slots, nnz)
+
+
+@kernel
+def toss_rule_stiffness_derivative_data(u, w, params, slots, nnz):
+    """The data array (nnz,) of ``T(u)[w]`` in the pattern of :func:`toss_rule_stiffness_data`."""
+    return _data(u, w, params, slots, nnz)
+
+
+@kernel
+def toss_rule_potential_energy(u, params):
+    V = 0.0
+    for e in range(int(params[0])):
+        (h, _, c, s), (p, q, a, chi) = _element(params, u, e)
+        V += beam_energy(params[1], params[2], params[3], h, p, q, a, chi, c, s)
+    return 0.5 * V
 
 
 def toss_rule(n_elements=6, **params) -> TossRule:
