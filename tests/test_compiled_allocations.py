@@ -1,8 +1,7 @@
 """The compiled path allocates, per step, only what the model's kernels allocate.
 
-The attempt and the driver make their work arrays once per call of the
-driver (docs/compiled.md, "Work arrays"): some forty allocations per step
-before, at about 50 ns each. numba's runtime counts every array it allocates
+The loop's work arrays are made once per run (hfdi.run_records), not per
+step: some forty allocations per step before, at about 50 ns each. numba's runtime counts every array it allocates
 when ``NUMBA_NRT_STATS=1`` is set before numba is imported, hence a
 subprocess. Over a run of ordinary steps, the allocations must be those of
 the kernel calls that the evaluation counters report, each kernel at what one
@@ -32,9 +31,9 @@ CASES = [(problem, scheme, mode, t1, t2 if mode == "error" else t2_paper)
                                            ("tetrahedra", 2.5, 20.0, 50.0),
                                            ("articulated", 0.06, 0.5, 1.5),
                                            ("toss_rule", 0.012, 0.05, 0.1)]
-         for scheme in ("newmark", "bathe", "hfdi")
+         for scheme in ("newmark", "bathe", "hfdi", "generalized_alpha")
          for mode in ("error", "iterations")]
-#: Allocations allowed per call of the driver (its work arrays; 38 measured)
+#: Allocations allowed per call of the compiled loop
 PER_CALL = 64
 
 SCRIPT = textwrap.dedent("""
@@ -63,20 +62,22 @@ SCRIPT = textwrap.dedent("""
             counts.append(allocated() - before)
         return (counts[2] - counts[1]) / 20
 
-    from hfdi.compiled.driver import CompiledDriver
     driver_calls = [0]
-    run = CompiledDriver.run
 
-    def counting_run(*args, **kwargs):
-        driver_calls[0] += 1
-        return run(*args, **kwargs)
-    CompiledDriver.run = counting_run
+    def counted_calls(itg):
+        loop = itg._advance_compiled
+
+        def counting(*args):
+            driver_calls[0] += 1
+            return loop(*args)
+        itg._advance_compiled = counting
 
     results = []
     for problem, scheme, mode, t1, t2 in json.loads(sys.argv[1]):
         model = hfdi.models.get(problem)
         options = dict(rtol=1e-6) if mode == "error" else dict(target_iterations=3.0)
         itg = hfdi.Integrator(model, scheme, compiled=True, **options)
+        counted_calls(itg)
         itg.advance(t1)
         k = model.compiled_kernels()
         load = k.load if k.load is not None else hat_load
@@ -96,9 +97,11 @@ SCRIPT = textwrap.dedent("""
         allocations = allocated() - start
         st = itg.statistics
         counts = {name: getattr(st, name) - before[name] for name in before}
-        # the load at the step's end, and at Bathe's mid-step (HFDI's rate is
-        # a difference quotient: these models give no load rate kernel)
-        counts["load"] = counts["steps"] * (2 if scheme == "bathe" else 1)
+        # the load at the step's end, and at Bathe's mid-step or generalized-α's
+        # t_{n+1-α_f} (HFDI's rate is a difference quotient: these models give
+        # no load rate kernel)
+        counts["load"] = counts["steps"] * (2 if scheme in ("bathe", "generalized_alpha")
+                                            else 1)
         expected = sum(counts[name] * kernels[name] for name in kernels)
         results.append(dict(case=[problem, scheme, mode], allocations=allocations,
                             expected=expected, steps=counts["steps"],

@@ -333,7 +333,7 @@ def test_cache_key_covers_the_hfdi_modules_a_model_module_uses(tmp_path, monkeyp
     import sys
     from validation.reference import model_sources
     (tmp_path / "my_model.py").write_text(
-        "import hfdi\nfrom hfdi.models.pair import PairPotential\n"
+        "import hfdi\nfrom hfdi.models.pair import relative\n"
         "class Mine(hfdi.SecondOrderSystem):\n    n_dof = 1\n    mass = [1.0]\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     module = importlib.import_module("my_model")
