@@ -303,7 +303,8 @@ class HfdiSlave(Fmi2Slave):
     def _register_parameters(self, pmeta):
         fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
         self.register_variable(String(
-            "scheme", description="integration scheme: newmark, bathe or hfdi",
+            "scheme", description="integration scheme: newmark, bathe, hfdi or "
+            "generalized_alpha",
             getter=lambda: self._params["scheme"],
             setter=self._param_setter("scheme", str), **fixed))
         solver = [
@@ -326,7 +327,7 @@ class HfdiSlave(Fmi2Slave):
         self.register_variable(Boolean(
             "compiled", description="take the internal steps in compiled code (numba: "
             "hfdi.Integrator(compiled=True)); the first instantiation after the FMU is "
-            "extracted compiles for about a minute. false: the Python path",
+            "extracted compiles (said in the log). false: the Python path",
             getter=lambda: self._params["compiled"],
             setter=self._param_setter("compiled", bool), **fixed))
         self.register_variable(Integer(

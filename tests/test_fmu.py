@@ -807,3 +807,81 @@ def test_a_freed_state_is_refused_not_a_crash(dumbbell_fmu):
     for name in ("set", "serialize", "free again"):
         assert f"{name} refused 3" in lines, done.stdout       # fmi2Error
     assert "still stepping" in lines
+
+
+# -- any mix of native and Python calls --------------------------------------------------
+def _random_sequence(rng, length):
+    """Calls of a master, as ``(name, argument)``: input changes, doSteps of
+    sizes that take one or many internal steps, reads, no-op save/restore
+    pairs, a serialized round trip, and a restore of a state saved earlier."""
+    calls = []
+    for _ in range(length):
+        kind = rng.choice(["input", "step", "step", "step", "read", "noop", "serial",
+                           "save", "restore"], p=[.16, .2, .2, .14, .1, .06, .04, .05, .05])
+        if kind == "input":
+            calls.append(("input", (int(rng.integers(1, N + 1)), float(rng.normal(0, 60)))))
+        elif kind == "step":
+            calls.append(("step", float(rng.choice([2e-4, 1e-3, 4e-3, 0.02]))))
+        else:
+            calls.append((kind, None))
+    return calls
+
+
+def _play(u, calls):
+    """The values a master reads along ``calls`` (the states after every call)."""
+    t, saved, seen = 0.0, None, []
+    start = u.get_state()
+    u.set_state(start)                       # every sequence from the initial state
+    for name, arg in calls:
+        if name == "input":
+            u.set({f"F[{arg[0]}]": arg[1]})
+        elif name == "step":
+            assert u.step(t, arg), u.messages[-3:]
+            t += arg
+        elif name == "read":
+            seen.append(u.get_string("scheme"))
+        elif name == "noop":
+            state = u.get_state()
+            u.set_state(state)
+            u.free_state(state)
+        elif name == "serial":
+            state = u.get_state()
+            u.set_state(u.deserialize(u.serialize(state)))
+            u.free_state(state)
+        elif name == "save":
+            if saved is not None:
+                u.free_state(saved[0])
+            saved = (u.get_state(), t)
+        elif name == "restore" and saved is not None:
+            u.set_state(saved[0])
+            t = saved[1]
+        seen.append(u.get(OBSERVED).tolist())
+    if saved is not None:
+        u.free_state(saved[0])
+    u.free_state(start)
+    return seen
+
+
+@pytest.mark.parametrize("sequences", [pytest.param(12, id="quick"),
+                                       pytest.param(200, id="200", marks=pytest.mark.slow)])
+def test_native_and_python_fmus_agree_on_any_call_sequence(dumbbell_fmu, sequences):
+    """The compiled FMU (its native layer takes the doSteps and reads it can)
+    and the Python-path FMU, driven by the same random calls of a master:
+    the same values bit for bit after every call, save and restore included.
+    (A restore after an input change handed back a stale step history: 223
+    internal steps where 220 were taken.)"""
+    rng = np.random.default_rng(2026)
+    for k in range(sequences):
+        scheme = hfdi.PAPER_SCHEMES[k % 3] if k % 4 else "generalized_alpha"
+        control = {"rtol": 1e-6} if k % 2 else {"target_iterations": 3.0}
+        parameters = {"scheme": scheme, "max_internal_steps": 5000, **control}
+        units = [unit(dumbbell_fmu, dict(parameters, compiled=c), f"mix-{k}-{c}")
+                 for c in (True, False)]
+        try:
+            calls = _random_sequence(rng, 40)
+            native, python = (_play(u, calls) for u in units)
+            for i, (a, b) in enumerate(zip(native, python)):
+                assert a == b, (k, scheme, i, calls[: i + 1])
+        finally:
+            for u in units:
+                u.close()

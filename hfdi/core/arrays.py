@@ -38,9 +38,10 @@ def _lincomb_loop(out, a, x, b, y):
 
 @primitive(_lincomb_loop)
 def lincomb(out, a, x, b, y):
-    """``out = a x + b y``."""
+    """``out = a x + b y`` (``out`` may be ``x`` or ``y``)."""
+    by = b * y              # before out is written: out may be y
     np.multiply(x, a, out)
-    out += b * y
+    out += by
 
 
 def _copy_loop(out, x):

@@ -125,9 +125,7 @@ def twin(function):
         return made
     kind, source = _CORE[function]
     options = dict(JIT_OPTIONS)
-    mode = os.environ.get("HFDI_INLINE_EXPERIMENT", "all")
-    is_primitive = source is not function
-    if kind == "inline" and (mode == "all" or (mode == "orchestration" and not is_primitive)):
+    if kind == "inline":
         options["inline"] = "always"
     clone = _clone(source)
     made = _TWINS[function] = _numba().njit(**options)(clone)
