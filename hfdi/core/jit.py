@@ -279,8 +279,11 @@ def _source_keyed_locator(caching):
         """In :func:`numba_cache_dir`, stamped with :func:`source_digest` of the
         function's module."""
 
-        def __init__(self, py_file):
-            self._digest = source_digest(py_file)
+        def __init__(self, py_file, package):
+            # the package's name in the key: numba's files pickle objects that
+            # name their modules, so a copy of these sources imported under
+            # another name (an FMU's) must not load this package's files
+            self._digest = f"{package}-{source_digest(py_file)}"
             self._path = numba_cache_dir()
 
         def ensure_cache_path(self):
@@ -299,9 +302,9 @@ def _source_keyed_locator(caching):
         @classmethod
         def from_function(cls, py_func, py_file):
             module = getattr(py_func, "__module__", "") or ""
-            if not module.startswith("hfdi") or not os.path.isfile(py_file):
+            if not module.startswith(("hfdi", "_hfdi")) or not os.path.isfile(py_file):
                 return None
-            return cls(py_file)
+            return cls(py_file, module.split(".")[0])
 
     return SourceKeyedLocator
 
