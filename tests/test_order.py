@@ -73,3 +73,15 @@ def test_generalized_alpha_is_second_order_against_exact_solutions(problem, rho_
         errors.append(np.linalg.norm(np.concatenate([result.u[-1] - u, result.v[-1] - v])))
     fit = linregress(np.log(steps), np.log(errors))
     assert abs(fit.slope - 2.0) <= 0.15 and fit.rvalue > 0.999, (fit.slope, errors)
+
+
+def test_the_damped_chains_exact_solution_is_the_matrix_exponential():
+    """The reference of the damped chain (eigenvectors) against scipy's expm."""
+    import scipy.linalg as sla
+    _, exact = damped_chain()
+    times = np.array([0.0, 0.37, 2.0, 11.5])
+    u, v = exact(times)
+    for k, t in enumerate(times):
+        y = sla.expm(exact.matrix * t) @ exact.start
+        np.testing.assert_allclose(np.concatenate([u[k], v[k]]), y, rtol=0,
+                                   atol=1e-14 * max(1.0, np.abs(y).max()))
