@@ -110,8 +110,6 @@ class Articulated(SecondOrderSystem):
     """
 
     name = "articulated"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "x of mass {k}"], ["m", "y of mass {k}"]],
         "parameters": {

@@ -33,8 +33,6 @@ class Dumbbell(SecondOrderSystem):
     """
 
     name = "dumbbell"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"]],
         "parameters": {

@@ -70,8 +70,6 @@ class Tetrahedra(SecondOrderSystem):
     """
 
     name = "tetrahedra"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"],
                  ["m", "z of particle {k}"]],

@@ -99,8 +99,6 @@ class TossRule(SecondOrderSystem):
     """
 
     name = "toss_rule"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "axial u of node {k0}"],
                  ["m", "transverse v of node {k0}"],
