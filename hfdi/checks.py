@@ -115,7 +115,7 @@ def square_matrix(name: str, value, n: int | None = None, *, to_match: str = "")
     scipy sparse (N, N) matrix, with finite real entries and ``N >= 1``.
 
     The one check of a mass, damping or stiffness matrix given by a user
-    (:class:`~hfdi.system.System`, :func:`hfdi.linalg.normalise_matrix`,
+    (:class:`~hfdi.system.System`, :func:`hfdi.evaluation.normalise_matrix`,
     the symbolic models).
 
     Parameters

@@ -12,19 +12,9 @@ A controller has two methods, in the manner of diffrax's:
     failed status. ``rejections`` counts the attempts already rejected for
     this step.
 
-The integrator is the loop: it runs attempts, lands steps on the times it
-must reach, and keeps the statistics; the rules are here. Four controllers:
-
-- :class:`IterationCount`, the paper's rule (Eq. 39): the step size follows
-  the Newton iteration count. It controls the work per step, **not the
-  error**: on a linear problem Newton always converges at once and the step
-  grows to ``max_step`` whatever the accuracy.
-- :class:`ErrorControl`: the local error estimate of
-  :func:`~hfdi.corrector.local_error` in a weighted RMS norm with weights
-  ``atol + rtol·|u|``, as IDA and ``scipy.integrate.solve_ivp`` do.
-- :class:`Combined`: both; an attempt is accepted when both accept, and the
-  smaller proposal wins.
-- :class:`FixedStep`: a constant size.
+The integrator is the loop; the rules are here: :class:`IterationCount` (the
+paper's Eq. 39), :class:`ErrorControl`, :class:`Combined` (both) and
+:class:`FixedStep` (docs/algorithm.md, "Step-size control" and "Error control").
 """
 from __future__ import annotations
 
@@ -163,13 +153,7 @@ class Controller:
 
     def landing(self, h: float, remaining: float) -> float:
         """The size to take when ``remaining`` is left to the next time to reach
-        and ``h`` is proposed: ``remaining`` itself to land on it.
-
-        A step is not left shorter than about half the proposed one: within
-        10 % it is stretched to land, below two steps the rest is split
-        evenly, so that no sliver of a step (whose velocity ``Δu/h`` would
-        lose digits) is ever taken.
-        """
+        and ``h`` is proposed (docs/algorithm.md, "Landing without slivers")."""
         return control.landing(self.config(), h, remaining)
 
     def settings(self) -> dict:
@@ -200,11 +184,8 @@ class Controller:
 
 
 class FixedStep(Controller):
-    """A constant step size (for order tests and references).
-
-    Steps land on a grid ``t_a + k·step`` counted from the last time a step
-    had to be shortened, so that ``t_end/n`` takes exactly ``n`` steps.
-    """
+    """A constant step size (for order tests and references), landing on the
+    grid ``t_a + k·step`` (docs/algorithm.md, "Landing without slivers")."""
 
     kind = FIXED
 
@@ -233,19 +214,9 @@ class IterationCount(Controller):
     """Step size from the Newton iteration count (paper Eq. 39, Section 5).
 
     ``h_{n+1} = h_n (N̄ / N_n)^{1/2}``, with ``N̄`` the target corrections of a
-    whole step (``2 N̄`` for Bathe's two sub-steps). This rule controls the
-    work per step, not the error.
-
-    The paper writes the rule on a ratio ``μ`` that it multiplies again into
-    the previous step; read literally that compounds the correction and the
-    step runs away, while its tables show mean iteration counts that track
-    ``N̄``. The rule is applied to the step size itself.
-
-    A step shortened to land on an output or communication time says little
-    about the size the controller proposed: when it converged within the
-    target, the proposal is kept; when it needed more, the rule applies to the
-    step actually taken. A diverged attempt is retried with the step halved.
-    The rules are :func:`hfdi.core.control.iteration_adapt` and
+    whole step (``2 N̄`` for Bathe's two sub-steps): it controls the work per
+    step, not the error (docs/algorithm.md, "Step-size control"). The rules
+    are :func:`hfdi.core.control.iteration_adapt` and
     :func:`~hfdi.core.control.iteration_search`.
 
     Parameters
@@ -316,12 +287,13 @@ class IterationCount(Controller):
 #: The former name of :class:`IterationCount`.
 IterationCountController = IterationCount
 
+
 class ErrorControl(Controller):
     """Step size from the local error estimate (docs/algorithm.md, "Error control").
 
     ``err = ‖e / (atol + rtol·max(|y_n|, |y_{n+1}|))‖_RMS`` over the
     first-order state ``y = (u, v)``, as IDA and ``solve_ivp`` weigh it, with
-    ``e`` from :func:`~hfdi.corrector.local_error`. An attempt with ``err ≤ 1`` is
+    ``e`` from :func:`~hfdi.core.estimate.local_error`. An attempt with ``err ≤ 1`` is
     accepted; otherwise it is retried. The next size is
     ``h · safety · err^{−1/(p+1)}``, limited to ``[shrink, grow]·h`` (and to
     at most ``h`` right after a rejection). A diverged corrector halves the

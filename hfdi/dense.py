@@ -6,18 +6,8 @@ interpolant that matches all three at both ends (``C²`` across steps, error
 ``O(h⁶ u⁽⁶⁾)`` on exact data), ``v`` by the cubic Hermite interpolant of
 ``(v, a)`` at both ends (error ``h⁴ max|u⁽⁵⁾| / 384`` on exact data).
 
-Decision: **v is not the quintic's derivative.** That derivative carries the
-consistency defect ``u_{n+1} − u_n − h (v_n + v_{n+1})/2 − h² (a_n −
-a_{n+1})/12`` divided by ``h`` (weight 1.875 at mid-step): ``O(h⁵)`` on exact
-data, but a scheme's step leaves its local error ``ℓ_u`` (``O(h³)`` Newmark
-and Bathe, ``O(h⁴)`` HFDI) in that defect, so ``P'`` erred by ``ℓ_u/h``, one
-order below the step-end velocity's: at mid-step 6 to 245 times the step
-end's local error of ``v`` (a damped 3-mass chain, rtol 1e-4 to 1e-8, all
-three schemes). The cubic takes no ``u``: its error between the step ends
-is that of ``v`` and ``a`` there plus its own ``O(h⁴)`` (there 0.5–0.7 of
-the step end's, as the quintic's is in ``u``; ``tests/test_accuracy.py``).
-(:mod:`validation.reference` interpolates IDA's tight references with the
-quintic and ``v = P'``: there the defect is IDA's, below its tolerance.)
+``v`` is not the quintic's derivative, which divides the step's local error
+of ``u`` by ``h``: docs/algorithm.md, "Dense output", gives the decision.
 """
 from __future__ import annotations
 

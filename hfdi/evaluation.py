@@ -1,19 +1,12 @@
 """The one checked gateway to a model.
 
-:class:`Evaluator` wraps a :class:`~hfdi.system.SecondOrderSystem`: it
-normalises and checks its mass and damping once, and every value of the
-model it hands out is checked for its shape (a wrong one is a mistake in the
-model: :class:`ModelError`) and for being finite (NaN at some trial state is a
-failed attempt that a shorter step may avoid: :class:`NonFiniteError`).
-
-The stepping code (:mod:`hfdi.stepping`) calls a model through functions of
-the compiled kernels' signatures (:data:`hfdi.core.state.FUNCTIONS`);
-:meth:`Evaluator.functions` gives them for a Python model. They never raise
-into the stepping code for a fault that a shorter step may avoid: they record
-the fault (:attr:`Evaluator.fault`, for the message) and return a value that
-is not finite, or, for a mistake in the model, a value of a wrong shape,
-which the stepping code turns into a failed attempt or a stop with
-``MODEL_ERROR`` as it does for compiled kernels.
+:class:`Evaluator` wraps a :class:`~hfdi.system.SecondOrderSystem`: it checks
+its mass and damping once, and every value of the model it hands out for its
+shape (a wrong one is a mistake in the model: :class:`ModelError`) and for
+being finite (else :class:`NonFiniteError`, a failed attempt). For the
+stepping code, :meth:`Evaluator.functions` records a fault in
+:attr:`Evaluator.fault` and returns a value of a wrong shape or not finite
+instead of raising, as compiled kernels signal it.
 """
 from __future__ import annotations
 
@@ -59,7 +52,6 @@ def brief(x) -> str:
     if x.size > 8:
         parts[3:3] = [f"... ({x.size} entries) ..."]
     return "[" + ", ".join(parts) + "]"
-
 
 
 _ndarray = np.ndarray
@@ -197,10 +189,8 @@ class Evaluator:
         if self.mass is None:
             raise ValueError("system.mass must be given")
         self.damping = normalise_matrix(system.damping, n, "system.damping")
-        # A mass that is not positive definite has no acceleration (or an
-        # unbounded one); a damping that is not semi-definite feeds energy in.
-        # Both are mistakes in a model, cheaper to report here than as a
-        # diverging run later. (normalise_matrix has checked them finite.)
+        # a mass not positive definite, a damping not semi-definite: mistakes
+        # in the model, reported here rather than as a diverging run
         for name, matrix, semi in (("system.mass", self.mass, False),
                                    ("system.damping", self.damping, True)):
             if matrix is None:
@@ -277,16 +267,9 @@ class Evaluator:
             self.bands = band
 
     # -- counted model calls --------------------------------------------------
-    # Every value is checked for its shape (a wrong one is a mistake in the
-    # model: ModelError) and for being finite (NaN at some trial state is a
-    # failed attempt that a shorter step may avoid: NonFiniteError). The
-    # common case, a float ndarray of the right shape with finite entries,
-    # is recognised with a few attribute tests and one ufunc; anything else
-    # goes through the full conversion and its messages. ``where`` is a
-    # function of ``args`` that places a failure, called only on failure.
-    # What is returned is always a copy: a model may hand back the same
-    # buffer at every call, and values are kept (State.f, State.p) or used
-    # together (K and T in one tangent) after later calls.
+    # The common case, a finite float ndarray of the right shape, is recognised
+    # with a few attribute tests and one ufunc. ``where(*args)`` places a
+    # failure. A copy is returned: a model may hand back the same buffer.
     def _vector(self, value, what, where, *args):
         if (type(value) is _ndarray and value.shape == self._vector_shape
                 and value.dtype == _float64 and all_finite(value)):

@@ -1,19 +1,11 @@
 """Files: atomic output (a killed run leaves the old file or none, never half
 of one) and the directory of the project's caches.
 
-Two kinds of writes:
-
-* :func:`atomic_file`, :func:`write_atomic`: a file of the program's own (a
-  cache entry): whatever is at the path, a symbolic link included, is
-  replaced by a regular file, so that nothing planted there is written
-  through;
-* :func:`atomic_output`, :func:`write_output`: an output the user named (a
-  command's ``--json``, ``--csv``, a file in its ``--out``): a symbolic link
-  is followed and the file it points to is replaced (atomically, in that
-  file's directory; the link stays), a FIFO or a character device
-  (``/dev/null``, a terminal) is written to as it is, once the whole output
-  is made, and anything else that is not a regular file (a socket, a block
-  device) is refused with :class:`OSError`. A special file is never replaced.
+:func:`atomic_file` and :func:`write_atomic` write a file of the program's own
+(a cache entry), replacing whatever is at the path, a symbolic link included;
+:func:`atomic_output` and :func:`write_output` write an output the user named,
+following a symbolic link, writing a FIFO or character device as it is, and
+refusing other special files (docs/robustness.md, "CLI section").
 """
 from __future__ import annotations
 

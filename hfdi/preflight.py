@@ -19,13 +19,8 @@ _SQRT_EPS = math.sqrt(_EPS)
 
 def initial_state(ev, scheme, t0, u0, v0, check_stiffness, floor, t_bound, breakpoints):
     """The initial :class:`State`, ``K(u0)``, ``T(u0)[v0]`` (HFDI only, else
-    ``None``) and ``V(u0)``, every model function checked once.
-
-    A model is often wrong at first. Evaluating each function the run will
-    use at the initial state turns a wrong shape, a NaN or an exception
-    into a :class:`ModelError` that names the function, instead of a run
-    whose every step fails for a reason the user has to guess.
-    """
+    ``None``) and ``V(u0)``, every function the run will use checked once: a
+    wrong shape, a NaN or an exception is a :class:`ModelError` naming it."""
     name = getattr(ev.system, "name", type(ev.system).__name__)
     where = f"at the initial state (t0 = {t0:g}, u0 = {brief(u0)}, v0 = {brief(v0)})"
 
@@ -70,30 +65,16 @@ def initial_state(ev, scheme, t0, u0, v0, check_stiffness, floor, t_bound, break
 
 
 def check_stiffness_of(ev, u0, K, call, name, floor):
-    """``K(u0)`` against central differences of ``f`` along one direction.
+    """``K(u0)`` against central differences of ``f`` along one direction
+    (docs/user-models.md, "Writing your own model").
 
-    HFDI uses ``K`` in its step equation (``g_t = p' − K v``), so a wrong
-    ``K`` gives wrong answers there, not only a slow Newton; in every
-    scheme it is a mistake in the model.
-
-    Each degree of freedom is perturbed relative to its own size,
     ``d_i = s·√ε·max(|u0_i|, 1e-3·U) w_i`` (``U = max(max|u0|, u_scale)``,
-    ``w`` a fixed direction), so that a rotation beside translations in
-    mm is not perturbed by a large part of itself. At each scale ``s``
-    (1, 1e2, 1e4, 1e6) the mismatches of the central differences at
-    ``d`` and ``2d`` with ``K d`` and ``2 K d`` are Richardson-combined,
-    ``(8 m(d) − m(2d))/6``, which cancels the ``O(d³)`` of the
-    nonlinearity (a pure cubic spring at rest) and leaves ``(∂f/∂u − K) d``.
-    Row ``i`` counts at a scale where the rounding of ``f`` there is below
-    1e-4 of its terms ``Σ_j |K_ij d_j|`` (a large preload in ``f`` hides a
-    wrong ``K`` at small ``d``), and its error is the smallest over the
-    scales that count (rounding inside ``f``, large terms cancelling, is
-    gone at a larger ``d``; a kink near ``u0`` at a smaller one). A row
-    whose error is above 0.1 % of its terms is refused; a row that never
-    counts (``K`` zero there) is not judged. 4 force evaluations when
-    every row passes at the first scale, up to 16; beyond the first scale
-    a failing evaluation (a model leaving its domain) only drops that
-    scale.
+    ``w`` a fixed direction) at scales ``s`` = 1, 1e2, 1e4, 1e6; the
+    mismatches at ``d`` and ``2d`` are Richardson-combined,
+    ``(8 m(d) − m(2d))/6``. Row ``i`` counts at a scale where the rounding
+    of ``f`` is below 1e-4 of its terms ``Σ_j |K_ij d_j|``, and its error is
+    the smallest over the scales that count; above 0.1 % of its terms it is
+    refused. Beyond the first scale a failing evaluation only drops that scale.
     """
     w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
     size_u = max(float(np.abs(u0).max()), floor)
@@ -144,18 +125,10 @@ def check_stiffness_of(ev, u0, K, call, name, floor):
 
 
 def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
-    """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`).
-
-    HFDI puts ``p'`` into its step equation (``g_t = p' − K v``), so a
-    wrong rate gives a wrong answer that no tolerance shows: a rate 5 times
-    too large was off by 800 times the tolerance at rtol 1e-6. The
-    differences are taken at steps of ``10^-2 … 10^-13`` times the run's
-    span (1 where it is not known) that end before the load's next
-    breakpoint, and the best agreement counts, so a correct rate of a load
-    of any time scale passes; a mismatch above 0.1 % is refused, as for
-    ``K``; a rate that cannot be judged (below the rounding of ``p``) is
-    not.
-    """
+    """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`)
+    at steps of ``10^-2 … 10^-13`` times the run's span (1 where it is not
+    known) that end before the load's next breakpoint; a mismatch above 0.1 %
+    is refused, as for ``K``."""
     scale = t_bound - t0 if t_bound is not None else 1.0
     # every breakpoint, the model's and the given ones, whether the mode
     # lands on them or not: a jump inside the differences hides a wrong rate

@@ -2,7 +2,7 @@
 accepted steps."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -152,11 +152,10 @@ class Result:
 
 
 class Rows:
-    """Per-step records in blocks of arrays: a step of the Python driver costs a
-    copy of its numbers into the open block (grown by doubling), a call of the
-    compiled driver hands over its own rows as a block (views of its buffers,
-    or a copy when it filled less than half of them), and :meth:`arrays`
-    joins the blocks once."""
+    """Per-step records in blocks of arrays: a step taken in Python is copied
+    into the open block (grown by doubling), a call of the compiled loop hands
+    over its own rows as a block (:meth:`extend`), and :meth:`arrays` joins
+    the blocks once."""
 
     def __init__(self, n: int):
         self.n = n
@@ -215,5 +214,4 @@ class Rows:
         return {key: np.concatenate([block[key] for block in blocks]) for key in self.data}
 
 
-
-STATISTICS_FIELDS = tuple(f.name for f in __import__("dataclasses").fields(Statistics))
+STATISTICS_FIELDS = tuple(f.name for f in fields(Statistics))

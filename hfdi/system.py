@@ -1,15 +1,10 @@
 """The model protocol: a second-order system ``M u'' + C u' + f(u) = p(t)``.
 
-A model tells the integrator its size, its mass matrix ``M`` (diagonal, dense
-or sparse), its damping ``C`` (or none), the internal force ``f(u)``, the
-tangent ``K(u) = df/du``, the directional derivative of the tangent
-``T(u)[w] = d(K(u) w)/du`` that the HFDI tangent needs (paper, Eq. 21 and
-Table 1), the external load ``p(t)``, the potential energy ``V(u)`` used by the
-energy balance (Eq. 40) and named quantities of interest ``z(t, u, v)`` used
-by the error norms (Eq. 42).
-
-Derive a model from :class:`SecondOrderSystem` and override its methods, or
-build one from plain callables with :class:`System`.
+A model gives its size, ``M``, ``C``, ``f(u)``, ``K(u) = df/du``,
+``T(u)[w] = d(K(u) w)/du`` (HFDI's tangent, Eq. 21), ``p(t)``, ``V(u)`` (the
+energy balance, Eq. 40) and quantities of interest (the error norms, Eq. 42):
+subclass :class:`SecondOrderSystem`, or build one from callables with
+:class:`System`.
 """
 from __future__ import annotations
 
@@ -65,6 +60,9 @@ class SecondOrderSystem:
     initial_displacement = None
     initial_velocity = None
     u_scale: float = 1.0
+    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
+    #: ``stop_time`` is the end of its default experiment. ``None``: SI units assumed.
+    fmi_metadata: dict | None = None
 
     # -- mechanics ---------------------------------------------------------
     def internal_force(self, u):
@@ -279,9 +277,8 @@ class HeldLoad:
 
     ``HeldLoad(source)`` is called as any ``extra_load`` (``load(t)`` returns
     ``source()``, whatever ``t``), and says so: being constant over each
-    :meth:`Integrator.advance`, it is added by the compiled driver
-    (:mod:`hfdi.compiled.driver`) as one vector per call, where any other
-    ``extra_load`` keeps the steps on the Python driver.
+    :meth:`Integrator.advance`, it is added by the compiled loop as one vector
+    per call, where any other ``extra_load`` keeps the steps in Python.
 
     Parameters
     ----------
@@ -383,26 +380,15 @@ def _rel(err, ref):
 def load_rate_error(load, load_rate, t, time_scale, horizon=np.inf) -> float:
     """How far ``load_rate(t)`` is from the right derivative of ``load`` at ``t``.
 
-    Forward differences (the right limit: a run leaves ``t`` forwards, and a
-    load may have a kink there), Richardson-extrapolated (``2 D(δ) − D(2δ)``),
-    at steps ``δ = time_scale·10^-k`` for ``k = 2 … 13`` that stay before
-    ``horizon`` (the next breakpoint of the load). For each component, a
-    step counts where the rounding of ``p`` there, amplified by ``1/δ``, is
-    below 1e-4 of the rate (a static part of the load hides a wrong rate at
-    short steps); its error is the smallest relative mismatch over the steps
-    that count (a correct rate of a fast load agrees at a short step, of a
-    noisy one at a long step; a wrong one at none). The rate's size is the
-    largest of ``|p'(t)|``, the difference and the smallest mean rate
-    ``|p(t + 2δ) − p(t)|/2δ`` over the steps whose rounding is below 1e-4 of
-    it: so a rate of zero at an extremum of the load (cos at 0) is judged
-    against the load's variation at the finest step it resolves, not
-    against the differences' own ``O(δ³)`` error; and since the smallest
-    mean rate is that of the finest such step, it is no larger than the
-    rate near ``t`` (a mean over a long step of a growing load would make
-    any rate look right). The largest of the components' errors is
-    returned; NaN when no component could be judged (a rate of zero, or one
-    below the rounding of ``p`` at every step), ``inf`` where the values are
-    not finite.
+    Forward differences, Richardson-extrapolated (``2 D(δ) − D(2δ)``), at
+    ``δ = time_scale·10^-k`` for ``k = 2 … 13`` that stay before ``horizon``
+    (the load's next breakpoint). Per component, a step counts where the
+    rounding of ``p`` amplified by ``1/δ`` is below 1e-4 of the rate's size
+    (the largest of ``|p'(t)|``, the difference, and the smallest mean rate
+    the load resolves, so that a rate of zero at an extremum is judged), and
+    the error is the smallest relative mismatch over the steps that count.
+    Returns the largest of the components' errors; NaN when none could be
+    judged, ``inf`` where the values are not finite.
     """
     rate = np.asarray(load_rate(t), dtype=float)
     p0 = np.asarray(load(t), dtype=float)

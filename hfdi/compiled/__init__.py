@@ -1,13 +1,9 @@
 """Compiled (numba) models: the kernels protocol, their checks, and the choice of path.
 
-A model offers compiled kernels through ``compiled_kernels()`` returning
-:class:`CompiledKernels` (the paper's four models, every
-:class:`~hfdi.models.symbolic.EnergyModel`), or, for a large sparse system,
-``compiled_sparse_kernels()`` returning :class:`SparseKernels`. With them the
-integrator runs its whole loop compiled (:func:`hfdi.stepping.loop.advance_compiled`),
-calling the kernels through function pointers, after checking that they
-compute the model (:func:`kernel_mismatch`). docs/compiled.md describes the
-protocol and the measured speed.
+A model offers :class:`CompiledKernels` through ``compiled_kernels()``, or, for
+a large sparse system, :class:`SparseKernels` through
+``compiled_sparse_kernels()``; :func:`kernel_mismatch` checks that they
+compute the model. docs/compiled.md describes the protocol and the speed.
 """
 from __future__ import annotations
 
@@ -27,9 +23,11 @@ _log = logging.getLogger("hfdi.compiled")
 
 
 def __getattr__(name):
-    # NativeAdvance compiles (or loads) its C function on import: only when asked for
+    # NativeAdvance compiles (or loads) its C function on import, the zero load
+    # imports numba: only when asked for
     if name == "zero_load":
-        return _zero_load_kernel()
+        from .loads import hat_load
+        return hat_load
     if name == "NativeAdvance":
         from .native import NativeAdvance
         return NativeAdvance
@@ -48,8 +46,8 @@ class CompiledKernels(NamedTuple):
     params : ndarray (P,), float64, C-contiguous
         The model's data, read by the kernels and never written.
     load : numba function ``(t, load_params) -> p (N,)``, optional
-        The model's load ``p(t)``; with it the whole run of steps is compiled
-        (:mod:`hfdi.compiled.driver`), without it only each attempt.
+        The model's load ``p(t)``; without it the run is compiled only for a
+        model whose load is the zero load.
         :func:`hfdi.compiled.loads.hat_load` is the zero load and sums of hat pulses.
     load_params : ndarray (Q,), float64, C-contiguous, optional
         The load's data (``params`` itself, the same array, when the load
@@ -75,13 +73,9 @@ class CompiledKernels(NamedTuple):
 class SparseKernels(NamedTuple):
     """Compiled ``f``, ``K`` and ``T`` of a large sparse model, called as the model's own methods.
 
-    For systems of ``N ≥ DENSE_BELOW`` unknowns the steps run in the Python
-    driver with its sparse and banded linear algebra; what is compiled there
-    is the model: the evaluator calls these instead of the model's methods.
-    A model offers them through a ``compiled_sparse_kernels()`` method (the
-    toss rule's are :func:`hfdi.compiled.models.toss_rule_sparse_kernels`:
-    element loops that add each element's 6 × 6 block straight into the data
-    array of the model's fixed CSR pattern).
+    For systems of ``N ≥ DENSE_BELOW`` unknowns the steps run in Python with
+    sparse and banded linear algebra; the evaluator calls these instead of the
+    model's methods (e.g. :meth:`hfdi.models.TossRule.compiled_sparse_kernels`).
 
     Attributes
     ----------
@@ -148,52 +142,53 @@ def _difference(kernel_value, python_value):
 
 def _probe(system, u0):
     """A second state for the kernels' check, ``u0`` moved by 5 % of ``u_scale``
-    along a fixed direction with no zero entry, and a direction ``w`` for
-    ``T[w]``: a term that vanishes at ``u0`` (a model released from rest, a
-    branch not taken there) or ``T[v0]`` at ``v0 = 0`` proves nothing."""
+    along a fixed direction, and a direction ``w`` for ``T[w]`` (docs/compiled.md,
+    "Decision: the second state")."""
     i = np.arange(1.0, u0.size + 1.0)
     scale = float(getattr(system, "u_scale", 1.0) or 1.0)
     d = np.sin(1.3 * i + 0.7)
     return u0 + 0.05 * scale * d / np.abs(d).max(), np.cos(0.9 * i + 0.4)
 
 
-def _probe_checks(system, u0, hfdi, potential, kernel_calls):
-    """``(what, kernel call, Python value)`` at :func:`_probe`'s state, for the
-    kernels ``kernel_calls = (f(u), K(u), T(u, w), V(u))`` (``None`` where not
-    checked); none where the Python model fails there (not compared)."""
+def _state_checks(system, initial, calls):
+    """``(what, kernel call, Python value)`` for the kernels
+    ``calls = (f(u), K(u), T(u, w), V(u) or None)`` at the initial state and at
+    :func:`_probe`'s state (not there where the Python model fails)."""
+    force, stiffness, derivative, energy = calls
+    u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
+    v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
+    hfdi = initial.T is not None
+    potential = energy is not None and math.isfinite(initial.V)
+    checks = [("force", lambda: force(u0), initial.f),
+              ("stiffness", lambda: stiffness(u0), initial.K)]
+    if hfdi:
+        checks.append(("stiffness_derivative", lambda: derivative(u0, v0), initial.T))
+    if potential:
+        checks.append(("potential_energy", lambda: energy(u0), initial.V))
     u1, w = _probe(system, u0)
-    force, stiffness, derivative, energy = kernel_calls
     try:
         values = [("force", lambda: force(u1), system.internal_force(u1)),
                   ("stiffness", lambda: stiffness(u1), system.stiffness(u1))]
         if hfdi:
             values.append(("stiffness_derivative", lambda: derivative(u1, w),
                            system.stiffness_derivative(u1, w)))
-        if potential and energy is not None:
+        if potential:
             values.append(("potential_energy", lambda: energy(u1), system.potential_energy(u1)))
     except Exception:
-        return []
-    return [(f"{what} at a second state", call, value) for what, call, value in values]
+        return checks
+    return checks + [(f"{what} at a second state", call, value) for what, call, value in values]
 
 
-#: Where the library's own kernels are defined: each benchmark model's file,
-#: whose Python methods call the very kernels (tests/test_one_implementation.py
-#: holds the two speeds equal on every model, scheme and mode).
+#: Where the library's own kernels are defined (tests/test_one_implementation.py
+#: holds the two speeds equal on them).
 _LIBRARY_MODULES = ("hfdi.models.",)
 
 
 def library_kernels(system, kernels) -> bool:
     """Whether ``system``'s kernels are the library's own: every function of
-    ``kernels`` from :data:`_LIBRARY_MODULES`, handed out by the library's
-    own method (``compiled_kernels`` or ``compiled_sparse_kernels`` of a
-    model class of :mod:`hfdi.models`, not a user's override returning them
-    with another model's data). Then :func:`kernel_mismatch` is not run.
-
-    Decision: the check is for kernels the library did not write (a user's,
-    an EnergyModel's generated ones). On the paper's models it repeated what
-    the test suite holds, at a cost inside every run: 0.4–1.8 ms of a
-    compiled integrator's 0.9–3.5 ms construction, a tenth of a whole
-    dumbbell run at rtol 1e-6.
+    ``kernels`` from :data:`_LIBRARY_MODULES`, handed out by a model class of
+    :mod:`hfdi.models`. Then :func:`kernel_mismatch` is not run
+    (docs/compiled.md, "Decision: the library's own kernels are not checked").
     """
     method = "compiled_kernels" if isinstance(kernels, CompiledKernels) else \
         "compiled_sparse_kernels"
@@ -205,26 +200,11 @@ def library_kernels(system, kernels) -> bool:
 
 def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str:
     """Why ``kernels`` do not compute ``system`` (``""`` when they do): each
-    kernel at the initial state and at a second state near it
-    (:func:`_probe`), and the load at a few times up to ``initial.t_end``,
-    against the Python model's values (relative difference above
-    :data:`KERNEL_TOLERANCE`, another shape, or a value that is not finite
-    where the Python one is). Two calls of each kernel and of each of the
-    model's methods, no evaluation of the model counted. ``params``: the
-    kernels' data now (default ``kernels.params``)."""
-    name = type(system).__name__
-    u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
-    v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
+    kernel at the initial state and at :func:`_probe`'s, and the load at a few
+    times up to ``initial.t_end``, against the Python model (docs/compiled.md,
+    "Models"). ``params``: the kernels' data now (default ``kernels.params``)."""
     p = kernels.params if params is None else params
-    checks = [("force", lambda: kernels.force(u0, p), initial.f),
-              ("stiffness", lambda: kernels.stiffness(u0, p), initial.K)]
-    if initial.T is not None:
-        checks.append(("stiffness_derivative",
-                       lambda: kernels.stiffness_derivative(u0, v0, p), initial.T))
-    if math.isfinite(initial.V):
-        checks.append(("potential_energy", lambda: kernels.potential_energy(u0, p),
-                       initial.V))
-    checks += _probe_checks(system, u0, initial.T is not None, math.isfinite(initial.V), (
+    checks = _state_checks(system, initial, (
         lambda u: kernels.force(u, p), lambda u: kernels.stiffness(u, p),
         lambda u, w: kernels.stiffness_derivative(u, w, p),
         lambda u: kernels.potential_energy(u, p)))
@@ -236,7 +216,7 @@ def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str
         breakpoints = system.load_breakpoints() if hasattr(system, "load_breakpoints") else ()
         times += [float(b) * (1.0 + 1e-3) + 1e-9 for b in list(breakpoints)[:8]]
         times = [t for t in times if t == initial.t0 or t <= initial.t_end]
-        # load data that are the model's data follow them, as in the driver
+        # load data that are the model's data follow them, as in the compiled loop
         load_params = p if kernels.load_params is kernels.params else kernels.load_params
         rate = kernels.load_rate if getattr(system, "load_rate", None) is not None else None
         for t in times:
@@ -250,7 +230,7 @@ def kernel_mismatch(system, kernels, initial: InitialValues, params=None) -> str
             if rate is not None:
                 checks.append((f"load_rate at t = {t:g}",
                                lambda t=t: rate(t, load_params), python_rate))
-    return _first_mismatch(name, checks)
+    return _first_mismatch(type(system).__name__, checks)
 
 
 def _first_mismatch(name, checks) -> str:
@@ -302,23 +282,18 @@ class _Fault(str):
 
 
 def kernels_of(system):
-    """``(kernels, "")`` for a model whose compiled kernels describe its
-    Python methods, else ``(None, why)``.
-
-    A model offers kernels through a ``compiled_kernels()`` method returning
-    :class:`CompiledKernels` (the paper's four models return those of
-    :mod:`hfdi.compiled.models`). A subclass that overrides ``internal_force``,
-    ``stiffness`` or ``stiffness_derivative`` but not ``compiled_kernels``
-    would have kernels that compute another model: it runs on the Python path.
-    """
+    """``(kernels, "")`` for a model whose ``compiled_kernels()`` describe its
+    Python methods, else ``(None, why)`` (a subclass that overrides
+    ``internal_force``, ``stiffness`` or ``stiffness_derivative`` but not
+    ``compiled_kernels`` runs on the Python path)."""
     kernels, why = _offered(system, "compiled_kernels", CompiledKernels, "compiled kernels")
     if kernels is None:
         return None, why
     cls = type(system)
     owner = _definer(cls, "compiled_kernels")
     if kernels.load is not None:
-        # the driver also runs the load and V: a subclass that redefines them
-        # keeps the compiled attempt, not the compiled driver
+        # the compiled loop also runs the load and V: a subclass that
+        # redefines them has no compiled load
         for name in _DRIVER_METHODS:
             if not issubclass(owner, _definer(cls, name) or object):
                 kernels = kernels._replace(load=None, load_params=None)
@@ -339,9 +314,7 @@ def sparse_kernels_of(system):
 
 def _offered(system, method, kind, what):
     """``(system.method(), "")`` when the model offers kernels of type ``kind``
-    through ``method`` that describe its Python methods, else ``(None, why)``:
-    no such method, a subclass overriding a method the kernels restate,
-    numba missing, or the method failing (a :class:`_Fault`)."""
+    through ``method`` that describe its Python methods, else ``(None, why)``."""
     cls = type(system)
     owner = _definer(cls, method)
     if owner is None:
@@ -370,15 +343,8 @@ def _offered(system, method, kind, what):
 def sparse_kernel_mismatch(system, kernels: SparseKernels, initial: InitialValues) -> str:
     """:func:`kernel_mismatch` for :class:`SparseKernels` (f, K and T[v0] at u0,
     f, K and T[w] at the second state)."""
-    u0 = np.ascontiguousarray(initial.u0, dtype=np.float64)
-    v0 = np.ascontiguousarray(initial.v0, dtype=np.float64)
-    checks = [("force", lambda: kernels.force(u0), initial.f),
-              ("stiffness", lambda: kernels.stiffness(u0), initial.K)]
-    if initial.T is not None:
-        checks.append(("stiffness_derivative",
-                       lambda: kernels.stiffness_derivative(u0, v0), initial.T))
-    checks += _probe_checks(system, u0, initial.T is not None, False, (
-        kernels.force, kernels.stiffness, kernels.stiffness_derivative, None))
+    checks = _state_checks(system, initial, (kernels.force, kernels.stiffness,
+                                             kernels.stiffness_derivative, None))
     return _first_mismatch(type(system).__name__, checks)
 
 
@@ -387,16 +353,14 @@ _SAID = set()
 
 def say_once(reason: str, message: str = "the compiled step is not used ({reason}); "
                                         "the Python path runs") -> None:
-    """Warn once per process, reason and message that the Python path runs
-    instead (``message``, with ``{reason}`` in it): the same reason met in
-    another situation (at construction, after a model change) is said again."""
+    """Warn once per process and message (``message``, with ``{reason}`` in it)
+    that the Python path runs instead."""
     message = "hfdi: " + message.format(reason=reason)
     if message in _SAID:
         return
     _SAID.add(message)
     _log.info(message)
     warnings.warn(message, RuntimeWarning, stacklevel=3)
-
 
 
 #: The model's methods whose instance attributes (``m.load = ...``) would make
@@ -454,9 +418,8 @@ def refused(compiled, reason, what):
 
 
 def use_sparse_kernels(ev, compiled, initial):
-    """A sparse system (``N ≥ DENSE_BELOW``): the steps stay in Python, its
-    model's f, K and T run compiled (:class:`SparseKernels`) when it has them
-    and they match it at the initial state."""
+    """A sparse system (``N ≥ DENSE_BELOW``): its model's f, K and T run
+    compiled (:class:`SparseKernels`) when it has them and they match it."""
     kernels, reason = sparse_kernels_of(ev.system)
     if not reason and initial is not None:
         reason = "" if library_kernels(ev.system, kernels) else \
@@ -477,23 +440,10 @@ def function_struct(functions):
     return function_struct_of(functions)
 
 
-def compile_for_signature(dispatcher, signature):
-    """``dispatcher`` compiled for ``signature`` (from the disk cache when there)."""
-    import time
-    start = time.perf_counter()
-    dispatcher.compile(signature.args)
-    elapsed = time.perf_counter() - start
-    if elapsed > 1.0:
-        _log.warning("hfdi: compiled %s in %.1f s (once: kept on disk)",
-                     getattr(dispatcher, "__qualname__", dispatcher), elapsed)
-
-
 def follow_model(integrator) -> None:
     """After ``integrator.model_changed()`` on a compiled run: the kernels' data
-    from the model now, and the kernels checked against it again at the
-    current state (kernels that agreed under the old parameters may not under
-    the new ones). Where they differ, the rest of the run is the Python
-    path, said once."""
+    from the model now, checked against it again at the current state; where
+    they differ, the rest of the run is the Python path, said once."""
     from ..schemes import HFDI
     system = integrator.system
     kernels, why = kernels_of(system)
@@ -528,11 +478,6 @@ def follow_model(integrator) -> None:
     if kernels.load_params is not None and kernels.load_params is kernels.params:
         if data.load_params.shape == params.shape:
             integrator._data.load_params[:] = params
-
-
-def _zero_load_kernel():
-    from .loads import hat_load
-    return hat_load
 
 
 def zero_load_params(n):

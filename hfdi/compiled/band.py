@@ -4,11 +4,11 @@ With :class:`hfdi.compiled.SparseKernels` the model's K and T come as CSR
 matrices of a fixed pattern. The tangents of the schemes then go from those
 CSR arrays into LAPACK band storage here in one pass over the stored entries,
 instead of the scatter into a band copy of K and of T and the strided numpy
-passes that interleave them (:meth:`hfdi.schemes._InterleavedBlockTangent.band`,
-:class:`hfdi.schemes._ShiftedTangent`). Each entry is computed by the same
-floating-point operations in the same order as there, so the band, and with
-it every step, is bit for bit the Python path's for the same K and T;
-``tests/test_compiled_step.py`` checks that.
+passes that interleave them (:meth:`hfdi.linsolve.sparse._InterleavedBlockTangent.band`,
+:class:`hfdi.linsolve.sparse._ShiftedTangent`). Each entry is computed by the
+same floating-point operations in the same order as there, so the band, and
+with it every step, is bit for bit the Python path's for the same K and T
+(tests/test_compiled_path.py).
 
 Importing this module imports numba.
 """
@@ -35,7 +35,7 @@ def _interleaved_block_band(k_indptr, k_indices, k_data, t_indptr, t_indices, t_
                             has_damping, b, c, c2, lower, upper, ab):
     """HFDI's block tangent in ``gbsv`` storage with the unknowns interleaved.
 
-    The matrix of :class:`hfdi.schemes._InterleavedBlockTangent`,
+    The matrix of :class:`hfdi.linsolve.sparse._InterleavedBlockTangent`,
     ``[[I, −B^{-1/2} S], [S B^{-1/2}, R]]`` with ``S = M − c K`` and
     ``R = C + c₂ K − c T`` (``M``, ``C``, ``b`` diagonal, as (n,) vectors),
     from the canonical CSR arrays of ``K`` and ``T`` whose bands lie within
@@ -82,7 +82,7 @@ def _interleaved_block_band(k_indptr, k_indices, k_data, t_indptr, t_indices, t_
 def interleaved_block_band(K, T, M, C, b, c, c2, lower, upper):
     """HFDI's block tangent ``[[I, −B^{-1/2} S], [S B^{-1/2}, R]]`` in ``gbsv``
     storage with the unknowns interleaved, as
-    :meth:`hfdi.schemes._InterleavedBlockTangent.band` builds it.
+    :meth:`hfdi.linsolve.sparse._InterleavedBlockTangent.band` builds it.
 
     Parameters
     ----------
@@ -128,7 +128,7 @@ def _shifted_band(indptr, indices, data, d, lower, upper, ab):
 def shifted_band(K, d, lower, upper):
     """``K + diag(d)`` in ``gbsv`` storage (``lower`` spare rows on top) for a
     CSR ``K`` as in :func:`interleaved_block_band` whose band lies within
-    ``(lower, upper)``, as :class:`hfdi.schemes._ShiftedTangent` builds it;
+    ``(lower, upper)``, as :class:`hfdi.linsolve.sparse._ShiftedTangent` builds it;
     Fortran order."""
     ab = np.zeros((d.shape[0], 2 * lower + upper + 1)).T
     _shifted_band(K.indptr, K.indices, K.data, d, int(lower), int(upper), ab)

@@ -1,24 +1,13 @@
 """``advance`` as a C function, for hosts that call it without Python (an FMU's
-native layer, see docs/compiled.md).
+native layer; docs/compiled.md, "The native path").
 
-:class:`NativeAdvance` puts one compiled :class:`hfdi.Integrator` behind a C
-function pointer, ``int64_t advance(int64_t *context, double t_stop)``: a
-numba ``cfunc`` (cached on disk, compiled on first use) that runs the
-integrator's own compiled loop (:func:`hfdi.stepping.loop.advance`) in the
-integrator's own arrays, without the interpreter and without the GIL. The
-context holds one address, of a struct with the integrator's records.
-
-A call either reaches ``t_stop`` (returns 1) or changes nothing (returns 0):
-when the run would stop on a guard or on a failure, exceed the steps allowed
-per call, or the held load's new inputs cannot be applied, the state is put
-back as it was before the call, and the caller takes that step with
-:meth:`hfdi.Integrator.advance` after :meth:`NativeAdvance.sync`, so that the
-statuses and messages have one source.
-
-Protocol: :meth:`~NativeAdvance.arm` takes the integrator's state; then any
-number of calls; then :meth:`~NativeAdvance.sync` hands it back before Python
-uses the integrator again. While armed, the integrator must not be stepped or
-changed from Python.
+:class:`NativeAdvance` puts one compiled :class:`hfdi.Integrator` behind
+``int64_t advance(int64_t *context, double t_stop)``, a numba ``cfunc`` that
+runs the integrator's compiled loop in its own arrays without the GIL. A call
+reaches ``t_stop`` (1) or changes nothing (0); the caller then takes that step
+with :meth:`hfdi.Integrator.advance` after :meth:`NativeAdvance.sync`.
+Protocol: :meth:`~NativeAdvance.arm`, any number of calls, then
+:meth:`~NativeAdvance.sync` before Python uses the integrator again.
 """
 from __future__ import annotations
 
@@ -84,7 +73,7 @@ def _new_loop(advance):
     return loop
 
 
-# not cached on disk, for the reason of hfdi.core.state.new_functions
+# not cached on disk, for the reason of hfdi.core.numba_types.function_struct_of
 _new_loop_compiled = njit(**JIT_OPTIONS)(_new_loop)
 _NEW_LOOP = LOOP.type(types.FunctionType(ADVANCE))
 
@@ -264,7 +253,6 @@ class NativeAdvance:
         self.context_address = int(self._context.ctypes.data)
         self.time_address = int(self._run.ctypes.data) + RUN.dtype.fields["t"][1]
         self.state_address = int(state.ctypes.data)
-        self._accepted_at_arm = 0
         self._armed = False
 
     @property
@@ -335,7 +323,6 @@ class NativeAdvance:
         self._limits[PER_CALL] = itg.max_steps if max_steps_per_call is None \
             else int(max_steps_per_call)
         self._limits[CALLS] = 0
-        self._accepted_at_arm = self._twin_run.accepted
         self._armed = True
         return ""
 

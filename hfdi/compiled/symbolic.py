@@ -1,22 +1,12 @@
 """Compiled kernels of an :class:`~hfdi.models.EnergyModel`, generated from its sympy expressions.
 
-The model's ``f``, ``K``, ``T[w]`` and ``V`` are the expressions the model
-derived once at construction (the ones its Python methods evaluate through
-:func:`sympy.lambdify`). Here they are printed, after common-subexpression
-elimination, as the source of four numba functions with the signatures of
-:mod:`hfdi.compiled.signatures`, computing in float64 as the Python path
-does; the source is written once to ``<cache>/kernels/``
-(:func:`hfdi.files.cache_dir`) under the digest of its text and run as that
-file (the text generated here, never bytecode found there), so that numba
-caches the machine code beside it and a later process (or another model with
-the same expressions) loads it instead of compiling again.
-
-The kernels read the model's parameter values from ``params`` in the order
-of ``parameter_symbols``, handed to every call as the model holds them then
-(``EnergyModel.compiled_params``). A load given as sympy expressions gives
-two more kernels, ``p(t)`` and its derived ``p'(t)``, which read the same
-``params``. ``K`` and ``T`` come back dense; the compiled step runs only for
-dense systems (``N < DENSE_BELOW``).
+The expressions the model derived at construction are printed, after
+common-subexpression elimination, as the source of numba functions with the
+signatures of :mod:`hfdi.compiled.signatures`, computing in float64 as the
+Python path does, written once under ``<cache>/kernels/`` by the digest of
+their text and run as that file (docs/compiled.md, "Models"). They read the
+model's parameters from ``params`` (``EnergyModel.compiled_params``); a load
+of sympy expressions gives two more kernels, ``p(t)`` and ``p'(t)``.
 """
 from __future__ import annotations
 
@@ -167,11 +157,8 @@ def _import(source: str):
     path = cache_dir() / "kernels" / f"{name}.py"
     if not (path.is_file() and path.read_text(encoding="utf-8") == source):
         write_atomic(path, source)
-    # The text run is the one generated here, never what the directory holds:
-    # an import would take a __pycache__/*.pyc whose header matches the
-    # file's mtime and size, and nothing compares that bytecode with the
-    # text. The file is there for numba, which finds it through the code's
-    # file name and caches the machine code beside it.
+    # the text generated here is run, never bytecode found beside the file
+    # (nothing compares it with the text); the file is there for numba's cache
     code = compile(source, str(path), "exec", dont_inherit=True)
     module = types.ModuleType(name)
     module.__file__ = str(path)
@@ -205,12 +192,9 @@ def energy_model_kernels(model) -> CompiledKernels:
         try:
             module = _import(source)
         except (TypingError, UnsupportedError) as exc:
-            # numba has no compiled form of a printed function (math.factorial
-            # of a float, say): a model without kernels, as for an unprintable
-            # one. Anything else (numba unable to cache the code beside the
-            # source or user-wide, an unwritable cache directory) is a fault
-            # the caller reports, not a model without kernels. The first line
-            # after numba's "Failed in nopython mode pipeline" names the function.
+            # no compiled form of a printed function (math.factorial of a float):
+            # a model without kernels; anything else is a fault the caller reports.
+            # The first line after numba's "Failed in ..." names the function.
             lines = [line for line in str(exc).splitlines()
                      if line.strip() and not line.startswith("Failed in")] or [""]
             raise KernelSourceError(f"numba could not compile the generated kernels: "
@@ -223,7 +207,7 @@ def energy_model_kernels(model) -> CompiledKernels:
                               module.potential_energy, params)
     if model.load_expressions is not None:
         # the load's data are the model's parameters: the same array, so that
-        # the driver hands the current values to both
+        # the compiled loop hands the current values to both
         kernels = kernels._replace(load=module.load, load_params=params,
                                    load_rate=module.load_rate)
     elif model._load is None:

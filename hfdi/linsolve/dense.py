@@ -1,17 +1,12 @@
 """Dense linear solves of the core: LAPACK from both speeds, the same routines.
 
-Python calls scipy's LAPACK wrappers; compiled code calls the same routines of
-the same library (``scipy.linalg.cython_lapack``) directly, made known to LLVM
-by name (llvmlite's ``add_symbol``) so that the compiled code stays cacheable.
-Matrices are C-ordered here; compiled code hands LAPACK their transpose
-written into the work array ``lu``, Python hands it a Fortran copy: both give
-LAPACK the same matrix, so both speeds get the same numbers. Factors and
-pivots are kept in LAPACK's layout (``lu`` holds the factors' transpose,
-pivots 1-based) whichever speed made them.
-
-A dense tangent of at least :data:`CHOLESKY_FROM` rows that is symmetric to
-rounding (:func:`symmetric`) is solved by Cholesky, any other by LU with
-partial pivoting (``gesv``); docs/algorithm.md, "Linear solves".
+Python calls scipy's LAPACK wrappers; compiled code calls the same routines
+(``scipy.linalg.cython_lapack``) bound by name (docs/compiled.md, "Decision:
+LAPACK is bound by name"). Both hand LAPACK the same matrix (compiled code its
+transpose written into ``lu``, Python a Fortran copy) and keep factors and
+pivots in LAPACK's layout (pivots 1-based). A dense tangent of at least
+:data:`CHOLESKY_FROM` rows that is :func:`symmetric` to rounding is solved by
+Cholesky, any other by ``gesv``; docs/algorithm.md, "Linear solves".
 """
 from __future__ import annotations
 

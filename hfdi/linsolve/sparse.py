@@ -111,7 +111,6 @@ def combine(*terms):
     return d
 
 
-
 class Factorization:
     """A factorised square matrix (diagonal, dense or sparse) that solves ``A x = b``.
 
@@ -155,8 +154,6 @@ class Factorization:
         if info:
             raise ValueError(f"illegal value in argument {-info} of getrs")
         return x
-
-
 
 
 def _canonical_csr(a):
@@ -266,14 +263,13 @@ def solve_band(ab, lower, upper, b):
     return x
 
 
-
 class _ShiftedTangent:
     """``K + diag(d)`` for a sparse ``K``, solved without forming the sum in CSR.
 
     The band of ``K`` goes into LAPACK band storage (see
-    :func:`~hfdi.linalg.banded_from_sparse`) and ``d`` onto its main diagonal:
+    :func:`banded_from_sparse`) and ``d`` onto its main diagonal:
     one banded LU per solve, linear in the size. A band wider than
-    :data:`~hfdi.linalg.BANDED_MAX_WIDTH` falls back to SuperLU on the CSR sum.
+    :data:`BANDED_MAX_WIDTH` falls back to SuperLU on the CSR sum.
     ``bands`` (:mod:`hfdi.compiled.band`, with a compiled sparse model) builds
     the same band in one compiled pass.
     """
@@ -312,7 +308,6 @@ def _compiled_csr(a) -> bool:
     arrays :mod:`hfdi.compiled.band` takes."""
     return (a.format == "csr" and a.has_canonical_format and a.data.dtype == np.float64
             and a.indices.dtype == np.int32 and a.indptr.dtype == np.int32)
-
 
 
 class _BlockTangent:
@@ -362,7 +357,7 @@ class _InterleavedBlockTangent:
     when ``B`` has tiny entries (the lumped rotary inertia of the toss rule
     at 6000 elements is ~6e-10 of its translational mass): pivoting may then
     take an ``S`` entry instead of a huge ``S B⁻¹ S`` one. A band wider than
-    :data:`~hfdi.linalg.BANDED_MAX_WIDTH` goes to SuperLU as
+    :data:`BANDED_MAX_WIDTH` goes to SuperLU as
     :class:`_BlockTangent`.
     """
 
@@ -437,8 +432,6 @@ class _InterleavedBlockTangent:
         S = combine((1.0, self.M), (-self.c, self.K)).toarray()
         R = combine((1.0, self.C), (self.c2, self.K), (-self.c, self.T)).toarray()
         return S @ (S / self.b[:, None]) + R
-
-
 
 
 # -- the general linear algebra of a run ---------------------------------------------

@@ -1,24 +1,9 @@
 """The articulated system of the paper's Section 5.3: two stiff links and a hinge spring.
 
-Data from the paper (Eqs. 47–49): three unit masses in the plane,
-``u = (u1, v1, u2, v2, u3, v3)``, joined by two axial links and a rotational
-spring at the middle mass,
-
-``V = k_e/2 [(r12 − h)² + (r23 − h)²] + k_f/2 (α12 − α23)²``        (Eqs. 47–48)
-
-with ``h = 0.5``, ``k_e = 10⁷``, ``k_f = 10³``, ``r_ij`` the length and
-``α_ij`` the angle (Eq. 49) of the link from mass ``i`` to mass ``j``; a force
-on mass 1 in y; observation time ``T_o = 0.5`` (3 for the long energy run of
-Fig. 18); quantities of interest ``u`` and ``Δα = α12 − α23``; the paper's
-targets are ``N̄ = 3.0, 3.5, 4.0, 4.5, 5.0`` for every scheme.
-
-Chosen for this project (the paper's figures with them are lost): the masses
-start at rest at (0, 0), (0.5, 0), (1, 0) (a straight, force-free chain), and
-the load is ``P(t) = hat(t; 200, 0.025)``, a triangular pulse over
-``0 ≤ t ≤ 0.05`` of impulse 5. A single link between two unit masses has
-``ω = (2 k_e)^{1/2} ≈ 4500`` rad/s; the straight chain's axial modes are
-``k_e^{1/2} ≈ 3200`` and ``(3 k_e)^{1/2} ≈ 5500`` rad/s, its bending mode
-``(6 k_f)^{1/2}/h ≈ 155`` rad/s.
+Three unit masses in the plane, ``u = (u1, v1, u2, v2, u3, v3)``, with
+``V = k_e/2 [(r12 − h)² + (r23 − h)²] + k_f/2 (α12 − α23)²`` (Eqs. 47–49).
+The data, the paper's and the chosen ones, are in docs/models.md,
+"Articulated system".
 """
 from __future__ import annotations
 
@@ -125,8 +110,6 @@ class Articulated(SecondOrderSystem):
     """
 
     name = "articulated"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "x of mass {k}"], ["m", "y of mass {k}"]],
         "parameters": {

@@ -1,10 +1,7 @@
 """The dumbbell of the paper's Section 5.1: two masses and a Lennard-Jones-type bond.
 
-All data are the paper's: ``V(r) = A[(σ/r)⁵ − (σ/r)³]`` (Eq. 44) with
-``σ = (3/5)^{1/2}`` (so the bond is force-free at ``r₀ = σ (5/3)^{1/2} = 1``),
-``A = 10⁶``, unit masses, ``u(0) = (0, 0, 1, 0)``, ``u'(0) = (0, 10, 0, 5)``,
-``T_o = 2``. The bond's small-oscillation frequency is
-``ω = (2 φ''(1))^{1/2} ≈ 2362`` rad/s.
+``V(r) = A[(σ/r)⁵ − (σ/r)³]`` (Eq. 44); all data are the paper's
+(docs/models.md, "Dumbbell").
 """
 from __future__ import annotations
 
@@ -36,8 +33,6 @@ class Dumbbell(SecondOrderSystem):
     """
 
     name = "dumbbell"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"]],
         "parameters": {

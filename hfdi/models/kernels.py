@@ -1,16 +1,10 @@
 """One definition of a model's physics for both speeds.
 
 A benchmark model writes its ``f``, ``K``, ``T[w]`` and ``V`` once, as plain
-functions of ``(u, params)`` (``(u, w, params)`` for ``T``) declared
-:func:`kernel`, beside the model's class. Its Python methods call them as
-plain Python with the data of :meth:`params` built from the model at the
-call (so a changed attribute is honoured); its ``compiled_kernels()`` hands
-the same functions compiled (:func:`compiled`) to the compiled loop, which
-calls them through function pointers. The two speeds therefore compute the
-same operations in the same order, and give the same bits
-(``tests/test_one_implementation.py``).
-
-Importing this module imports no numba: :func:`compiled` does, when called.
+functions of ``(u, params)`` declared :func:`kernel`; its Python methods call
+them as plain Python, its ``compiled_kernels()`` hands them compiled
+(:func:`compiled`); docs/models.md, "One physics per model". Importing this
+module imports no numba.
 """
 from __future__ import annotations
 

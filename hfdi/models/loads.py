@@ -2,7 +2,7 @@
 
 The paper's figures with the load histories of the tetrahedra and the
 articulated system are lost; the project chose triangular ("hat") pulses for
-both (see the models' docstrings for which data are the paper's).
+both (docs/models.md marks which data are the paper's).
 
 A model's load is :func:`hat_load`, a kernel (:mod:`hfdi.models.kernels`):
 its Python ``load(t)`` and its compiled load are that one function.

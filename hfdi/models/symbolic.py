@@ -1,28 +1,10 @@
 """Models defined by a potential energy written in sympy.
 
-:class:`EnergyModel` takes the degrees of freedom as sympy symbols and the
-potential energy ``V(u)`` as a sympy expression, and derives everything the
-integrator needs once, at construction:
-
-* the internal force ``f = ∂V/∂u`` (the gradient),
-* the tangent ``K = ∂f/∂u`` (the Hessian of ``V``),
-* the directional derivative of the tangent
-  ``T(u)[w]_ij = Σ_k ∂³V/∂u_i ∂u_j ∂u_k w_k``, with fresh symbols for ``w``.
-
-Each is compiled with :func:`sympy.lambdify` (numpy module, common
-subexpressions eliminated) into one generated function, so an evaluation is a
-single call with no Python loop over the degrees of freedom. ``K`` and ``T``
-are symmetric; only their structurally non-zero upper-triangle entries are
-compiled, and a fixed index map mirrors them into a dense array or a CSR
-matrix whose sparsity pattern is known from the symbolic expressions.
-
-Parameters of the energy (stiffnesses, lengths, ...) stay symbols in the
-compiled code and are passed as numbers at every evaluation, so changing one
-(:meth:`EnergyModel.set_parameters`) needs no new derivation.
-
-Two ready-made models built this way: :func:`elastic_pendulum` (a mass on a
-spring in the plane under gravity) and :func:`spring_chain` (a chain of masses
-joined by hardening springs, sparse).
+:class:`EnergyModel` derives ``f = ∂V/∂u``, ``K`` (the Hessian) and ``T(u)[w]``
+once, at construction, and compiles each with :func:`sympy.lambdify`; the
+parameters stay symbols, set at every evaluation. Two ready-made models:
+:func:`elastic_pendulum` and :func:`spring_chain` (docs/user-models.md,
+"A model from its potential energy").
 """
 from __future__ import annotations
 
@@ -622,14 +604,7 @@ def elastic_pendulum(k: float = 30.0, length: float = 1.0, mass: float = 1.0,
         in the mass matrix), and the quantities ``length`` (``r``), ``angle``
         (from the downward vertical), ``energy`` (``V + ½ m |u'|²``).
 
-    Examples
-    --------
-    >>> import hfdi
-    >>> from hfdi.models.symbolic import elastic_pendulum
-    >>> model = elastic_pendulum()
-    >>> res = hfdi.integrate(model, "hfdi", model.observation_time, target_iterations=4.0)
-    >>> res.success
-    True
+    See docs/user-models.md, "A model from its potential energy", for its use.
     """
     m = _in.real(mass, "elastic_pendulum mass")
     for what, value in (("k", k), ("length", length), ("g", g)):

@@ -1,24 +1,8 @@
 """The tetrahedra of the paper's Section 5.2: four masses joined by six Neo-Hooke springs.
 
-Data from the paper (Eqs. 45–46): four unit masses at the corners
-(0,0,0), (1,0,0), (0,1,0), (0,0,1) of a tetrahedron, at rest; every pair is
-joined by a Neo-Hooke-type spring
-
-``φ(r) = k/6 [r² + (2 r0/r − 3) r0²]``                          (Eq. 45)
-
-with ``r0`` the initial distance of the pair (so the initial state is
-force-free), ``k = 10³`` for the pair (1, 2) and ``k = 1`` for the other five;
-a force on particle 1 in x; observation time ``T_o = 50``; the quantities of
-interest are the positions and the six interaction forces
-
-``f^{ij} = k/3 [r − (r0/r)² r0] e^{ij}``                          (Eq. 46)
-
-and the paper's targets are ``N̄ = 3.0, 3.5, 4.0, 4.5`` for every scheme.
-
-Chosen for this project (the paper's load figure is lost): the load history
-``P(t) = hat(t; 5, 1)``, a triangular pulse over ``0 ≤ t ≤ 2`` followed by free
-flight. The stiff spring 1–2 has ``ω = (2k)^{1/2} ≈ 45`` rad/s, the soft ones
-frequencies of order 1 rad/s.
+Every pair is joined by ``φ(r) = k/6 [r² + (2 r0/r − 3) r0²]`` (Eq. 45), with
+the interaction forces ``f^{ij} = k/3 [r − (r0/r)² r0] e^{ij}`` (Eq. 46). The
+data, the paper's and the chosen ones, are in docs/models.md, "Tetrahedra".
 """
 from __future__ import annotations
 
@@ -86,8 +70,6 @@ class Tetrahedra(SecondOrderSystem):
     """
 
     name = "tetrahedra"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"],
                  ["m", "z of particle {k}"]],

@@ -17,15 +17,8 @@ element energy is Eq. 50 with the one-point rule,
 ``V_e = ½ h_e (EA ε² + GA γ² + EJ χ²)``, and the mass is the lumped diagonal
 of the kinetic energy of Eq. 54.
 
-Data from the paper: the formulation above, ``N_el = 6``, ``T_o = 0.1``, the
-quantities ``α_mv``, ``m_c`` (Eq. 55), ``α_t,mv`` and ``N_c``, and the target
-iteration counts of Table 5. The paper's geometry, material and loads are
-drawn in its Fig. 19 and not stated in its text, so these data were *chosen*
-(a steel rule tossed by a blow at one end): length 0.5 m,
-section 30 mm × 2 mm, ``E = 210 GPa``, ``ν = 0.3``, ``G = E/(2(1+ν))``, shear
-factor 5/6, ``ρ = 7850 kg/m³``; straight along x from (0, 0), at rest, free at
-both ends, no gravity; at the left end node a force in +y
-``F(t) = hat(t; 200 N, 0.005 s)`` and a moment ``M(t) = hat(t; 10 N·m, 0.005 s)``.
+The paper's data and the chosen ones (geometry, material, loads) are in
+docs/models.md, "Toss rule".
 
 Derivatives
 -----------
@@ -106,8 +99,6 @@ class TossRule(SecondOrderSystem):
     """
 
     name = "toss_rule"
-    #: Units and labels of the variables of the model's FMU (see :mod:`fmu.metadata`);
-    #: ``stop_time`` is the end of its default experiment.
     fmi_metadata = {
         "dofs": [["m", "axial u of node {k0}"],
                  ["m", "transverse v of node {k0}"],
@@ -204,9 +195,7 @@ class TossRule(SecondOrderSystem):
         self._csr_indptr = np.concatenate(
             [[0], np.cumsum(np.bincount(keys // n, minlength=n))]).astype(idx_dtype)
         self._nnz = keys.size
-        # Template of the result: sorted, canonical CSR with the fixed pattern.
-        # Each K or T is a shallow copy that gets its own data and index
-        # arrays, which skips the checks of the csr_matrix constructor.
+        # sorted, canonical CSR with the fixed pattern, copied by csr_from_data
         template = sp.csr_matrix((np.zeros(self._nnz), self._csr_indices.copy(),
                                   self._csr_indptr.copy()), shape=(n, n))
         assert template.has_sorted_indices and template.has_canonical_format
@@ -230,9 +219,8 @@ class TossRule(SecondOrderSystem):
 
     def csr_from_data(self, data):
         """The (N, N) CSR matrix with the tangent's fixed pattern and ``data`` (nnz,)."""
-        # A shallow copy of the validated template (same shape, pattern and
-        # format flags) instead of the checking constructor; fresh data and
-        # index arrays, since a caller may sort, prune or scale it in place.
+        # a shallow copy of the validated template, not the checking constructor;
+        # fresh index arrays, since a caller may sort, prune or scale it in place
         out = copy.copy(self._csr_template)
         out.data = data
         out.indices = self._csr_indices.copy()
@@ -250,11 +238,7 @@ class TossRule(SecondOrderSystem):
         return hat_load_params(self.n_dof, [(1, self.force_amplitude, self.load_time),
                                             (2, self.moment_amplitude, self.load_time)])
 
-    # -- the elements, all at once ----------------------------------------------
-    # The Python methods call the element kernels below on (N_el,) arrays:
-    # each element's numbers are those the compiled loops form, operation for
-    # operation, and every entry of f, K and T sums at most two elements'
-    # contributions, which round alike in either order.
+    # -- the elements, all at once (docs/models.md, "One physics per model") ------
     def _reduced(self, u):
         """Reduced coordinates ``u_ξ, v_ξ, α_o, χ`` of every element, each (…, N_el)."""
         U = np.asarray(u, dtype=float)
@@ -411,13 +395,10 @@ class TossRule(SecondOrderSystem):
 
 
 # -- the kernels: params = (N_el, EA, GA, EJ, h_e …, 1/h_e …, cos α̂_e …, sin α̂_e …) -------
-# Element e joins nodes e and e + 1 (DOFs 3e … 3e + 5). Its reduced
-# coordinates y = (u_ξ, v_ξ, α_o, χ) = L_e d_e with L_e = D_e B (see the
-# module notes); f_e = h_e L_eᵀ ∇W, K_e = h_e L_eᵀ ∇²W L_e and
-# T_e = h_e L_eᵀ ∇³W[L_e w_e] L_e, the reduced derivatives of
-# W = ½ (EA ε² + GA γ² + EJ χ²) from ∂ε/∂α_o = γ, ∂γ/∂α_o = −(1 + ε).
-# The element functions are elementwise: numbers in the compiled loops over
-# the elements, (N_el,) arrays in the Python methods.
+# Element e joins nodes e and e + 1 (DOFs 3e … 3e + 5); f_e = h_e L_eᵀ ∇W,
+# K_e = h_e L_eᵀ ∇²W L_e, T_e = h_e L_eᵀ ∇³W[L_e w_e] L_e with L_e = D_e B (the
+# module's "Derivatives"). The element functions are elementwise: numbers in
+# the compiled loops, (N_el,) arrays in the Python methods.
 
 @kernel
 def beam_reduced(ui, vi, ai, uj, vj, aj, inv_h):

@@ -1,12 +1,8 @@
 """The implicit one-step schemes, one file each, and their registry.
 
-A scheme is a small immutable object (its parameters, order and the
-facts the error control needs) and a *stage function* of the signature
-:data:`hfdi.core.state.STAGE_FUNCTION`, ``stage(h, index, params) ->
-Stage``, which gives the coefficients of each stage of a step of size ``h``
-(:class:`hfdi.core.state.Stage`). Everything else — predictor, Newton,
-error estimate, controllers, energy balance, spectral analysis — is the
-same code for every scheme. A new scheme is one file here and one line in
+A scheme is a small immutable object and a *stage function*
+``stage(h, index, params) -> Stage`` (docs/algorithm.md, "Decision: a scheme
+is its stage function"); a new scheme is one file here and one line in
 :data:`SCHEMES`.
 """
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """Generalized-α (Chung and Hulbert, J. Appl. Mech. 60, 1993).
 
-With ``x_{n+1−α} = (1 − α) x_{n+1} + α x_n``, a step solves
-
-    M a_{n+1−α_m} + C v_{n+1−α_f} + f_{n+1−α_f} = p(t_{n+1−α_f})
-
-with Newmark's relations for ``u_{n+1}`` and ``v_{n+1}``, and the parameters
-from the high-frequency spectral radius ρ∞: ``α_m = (2ρ∞ − 1)/(ρ∞ + 1)``,
-``α_f = ρ∞/(ρ∞ + 1)``, ``γ = 1/2 − α_m + α_f``, ``β = (1 − α_m + α_f)²/4``.
-Second order, unconditionally stable on linear problems, ``ρ(ωh → ∞) = ρ∞``.
-
-Decision (docs/algorithm.md): the internal force is interpolated,
-``f_{n+1−α_f} = (1 − α_f) f(u_{n+1}) + α_f f(u_n)``, as in the finite
-element codes users compare with, and the tangent is exact for it,
-``(1 − α_m)/(β h²) M + (1 − α_f) γ/(β h) C + (1 − α_f) K(u_{n+1})``.
+A step solves ``M a_{n+1−α_m} + C v_{n+1−α_f} + f_{n+1−α_f} = p(t_{n+1−α_f})``
+with Newmark's relations, ``α_m``, ``α_f``, ``γ``, ``β`` from the spectral
+radius ρ∞ at ``ωh → ∞``, and the internal force interpolated,
+``f_{n+1−α_f} = (1 − α_f) f(u_{n+1}) + α_f f(u_n)`` (docs/algorithm.md,
+"Schemes", with the decision).
 """
 from __future__ import annotations
 
