@@ -66,7 +66,6 @@ class CompiledSteps:
         held = isinstance(ev.extra_load, HeldLoad)
         cfg = CONFIG.pack(self._cfg)
         cfg["has_held"] = held
-        self._kernels = kernels
         self._data = self._data._replace(
             params=np.ascontiguousarray(kernels.params, dtype=float),
             load_params=np.ascontiguousarray(

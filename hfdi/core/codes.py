@@ -16,8 +16,6 @@ DERIVATIVE_NOT_FINITE = 8
 STEP_MATRIX_SINGULAR = 9
 LOAD_NOT_FINITE = 10
 LOAD_RATE_NOT_FINITE = 11
-ERROR_TEST_FAILED = 12          # converged, the error estimate above the tolerance
-ERROR_NOT_FINITE = 13
 # a kernel's value of another shape than (N,) or (N, N): a mistake in the model
 # that no step cures; the run stops with MODEL_ERROR
 FORCE_SHAPE = 20
