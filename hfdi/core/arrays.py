@@ -178,13 +178,18 @@ def _gemv(A, x, out):
 
 
 def _dot_compiled(x, y):
-    return np.dot(x, y)
+    total = 0.0
+    for i in range(x.shape[0]):
+        total += x[i] * y[i]
+    return total
 
 
 @primitive(_dot_compiled)
 def dot(x, y):
-    """``xᵀ y`` (BLAS's ``ddot``)."""
-    return float(_blas.ddot(x, y)) if x.shape[0] else 0.0
+    """``xᵀ y``, summed in index order at both speeds (``np.add.accumulate``
+    is sequential, where ``sum`` is pairwise). Decision: not BLAS's ``ddot``:
+    its call cost 0.4 µs of the dumbbell's 3 µs HFDI iteration."""
+    return float(np.add.accumulate(x * y)[-1]) if x.shape[0] else 0.0
 
 
 def _matmul_compiled(A, B, out):
