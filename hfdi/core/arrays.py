@@ -118,7 +118,7 @@ def _times_compiled(kind, diagonal, full, x, out):
         for i in range(x.shape[0]):
             out[i] = diagonal[i] * x[i]
     elif kind == DENSE:
-        np.dot(full, x, out)
+        matvec(full, x, out)
     else:
         for i in range(x.shape[0]):
             out[i] = 0.0
@@ -160,7 +160,11 @@ def divide_by(x, s):
 
 
 def _matvec_compiled(A, x, out):
-    np.dot(A, x, out)
+    for i in range(A.shape[0]):
+        total = 0.0
+        for j in range(A.shape[1]):
+            total += A[i, j] * x[j]
+        out[i] = total
 
 
 @primitive(_matvec_compiled)
@@ -173,8 +177,8 @@ def matvec(A, x, out):
 
 
 def _gemv(A, x, out):
-    # compiled np.dot(A, x, out) of a C-ordered A: dgemv('t') of its transpose
-    out[:] = _blas.dgemv(1.0, A.T, x, trans=1) if A.shape[0] and A.shape[1] else 0.0
+    # each row summed in index order, as the compiled loop sums it (see dot)
+    out[:] = np.add.accumulate(A * x, axis=1)[:, -1] if A.shape[1] else 0.0
 
 
 def _dot_compiled(x, y):
