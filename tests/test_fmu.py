@@ -677,8 +677,8 @@ def test_copies_unused_for_a_month_are_removed_when_another_is_made(tmp_path, mo
 @pytest.mark.slow
 def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus, tmp_path):
     """The compiled FMU compiles its bundled kernels once per machine, not once
-    per extraction: a second process extracting the FMU anew loads the driver
-    from numba's cache beside the lasting copy."""
+    per extraction: a second process extracting the FMU anew loads the
+    compiled loop from numba's cache."""
     import os
     import subprocess
     import sys
@@ -693,8 +693,8 @@ def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus, tmp_path):
         "    unit.initialize({'compiled': True}, stop_time=1.0)\n"
         "    assert unit.step(0.0, 0.1)\n"
         "name = [m for m in sys.modules if m.startswith('_hfdi_fmu_')\n"
-        "        and m.endswith('.compiled.driver')][0]\n"
-        "stats = sys.modules[name].drive.stats\n"
+        "        and m.endswith('.stepping.loop')][0]\n"
+        "stats = sys.modules[name].advance_hfdi.dispatcher.stats\n"
         "print(sys.modules[name].__file__)\n"
         "print(stats.cache_hits.total(), stats.cache_misses.total())\n")
     env = dict(os.environ, HFDI_CACHE_DIR=str(tmp_path / "cache"),

@@ -199,7 +199,10 @@ def cache_trusted() -> tuple[bool, str]:
     directory follows ``HFDI_CACHE_DIR`` as it is now)."""
     if os.environ.get("HFDI_NO_DISK_CACHE"):
         return False, "HFDI_NO_DISK_CACHE is set"
-    return _directory_trusted(numba_cache_dir())
+    path = numba_cache_dir()
+    if not path.is_dir():           # removed since it was checked: made and checked again
+        _directory_trusted.cache_clear()
+    return _directory_trusted(path)
 
 
 @functools.lru_cache(maxsize=None)
