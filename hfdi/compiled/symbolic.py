@@ -115,8 +115,13 @@ def kernel_source(model) -> str:
              "import math", "", "import numpy as np", "from numba import njit", "",
              # the package this module is part of: an FMU imports its bundled
              # copy under another name, in hosts that may have no hfdi at all
-             f"from {__package__}.signatures import (FORCE, JIT_OPTIONS, LOAD, "
-             "POTENTIAL_ENERGY, STIFFNESS,", "    STIFFNESS_DERIVATIVE)", ""]
+             f"from {__package__}.signatures import (FORCE, LOAD, POTENTIAL_ENERGY, "
+             "STIFFNESS,", "    STIFFNESS_DERIVATIVE)",
+             f"from {__package__.rpartition('.')[0]}.core.jit import JIT_OPTIONS as _OPTIONS",
+             f"from {__package__.rpartition('.')[0]}.core.jit import cache_trusted", "",
+             # cached only where the cache is trusted now (HFDI_CACHE_DIR as it is
+             # at import), never in a directory numba would fall back on
+             "JIT_OPTIONS = dict(cache=cache_trusted()[0], **_OPTIONS)", ""]
     lines += ["", "@njit(FORCE, **JIT_OPTIONS)", "def force(u, params):", *u, *p]
     lines += _body(printer, ex["f"], "_f")
     lines.append(f"    f = np.empty({n})")

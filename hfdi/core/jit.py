@@ -290,8 +290,11 @@ def _source_keyed_locator(caching):
             self._path = numba_cache_dir()
 
         def ensure_cache_path(self):
-            # made and checked by cache_trusted(); entry() asks for a cache only then
-            pass
+            # made and checked here too: the directory may have changed since
+            # the options of a function were set (HFDI_CACHE_DIR)
+            trusted, why = _directory_trusted(self._path)
+            if not trusted:
+                raise OSError(why)
 
         def get_cache_path(self):
             return str(self._path)
