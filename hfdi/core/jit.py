@@ -70,7 +70,68 @@ def _numba():
     locator = _source_keyed_locator(caching)
     if locator not in caching.CacheImpl._locator_classes:
         caching.CacheImpl._locator_classes.insert(0, locator)
+    _share_inlined_scopes()
     return numba
+
+
+#: Per inlining of one of this package's functions: the copy of each variable
+#: scope made so far (by the original's id).
+_SCOPE_COPIES = []
+
+
+def _share_inlined_scopes():
+    """Make numba copy a callee's variable scope once per inlining, not once
+    per block.
+
+    numba inlines a function (``inline="always"``) by deep-copying its IR
+    block by block, each block with a memo of its own, so the function's
+    whole scope (every variable) is copied again for each block: quadratic
+    in the size of the loop's inlined call tree, a third of its compile time
+    (43 → 30 s of CPU for the affine loop, the code the same). While one of
+    this package's functions is inlined, every block's copy takes the same
+    copy of the scope, as one deep copy of the function would.
+
+    Decision: a patch of numba's ``InlineWorker.inline_ir`` and
+    ``ir.Scope.__deepcopy__``, active only while this package's functions are
+    inlined and applied only where numba has them (0.60–0.68); elsewhere
+    compiling is slower, not different."""
+    import copy
+
+    try:
+        from numba.core import ir
+        from numba.core.inline_closurecall import InlineWorker
+        original = InlineWorker.inline_ir
+    except (ImportError, AttributeError):
+        return
+    if getattr(original, "_hfdi_shared_scopes", False):
+        return
+
+    def inline_ir(self, caller_ir, block, i, callee_ir, callee_freevars, arg_typs=None):
+        module = getattr(getattr(callee_ir.func_id, "func", None), "__module__", "") or ""
+        ours = module.startswith(("hfdi", "_hfdi"))
+        if ours:
+            _SCOPE_COPIES.append({})
+        try:
+            return original(self, caller_ir, block, i, callee_ir, callee_freevars,
+                            arg_typs=arg_typs)
+        finally:
+            if ours:
+                _SCOPE_COPIES.pop()
+
+    def scope_deepcopy(self, memo):
+        copies = _SCOPE_COPIES[-1] if _SCOPE_COPIES else None
+        made = None if copies is None else copies.get(id(self))
+        if made is None:
+            made = copy._reconstruct(self, memo, *self.__reduce_ex__(4))
+            if copies is not None:
+                copies[id(self)] = made
+        memo[id(self)] = made
+        return made
+
+    inline_ir._hfdi_shared_scopes = True
+    InlineWorker.inline_ir = inline_ir
+    if "__deepcopy__" not in vars(ir.Scope):
+        ir.Scope.__deepcopy__ = scope_deepcopy
 
 #: Options of every compiled entry point: division by zero gives inf/NaN as
 #: in numpy (a non-finite value fails an attempt, as on the Python path);
