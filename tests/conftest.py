@@ -34,11 +34,12 @@ def fmus(tmp_path_factory):
 
 
 def _compile_fmu_loops(path):
-    """The compiled FMU's two loops (affine and HFDI stages) compiled into the
-    cache in a process of their own. Compiled for the first time in a test
-    process that already holds this library's compiled loop, the FMU's copy
-    failed to compile there and its runs took Python steps (its values the
-    same, its native path never armed); an open finding, see docs/compiled.md."""
+    """The compiled FMU's two loops (affine and HFDI stages) and its native C
+    function compiled into the cache in a process of their own. Compiled for
+    the first time in a test process that already holds this library's
+    compiled code, the FMU copy's native function failed ("mismatch of
+    argument types") and its doSteps went through the slave (the same
+    values, the native path never armed); an open finding, docs/compiled.md."""
     import subprocess
     import sys
     code = ("import sys\nfrom fmpy import extract\nfrom fmu.master import Unit\n"
