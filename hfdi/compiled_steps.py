@@ -133,11 +133,10 @@ class CompiledSteps:
         run began compiled: the rest of the run is the Python steps', said once."""
         name = shadowed(self.system)
         if name:
-            compiled_path.say_once(f"{type(self.system).__name__}.{name} is replaced on the "
-                                   f"instance", "{reason}; the rest of the run takes its steps "
+            reason = f"{type(self.system).__name__}.{name} is replaced on the instance"
+            compiled_path.say_once(reason, "{reason}; the rest of the run takes its steps "
                                    "in Python, which call it")
-            self._leave_compiled(f"{type(self.system).__name__}.{name} is replaced on the "
-                                 "instance")
+            self._leave_compiled(reason)
         return bool(name)
 
     def _held_ready(self) -> bool:
@@ -171,10 +170,10 @@ class CompiledSteps:
                 # fails an attempt
                 for name, value in zip(_SNAPSHOT, saved):
                     getattr(vectors, name)[:] = value
-                self._leave_compiled(f"a compiled kernel raised {type(exc).__name__}: {exc}")
-                compiled_path.say_once(f"{type(exc).__name__}: {exc}", (
-                    "a compiled kernel raised {reason}; the rest of the run takes its steps "
-                    "in Python"))
+                raised = f"{type(exc).__name__}: {exc}"
+                self._leave_compiled(f"a compiled kernel raised {raised}")
+                compiled_path.say_once(raised, "a compiled kernel raised {reason}; the rest "
+                                       "of the run takes its steps in Python")
                 self._python_steps(t_stop, max_accepted)
                 return
             RUN.unpack(run, self._run)
