@@ -1,10 +1,6 @@
-"""The articulated system of the paper's Section 5.3: two stiff links and a hinge spring.
-
-Three unit masses in the plane, ``u = (u1, v1, u2, v2, u3, v3)``, with
-``V = k_e/2 [(r12 − h)² + (r23 − h)²] + k_f/2 (α12 − α23)²`` (Eqs. 47–49).
-The data, the paper's and the chosen ones, are in docs/models.md,
-"Articulated system".
-"""
+"""The articulated system of the paper's Section 5.3: two stiff links and a hinge
+spring (Eqs. 47–49); the data, the paper's and the chosen ones, are in
+docs/models.md, "Articulated system"."""
 from __future__ import annotations
 
 import math
@@ -12,9 +8,9 @@ import math
 import numpy as np
 
 from .. import checks
-from ..system import SecondOrderSystem
-from .kernels import compiled_kernels, kernel
-from .loads import hat_breakpoints, hat_load, hat_load_params
+from .base import KernelModel
+from .kernels import kernel
+from .loads import hat_load_params
 from .pair import pair_derivative_add, pair_force_add, pair_stiffness_add, relative, \
     scatter_block, scatter_vector
 
@@ -23,11 +19,8 @@ __all__ = ["Articulated", "articulated", "relative_angle"]
 def relative_angle(u):
     """``Δα = α12 − α23`` wrapped to ``(−π, π]``, vectorised over leading axes.
 
-    Computed as ``−atan2(d12 × d23, d12 · d23)``, the angle that turns link
-    2→3 into link 1→2. It is smooth wherever the chain is not folded back on
-    itself (``d23`` antiparallel to ``d12``), in particular when a link's own
-    angle passes ±π, where the difference of two ``atan2`` link angles would
-    jump by 2π.
+    Computed as ``−atan2(d12 × d23, d12 · d23)`` (docs/models.md says why),
+    smooth wherever the chain is not folded back on itself.
 
     Parameters
     ----------
@@ -44,7 +37,7 @@ def relative_angle(u):
     return -np.arctan2(cross, dot)
 
 
-class Articulated(SecondOrderSystem):
+class Articulated(KernelModel):
     """Three particles in the plane: two axial links and a hinge spring (Eqs. 47–49).
 
     ``u = (u1, v1, u2, v2, u3, v3)`` holds the positions, ``M = diag(masses)``
@@ -125,9 +118,6 @@ class Articulated(SecondOrderSystem):
         },
         "stop_time": 0.5,
     }
-    #: No exact load rate: HFDI uses the paper's difference quotient.
-    load_rate = None
-    damping = None
 
     def __init__(self, k_e=1e7, k_f=1e3, h=0.5, load_amplitude=200.0, load_time=0.025,
                  masses=(1.0, 1.0, 1.0), positions=None, v0=None):
@@ -157,15 +147,9 @@ class Articulated(SecondOrderSystem):
         self._positions_given = positions is not None
 
     def parameters(self):
-        params = {"k_e": self.k_e, "k_f": self.k_f, "h": self.h,
-                  "load_amplitude": self.load_amplitude, "load_time": self.load_time,
-                  "masses": tuple(self.masses.tolist())}
-        if self._positions_given:
-            x0 = self.initial_displacement.reshape(3, 2).tolist()
-            params["positions"] = tuple(map(tuple, x0))
-        if np.any(self.initial_velocity):
-            params["v0"] = tuple(self.initial_velocity.tolist())
-        return params
+        return self._given({"k_e": self.k_e, "k_f": self.k_f, "h": self.h,
+                            "load_amplitude": self.load_amplitude, "load_time": self.load_time,
+                            "masses": tuple(self.masses.tolist())}, (3, 2))
 
     def params(self):
         """The kernels' data ``(k_e, k_f, h)``."""
@@ -184,33 +168,6 @@ class Articulated(SecondOrderSystem):
     def delta_alpha(self, u):
         """``Δα = α12 − α23``, see :func:`relative_angle`."""
         return relative_angle(u)
-
-    # -- mechanics ---------------------------------------------------------------
-    def internal_force(self, u):
-        return articulated_force(np.asarray(u, dtype=float), self.params())
-
-    def stiffness(self, u):
-        return articulated_stiffness(np.asarray(u, dtype=float), self.params())
-
-    def stiffness_derivative(self, u, w):
-        return articulated_stiffness_derivative(np.asarray(u, dtype=float),
-                                                np.asarray(w, dtype=float), self.params())
-
-    def potential_energy(self, u):
-        return articulated_potential_energy(np.asarray(u, dtype=float), self.params())
-
-    def compiled_kernels(self):
-        """The kernels below compiled, with the hat load (imports numba)."""
-        return compiled_kernels(articulated_force, articulated_stiffness,
-                                articulated_stiffness_derivative, articulated_potential_energy,
-                                self.params(), load_params=self.load_params())
-
-    def load_breakpoints(self):
-        """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
-        return hat_breakpoints(self.load_time)
-
-    def load(self, t):
-        return hat_load(float(t), self.load_params())
 
     def quantities(self, t, u, v):
         """Positions and the hinge angle, vectorised over times.
@@ -330,6 +287,10 @@ def articulated_potential_energy(u, params):
         stretch += (r - h) * (r - h)
     delta = _hinge(u)[0]
     return 0.5 * k_e * stretch + 0.5 * k_f * (delta * delta)
+
+
+Articulated.KERNELS = (articulated_force, articulated_stiffness,
+                       articulated_stiffness_derivative, articulated_potential_energy)
 
 
 def articulated(**params) -> Articulated:

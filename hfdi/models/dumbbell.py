@@ -10,14 +10,13 @@ import math
 import numpy as np
 
 from .. import checks
-from ..system import SecondOrderSystem
-from .kernels import compiled_kernels, kernel
-from .loads import hat_load_params
+from .base import KernelModel
+from .kernels import kernel
 
 __all__ = ["Dumbbell", "dumbbell"]
 
 
-class Dumbbell(SecondOrderSystem):
+class Dumbbell(KernelModel):
     """Two particles in the plane, ``u = (x1, y1, x2, y2)``, joined by
     ``V(r) = A[(σ/r)⁵ − (σ/r)³]``.
 
@@ -71,25 +70,6 @@ class Dumbbell(SecondOrderSystem):
 
     def distance(self, u):
         return _bond(np.asarray(u, dtype=float))[2]
-
-    def internal_force(self, u):
-        return dumbbell_force(np.asarray(u, dtype=float), self.params())
-
-    def stiffness(self, u):
-        return dumbbell_stiffness(np.asarray(u, dtype=float), self.params())
-
-    def stiffness_derivative(self, u, w):
-        return dumbbell_stiffness_derivative(np.asarray(u, dtype=float),
-                                             np.asarray(w, dtype=float), self.params())
-
-    def potential_energy(self, u):
-        return dumbbell_potential_energy(np.asarray(u, dtype=float), self.params())
-
-    def compiled_kernels(self):
-        """The kernels below compiled, with the zero load (imports numba)."""
-        return compiled_kernels(dumbbell_force, dumbbell_stiffness,
-                                dumbbell_stiffness_derivative, dumbbell_potential_energy,
-                                self.params(), load_params=hat_load_params(self.n_dof))
 
     def quantities(self, t, u, v):
         u = np.atleast_2d(u)
@@ -178,6 +158,10 @@ def dumbbell_potential_energy(u, params):
     A, s = params[0], params[1]
     r = _bond(u)[2]
     return A * (math.pow(s, 5.0) / math.pow(r, 5.0) - math.pow(s, 3.0) / math.pow(r, 3.0))
+
+
+Dumbbell.KERNELS = (dumbbell_force, dumbbell_stiffness, dumbbell_stiffness_derivative,
+                    dumbbell_potential_energy)
 
 
 def dumbbell(**params) -> Dumbbell:

@@ -15,7 +15,7 @@ import numpy as np
 
 from .kernels import kernel
 
-__all__ = ["hat", "hat_breakpoints", "hat_load", "hat_load_params"]
+__all__ = ["hat", "hat_load", "hat_load_params"]
 
 
 def hat(t, amplitude, t1):
@@ -54,12 +54,6 @@ def hat(t, amplitude, t1):
     # removes both t < 0 and t > 2 t1
     value = float(amplitude) * np.clip(np.minimum(s, 2.0 - s), 0.0, None)
     return float(value) if scalar else value
-
-
-def hat_breakpoints(t1):
-    """The times where :func:`hat`'s rate jumps: ``0``, ``t1`` and ``2 t1``."""
-    t1 = float(t1)
-    return (0.0, t1, 2.0 * t1)
 
 
 @kernel

@@ -1,18 +1,14 @@
-"""The tetrahedra of the paper's Section 5.2: four masses joined by six Neo-Hooke springs.
-
-Every pair is joined by ``φ(r) = k/6 [r² + (2 r0/r − 3) r0²]`` (Eq. 45), with
-the interaction forces ``f^{ij} = k/3 [r − (r0/r)² r0] e^{ij}`` (Eq. 46). The
-data, the paper's and the chosen ones, are in docs/models.md, "Tetrahedra".
-"""
+"""The tetrahedra of the paper's Section 5.2: four masses joined by six Neo-Hooke
+springs (Eqs. 45–46); the data, the paper's and the chosen ones, are in
+docs/models.md, "Tetrahedra"."""
 from __future__ import annotations
-
 
 import numpy as np
 
 from .. import checks
-from ..system import SecondOrderSystem
-from .kernels import compiled_kernels, kernel
-from .loads import hat_breakpoints, hat_load, hat_load_params
+from .base import KernelModel
+from .kernels import kernel
+from .loads import hat_load_params
 from .pair import pair_derivative_add, pair_force_add, pair_stiffness_add, relative
 
 __all__ = ["Tetrahedra", "tetrahedra"]
@@ -27,7 +23,7 @@ PAIRS_J = (1, 2, 3, 2, 3, 3)
 #: The six particle pairs, in the order of the quantity ``f``.
 _FMI_PAIRS = ("12", "13", "14", "23", "24", "34")
 
-class Tetrahedra(SecondOrderSystem):
+class Tetrahedra(KernelModel):
     """Four particles in space joined pairwise by Neo-Hooke springs (Eqs. 45–46).
 
     ``u`` holds the positions: particle ``i`` (0-based) at ``u[3i:3i+3]``.
@@ -86,9 +82,6 @@ class Tetrahedra(SecondOrderSystem):
         },
         "stop_time": 50.0,
     }
-    #: No exact load rate: HFDI uses the paper's difference quotient.
-    load_rate = None
-    damping = None
     u_scale = 1.0
 
     def __init__(self, k_stiff=1e3, k_soft=1.0, load_amplitude=5.0, load_time=1.0,
@@ -120,21 +113,14 @@ class Tetrahedra(SecondOrderSystem):
         return np.array([self.k_stiff] + [self.k_soft] * 5)
 
     def parameters(self):
-        params = {"k_stiff": self.k_stiff, "k_soft": self.k_soft,
-                  "load_amplitude": self.load_amplitude, "load_time": self.load_time,
-                  "masses": tuple(self.masses.tolist())}
-        if self._positions_given:
-            x0 = self.initial_displacement.reshape(4, 3).tolist()
-            params["positions"] = tuple(map(tuple, x0))
-        if np.any(self.initial_velocity):
-            params["v0"] = tuple(self.initial_velocity.tolist())
-        return params
+        return self._given({"k_stiff": self.k_stiff, "k_soft": self.k_soft,
+                            "load_amplitude": self.load_amplitude, "load_time": self.load_time,
+                            "masses": tuple(self.masses.tolist())}, (4, 3))
 
     def params(self):
         """The kernels' data: ``(r0³, k/3, −2k, k, r0)``, six entries each in the
         order of the pairs."""
-        k = np.array([self.k_stiff] + [self.k_soft] * 5)
-        r0 = self.rest_length
+        k, r0 = self.spring_constant, self.rest_length
         return np.concatenate([r0 ** 3, k / 3.0, -2.0 * k, k, r0])
 
     def load_params(self):
@@ -146,33 +132,6 @@ class Tetrahedra(SecondOrderSystem):
         x = np.asarray(u, dtype=float).reshape(4, 3)
         d = x[list(PAIRS_J)] - x[list(PAIRS_I)]
         return np.sqrt(np.einsum("pk,pk->p", d, d))
-
-    # -- mechanics -----------------------------------------------------------
-    def internal_force(self, u):
-        return tetrahedra_force(np.asarray(u, dtype=float), self.params())
-
-    def stiffness(self, u):
-        return tetrahedra_stiffness(np.asarray(u, dtype=float), self.params())
-
-    def stiffness_derivative(self, u, w):
-        return tetrahedra_stiffness_derivative(np.asarray(u, dtype=float),
-                                               np.asarray(w, dtype=float), self.params())
-
-    def potential_energy(self, u):
-        return tetrahedra_potential_energy(np.asarray(u, dtype=float), self.params())
-
-    def compiled_kernels(self):
-        """The kernels below compiled, with the hat load (imports numba)."""
-        return compiled_kernels(tetrahedra_force, tetrahedra_stiffness,
-                                tetrahedra_stiffness_derivative, tetrahedra_potential_energy,
-                                self.params(), load_params=self.load_params())
-
-    def load_breakpoints(self):
-        """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
-        return hat_breakpoints(self.load_time)
-
-    def load(self, t):
-        return hat_load(float(t), self.load_params())
 
     def quantities(self, t, u, v):
         """Positions and the six interaction forces (Eq. 46), vectorised over times.
@@ -247,6 +206,10 @@ def tetrahedra_potential_energy(u, params):
         q = params[p] / r
         V += k / 6.0 * (r * r + 2.0 * q - 3.0 * (r0 * r0))
     return V
+
+
+Tetrahedra.KERNELS = (tetrahedra_force, tetrahedra_stiffness, tetrahedra_stiffness_derivative,
+                      tetrahedra_potential_energy)
 
 
 def tetrahedra(**params) -> Tetrahedra:

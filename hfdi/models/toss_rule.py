@@ -39,9 +39,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .. import checks
-from ..system import SecondOrderSystem
-from .kernels import compiled, compiled_kernels, kernel
-from .loads import hat_breakpoints, hat_load, hat_load_params
+from .base import KernelModel
+from .kernels import compiled, kernel
+from .loads import hat_load_params
 
 __all__ = ["TossRule", "toss_rule", "MAX_ELEMENTS"]
 
@@ -51,7 +51,7 @@ __all__ = ["TossRule", "toss_rule", "MAX_ELEMENTS"]
 MAX_ELEMENTS = 1_000_000
 
 
-class TossRule(SecondOrderSystem):
+class TossRule(KernelModel):
     """A free plane co-rotational Timoshenko beam tossed by an end load (Section 5.4).
 
     DOFs are ordered node by node, ``u = (u_0, v_0, α_0, u_1, v_1, α_1, …)``,
@@ -126,9 +126,7 @@ class TossRule(SecondOrderSystem):
         "stop_time": 0.1,
     }
     # The hat pulses have kinks, so an exact rate would not help HFDI more
-    # than the paper's difference quotient does.
-    load_rate = None
-    damping = None
+    # than the paper's difference quotient does (KernelModel: none).
 
     def __init__(self, n_elements=6, length=0.5, width=0.030, thickness=0.002, E=210e9,
                  nu=0.3, shear_factor=5.0 / 6.0, rho=7850.0, force_amplitude=200.0,
@@ -276,10 +274,8 @@ class TossRule(SecondOrderSystem):
 
     def compiled_kernels(self):
         """The kernels below compiled (dense ``K`` and ``T``), with the hat loads
-        (imports numba)."""
-        return compiled_kernels(toss_rule_force, toss_rule_stiffness,
-                                toss_rule_stiffness_derivative, toss_rule_potential_energy,
-                                self.params(), load_params=self.load_params())
+        (imports numba); defined here, where the Python methods are."""
+        return super().compiled_kernels()
 
     def compiled_sparse_kernels(self):
         """Compiled f and CSR K, T for large beams: element loops that add each
@@ -338,14 +334,6 @@ class TossRule(SecondOrderSystem):
         p, q, a, _ = self._reduced(u)
         zp, zq, za, _ = self._reduced(w)
         return self._assemble(beam_derivative(EA, GA, h, inv_h, p, q, a, zp, zq, za, c, s))
-
-    def load_breakpoints(self):
-        """The kinks of the hat load: ``0``, ``load_time`` and twice it."""
-        return hat_breakpoints(self.load_time)
-
-    def load(self, t):
-        """``p(t)``: force ``F(t)`` in +y and moment ``M(t)`` at the left end node (chosen)."""
-        return hat_load(float(t), self.load_params())
 
     # -- output --------------------------------------------------------------
     def _centre(self, values):
@@ -633,6 +621,10 @@ def toss_rule_potential_energy(u, params):
         (h, _, c, s), (p, q, a, chi) = _element(params, u, e)
         V += beam_energy(params[1], params[2], params[3], h, p, q, a, chi, c, s)
     return 0.5 * V
+
+
+TossRule.KERNELS = (toss_rule_force, toss_rule_stiffness, toss_rule_stiffness_derivative,
+                    toss_rule_potential_energy)
 
 
 def toss_rule(n_elements=6, **params) -> TossRule:

@@ -1,0 +1,61 @@
+"""What the benchmark models share: methods that call their kernels, and a
+load of hat pulses (docs/models.md, "One physics per model")."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..system import SecondOrderSystem
+from .kernels import compiled_kernels
+from .loads import hat_load, hat_load_params
+
+__all__ = ["KernelModel"]
+
+
+class KernelModel(SecondOrderSystem):
+    """A model whose ``f``, ``K``, ``T[w]`` and ``V`` are the kernels
+    :attr:`KERNELS` on the data :meth:`params`, and whose load is the hat
+    pulses of :meth:`load_params` (none by default). No exact load rate: HFDI
+    uses the paper's difference quotient."""
+
+    #: ``(force, stiffness, stiffness_derivative, potential_energy)``, the kernels.
+    KERNELS: tuple = ()
+    load_rate = None
+    damping = None
+
+    def load_params(self) -> np.ndarray:
+        """The load's data (:func:`~hfdi.models.loads.hat_load`)."""
+        return hat_load_params(self.n_dof)
+
+    def internal_force(self, u):
+        return self.KERNELS[0](np.asarray(u, dtype=float), self.params())
+
+    def stiffness(self, u):
+        return self.KERNELS[1](np.asarray(u, dtype=float), self.params())
+
+    def stiffness_derivative(self, u, w):
+        return self.KERNELS[2](np.asarray(u, dtype=float), np.asarray(w, dtype=float),
+                               self.params())
+
+    def potential_energy(self, u):
+        return self.KERNELS[3](np.asarray(u, dtype=float), self.params())
+
+    def compiled_kernels(self):
+        """The kernels compiled, with the load (imports numba)."""
+        return compiled_kernels(*self.KERNELS, self.params(), load_params=self.load_params())
+
+    def load(self, t):
+        return hat_load(float(t), self.load_params())
+
+    def load_breakpoints(self):
+        """The kinks of the hat pulses: ``0``, ``t1`` and ``2 t1`` of each."""
+        pulses = self.load_params()
+        return tuple(sorted({x for t1 in map(float, pulses[4::3]) for x in (0.0, t1, 2.0 * t1)}))
+
+    def _given(self, params, shape):
+        """``params`` with the positions and the initial velocities where given."""
+        if self._positions_given:
+            params["positions"] = tuple(map(tuple, self.initial_displacement.reshape(shape)
+                                            .tolist()))
+        if np.any(self.initial_velocity):
+            params["v0"] = tuple(self.initial_velocity.tolist())
+        return params
