@@ -154,10 +154,8 @@ class System(SecondOrderSystem):
                  damping=None, load=None, load_rate=None, potential_energy=None,
                  quantities=None, initial_displacement=None,
                  initial_velocity=None, name="system", u_scale=1.0):
-        self.mass = checks.square_matrix("System mass", mass)
-        self.n_dof = n = self.mass.shape[0]
-        self.damping = None if damping is None else \
-            _matching_matrix("System damping", damping, n)
+        _matrices_and_start(self, "System", mass, damping, initial_displacement,
+                            initial_velocity)
         for what, value, signature in (
                 ("internal_force", internal_force, "f(u) -> (N,)"),
                 ("stiffness", stiffness, "K(u) -> (N, N)")):
@@ -176,12 +174,6 @@ class System(SecondOrderSystem):
         self.load_rate = load_rate
         self._v = potential_energy
         self._q = quantities
-        self.initial_displacement = (np.zeros(n) if initial_displacement is None else
-                                     checks.finite_array("System initial_displacement",
-                                                         initial_displacement, (n,)))
-        self.initial_velocity = (np.zeros(n) if initial_velocity is None else
-                                 checks.finite_array("System initial_velocity",
-                                                     initial_velocity, (n,)))
         self.name = name
         self.u_scale = checks.positive("System u_scale", u_scale)
 
@@ -228,8 +220,8 @@ class LinearSystem(SecondOrderSystem):
 
     def __init__(self, mass, stiffness, damping=None, load=None, load_rate=None,
                  initial_displacement=None, initial_velocity=None):
-        self.mass = checks.square_matrix("LinearSystem mass", mass)
-        self.n_dof = n = self.mass.shape[0]
+        n = _matrices_and_start(self, "LinearSystem", mass, damping, initial_displacement,
+                                initial_velocity)
         k = _matching_matrix("LinearSystem stiffness", stiffness, n)
         # A diagonal K is dense below the integrator's dense threshold, sparse
         # above it: as a dense (N, N) array it would cost N² memory and dense
@@ -243,17 +235,9 @@ class LinearSystem(SecondOrderSystem):
         else:
             self._K = np.diag(k) if k.ndim == 1 else k
             self._T = np.zeros((n, n))
-        self.damping = None if damping is None else \
-            _matching_matrix("LinearSystem damping", damping, n)
         self._p = checks.callable_or_none("LinearSystem load", load, "p(t) -> (N,)")
         self.load_rate = checks.callable_or_none("LinearSystem load_rate", load_rate,
                                                  "p'(t) -> (N,)")
-        self.initial_displacement = (np.zeros(n) if initial_displacement is None else
-                                     checks.finite_array("LinearSystem initial_displacement",
-                                                         initial_displacement, (n,)))
-        self.initial_velocity = (np.zeros(n) if initial_velocity is None else
-                                 checks.finite_array("LinearSystem initial_velocity",
-                                                     initial_velocity, (n,)))
 
     def internal_force(self, u):
         return self._K @ u
@@ -304,11 +288,21 @@ class HeldLoad:
 
 def _matching_matrix(name, value, n):
     """A matrix of the model checked to be (n,) (a diagonal) or (n, n)."""
-    a = checks.square_matrix(name, value)
-    if a.shape[0] != n:
-        raise ValueError(f"{name} must have shape ({n},) (diagonal) or ({n}, {n}) to match "
-                         f"the mass, got shape {a.shape}")
-    return a
+    return checks.square_matrix(name, value, n, to_match=" to match the mass")
+
+
+def _matrices_and_start(model, who, mass, damping, initial_displacement, initial_velocity):
+    """``model``'s mass, damping and initial conditions (zero when omitted),
+    checked in the messages of ``who``; returns ``N``."""
+    model.mass = checks.square_matrix(f"{who} mass", mass)
+    model.n_dof = n = model.mass.shape[0]
+    model.damping = None if damping is None else \
+        _matching_matrix(f"{who} damping", damping, n)
+    model.initial_displacement, model.initial_velocity = (
+        np.zeros(n) if value is None else checks.finite_array(f"{who} {what}", value, (n,))
+        for what, value in (("initial_displacement", initial_displacement),
+                            ("initial_velocity", initial_velocity)))
+    return n
 
 
 # -- finite-difference check ------------------------------------------------
@@ -467,24 +461,18 @@ def check_derivatives(system: SecondOrderSystem, states=None, *, samples: int = 
     spread = checks.real("spread", spread, low=0.0, high=100.0, high_closed=True)
     eps = checks.real("eps", eps, low=0.0, high=0.1, high_closed=True)
     if states is None:
-        samples = checks.integer("samples", samples, 1)
-        if samples > 1_000_000:
-            raise ValueError(f"samples must be an integer in [1, 1000000], got {samples!r}")
+        samples = checks.integer("samples", samples, 1, 1_000_000)
         u0 = getattr(system, "initial_displacement", None)
         base = checks.finite_array("system.initial_displacement",
                                    np.zeros(n) if u0 is None else u0, (n,))
         states = base + spread * scale * rng.standard_normal((samples, n))
     else:
-        try:
-            states = np.atleast_2d(np.asarray(states, dtype=float))
-        except (TypeError, ValueError):
-            raise ValueError(f"states must be an array of shape (n, {n}) of numbers, got "
-                             f"{states!r:.80}") from None
-        if states.ndim != 2 or states.shape[1] != n or states.shape[0] < 1:
-            raise ValueError(f"states must have shape (n, {n}) with n >= 1, got shape "
-                             f"{np.shape(states)}")
-        if not np.all(np.isfinite(states)):
-            raise ValueError("states must be finite")
+        given, states = states, checks.real_array(states)
+        states = None if states is None else np.atleast_2d(states)
+        if states is None or states.ndim != 2 or states.shape[1] != n \
+                or states.shape[0] < 1 or not np.all(np.isfinite(states)):
+            raise ValueError(f"states must be an array of shape (n, {n}), n >= 1, of finite "
+                             f"real numbers, got {given!r:.80}")
     h = eps * scale
     worst_f = worst_k = worst_t = 0.0
     # V known at some states and NaN ("not provided") at others is a fault of
