@@ -14,6 +14,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import sympy
 
+from .. import checks
 from ..system import SecondOrderSystem
 from . import sympy_input as _in
 
@@ -47,9 +48,8 @@ class EnergyModel(SecondOrderSystem):
         evaluation: :meth:`set_parameters` changes them without re-deriving.
     load : callable ``p(t) -> (N,)``, or sequence of N sympy expressions, optional
         External load; zero when omitted. Given as expressions of ``time`` and
-        the parameters, its exact rate is derived (HFDI uses it) and both run
-        compiled with the rest of the model (docs/compiled.md), so that whole
-        runs are compiled; a Python callable keeps each attempt compiled only.
+        the parameters, its exact rate is derived and both run compiled
+        (docs/user-models.md).
     load_rate : callable ``p'(t) -> (N,)``, optional
         Exact load rate for HFDI (otherwise HFDI takes a difference quotient);
         not with a load given as expressions, whose rate is derived.
@@ -165,11 +165,8 @@ class EnergyModel(SecondOrderSystem):
                                  f"(as {other_role} and as {role})")
             by_name[s.name] = (s, role)
 
-        unknown = energy.free_symbols - set(dofs) - set(param_symbols)
-        if unknown:
-            names = ", ".join(sorted(map(str, unknown)))
-            raise ValueError(f"energy depends on unknown symbols {names}: "
-                             "declare them as dofs or give their values in parameters")
+        _in.known_symbols([energy], set(dofs) | set(param_symbols), "energy",
+                          "declare them as dofs or give their values in parameters")
 
         load_exprs = None
         if load is not None and not callable(load):
@@ -177,8 +174,7 @@ class EnergyModel(SecondOrderSystem):
             if load_rate is not None:
                 raise ValueError("load_rate must not be given with a load of sympy "
                                  "expressions: its exact rate is derived from them")
-        if not callable(load_rate) and load_rate is not None:
-            raise ValueError(f"load_rate must be a callable t -> (N,), got {load_rate!r}")
+        checks.callable_or_none("load_rate", load_rate, "t -> (N,)")
 
         self.n_dof = n
         self.mass = _in.square_or_diagonal(mass, n, "mass", positive_diagonal=True)
@@ -186,13 +182,9 @@ class EnergyModel(SecondOrderSystem):
                         _in.square_or_diagonal(damping, n, "damping"))
         self.initial_displacement = _in.vector(initial_displacement, n, "initial_displacement")
         self.initial_velocity = _in.vector(initial_velocity, n, "initial_velocity")
-        self.u_scale = _in.real(u_scale, "u_scale")
-        if self.u_scale <= 0:
-            raise ValueError(f"u_scale must be > 0, got {u_scale!r}")
+        self.u_scale = checks.positive("u_scale", u_scale)
         self.observation_time = (None if observation_time is None
-                                 else _in.real(observation_time, "observation_time"))
-        if self.observation_time is not None and self.observation_time <= 0:
-            raise ValueError(f"observation_time must be > 0, got {observation_time!r}")
+                                 else checks.positive("observation_time", observation_time))
         if not isinstance(name, str):
             raise ValueError(f"name must be a string, got {name!r}")
         self.name = name
@@ -258,11 +250,8 @@ class EnergyModel(SecondOrderSystem):
             raise ValueError(f"load must be a callable t -> (N,) or {n} sympy expressions "
                              f"(one per degree of freedom), got {len(items)} item(s)")
         items = [_in.expression(e, "load") for e in items]
-        unknown = set().union(*(e.free_symbols for e in items)) - allowed
-        if unknown:
-            names_ = ", ".join(sorted(map(str, unknown)))
-            raise ValueError(f"load depends on unknown symbols {names_}: a load of sympy "
-                             f"expressions may use time (give it as time=) and the parameters")
+        _in.known_symbols(items, allowed, "load", "a load of sympy expressions may use time "
+                          "(give it as time=) and the parameters")
         return tuple(items)
 
     @staticmethod
@@ -280,12 +269,8 @@ class EnergyModel(SecondOrderSystem):
             if not items:
                 raise ValueError(f"quantity {qname!r} has no expressions")
             items = [_in.expression(e, f"quantity {qname!r}") for e in items]
-            unknown = set().union(*(e.free_symbols for e in items)) - allowed
-            if unknown:
-                names_ = ", ".join(sorted(map(str, unknown)))
-                raise ValueError(f"quantity {qname!r} depends on unknown symbols {names_}: "
-                                 "quantities may use the dofs, the velocities, time and "
-                                 "the parameters")
+            _in.known_symbols(items, allowed, f"quantity {qname!r}", "quantities may use the "
+                              "dofs, the velocities, time and the parameters")
             names.append(qname)
             sizes.append(len(items))
             exprs.extend(items)
@@ -606,12 +591,9 @@ def elastic_pendulum(k: float = 30.0, length: float = 1.0, mass: float = 1.0,
 
     See docs/user-models.md, "A model from its potential energy", for its use.
     """
-    m = _in.real(mass, "elastic_pendulum mass")
+    m = checks.positive("elastic_pendulum mass", mass)
     for what, value in (("k", k), ("length", length), ("g", g)):
-        if not _in.real(value, f"elastic_pendulum {what}") > 0:
-            raise ValueError(f"elastic_pendulum {what} must be > 0, got {value!r}")
-    if not m > 0:
-        raise ValueError(f"elastic_pendulum mass must be > 0, got {mass!r}")
+        checks.positive(f"elastic_pendulum {what}", value)
     x, y, vx, vy = sympy.symbols("x y v_x v_y")
     ks, L, gs = sympy.symbols("k L g")
     r = sympy.sqrt(x ** 2 + y ** 2)
@@ -670,16 +652,10 @@ def spring_chain(n_masses: int = 5, k: float = 1.0, k3: float = 4.0, mass: float
     >>> K.format, K.nnz
     ('csr', 10)
     """
-    if isinstance(n_masses, bool) or not isinstance(n_masses, (int, np.integer)) \
-            or n_masses < 1:
-        raise ValueError(f"spring_chain n_masses must be an integer >= 1, got {n_masses!r}")
-    n = int(n_masses)
-    if not _in.real(k, "spring_chain k") > 0:
-        raise ValueError(f"spring_chain k must be > 0, got {k!r}")
-    if not _in.real(k3, "spring_chain k3") >= 0:
-        raise ValueError(f"spring_chain k3 must be >= 0, got {k3!r}")
-    if not _in.real(mass, "spring_chain mass") > 0:
-        raise ValueError(f"spring_chain mass must be > 0, got {mass!r}")
+    n = checks.integer("spring_chain n_masses", n_masses, 1)
+    checks.positive("spring_chain k", k)
+    checks.non_negative("spring_chain k3", k3)
+    checks.positive("spring_chain mass", mass)
     u = sympy.symbols(f"u1:{n + 1}")
     ks, k3s = sympy.symbols("k k3")
     d = [u[0]] + [u[i] - u[i - 1] for i in range(1, n)]

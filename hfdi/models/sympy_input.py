@@ -12,8 +12,8 @@ from sympy.core.function import AppliedUndef
 
 from .. import checks
 
-__all__ = ["symbols", "items", "expression", "real", "square_or_diagonal", "vector",
-           "SymmetricLayout", "lambdified", "without_impulses", "right_rate"]
+__all__ = ["symbols", "items", "expression", "known_symbols", "real", "square_or_diagonal",
+           "vector", "SymmetricLayout", "lambdified", "without_impulses", "right_rate"]
 
 
 # -- input checks -------------------------------------------------------------
@@ -94,6 +94,15 @@ def expression(value, what):
     return expr
 
 
+def known_symbols(exprs, allowed, what, hint):
+    """Refuse ``exprs`` (of ``what``) with free symbols outside ``allowed``; ``hint``
+    says which symbols they may use."""
+    unknown = set().union(*(e.free_symbols for e in exprs)) - allowed
+    if unknown:
+        raise ValueError(f"{what} depends on unknown symbols "
+                         f"{', '.join(sorted(map(str, unknown)))}: {hint}")
+
+
 def real(value, what):
     try:
         out = float(value)
@@ -116,12 +125,8 @@ def square_or_diagonal(value, n, what, positive_diagonal=False):
 
 
 def vector(value, n, what):
-    arr = np.zeros(n) if value is None else np.array(value, dtype=float)
-    if arr.shape != (n,):
-        raise ValueError(f"{what} must have shape ({n},), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite")
-    return arr
+    """An initial condition: zero when ``None``, else a finite (n,) array."""
+    return np.zeros(n) if value is None else checks.finite_array(what, value, (n,))
 
 
 # -- layout of a symmetric matrix from its upper-triangle entries ------------
