@@ -18,6 +18,7 @@ from .core.jit import compiling
 from .core.state import CONFIG, DATA, FUNCTIONS, RUN, VECTORS
 from .evaluation import DENSE_BELOW
 from .messages import Status
+from .models.loads import hat_load_params
 from .stepping.loop import advance_affine, advance_hfdi
 from .system import HeldLoad
 
@@ -59,8 +60,9 @@ class CompiledSteps:
                                   stiffness_derivative=kernels.stiffness_derivative,
                                   potential_energy=kernels.potential_energy, load=load,
                                   load_rate=rate, stage=scheme.stage)
+        from .core.numba_types import function_struct_of
         with compiling(f"the kernels of model {type(self.system).__name__}"):
-            fn = compiled_path.function_struct(functions)
+            fn = function_struct_of(functions)   # each loaded from the disk cache, or compiled
         # the compiled loop adds a held load's value (DATA.held) to its compiled
         # load; the Python steps call the Evaluator's load, which adds it itself
         held = isinstance(ev.extra_load, HeldLoad)
@@ -70,7 +72,7 @@ class CompiledSteps:
             params=np.ascontiguousarray(kernels.params, dtype=float),
             load_params=np.ascontiguousarray(
                 kernels.load_params if kernels.load_params is not None else
-                compiled_path.zero_load_params(ev.n), dtype=float),
+                hat_load_params(ev.n), dtype=float),     # the zero load
             held=np.zeros(ev.n) if held else np.zeros(0))
         self._compiled_call = [fn, cfg, None, None]
         self._advance_compiled = advance_hfdi if self._hfdi else advance_affine

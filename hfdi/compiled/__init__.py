@@ -17,7 +17,7 @@ import numpy as np
 __all__ = ["CompiledKernels", "CompiledUnavailable", "InitialValues", "KERNEL_TOLERANCE",
            "NativeAdvance", "SparseKernels", "compiled_reason", "kernel_mismatch",
            "kernels_of", "library_kernels", "numba_available", "sparse_kernels_of",
-           "say_once", "function_struct", "follow_model", "zero_load", "zero_load_params"]
+           "say_once", "follow_model", "zero_load"]
 
 _log = logging.getLogger("hfdi.compiled")
 
@@ -432,14 +432,6 @@ def use_sparse_kernels(ev, compiled, initial):
     ev.use_kernels(kernels)
 
 
-def function_struct(functions):
-    """The compiled struct of :data:`hfdi.core.state.FUNCTIONS` (a named tuple of
-    numba dispatchers), each compiled for its signature first (loaded from the
-    disk cache, or compiled)."""
-    from ..core.numba_types import function_struct_of
-    return function_struct_of(functions)
-
-
 def follow_model(integrator) -> None:
     """After ``integrator.model_changed()`` on a compiled run: the kernels' data
     from the model now, checked against it again at the current state; where
@@ -479,8 +471,3 @@ def follow_model(integrator) -> None:
         if data.load_params.shape == params.shape:
             integrator._data.load_params[:] = params
 
-
-def zero_load_params(n):
-    """The data of the zero load (:func:`hfdi.compiled.loads.hat_load` without pulses)."""
-    from .loads import hat_load_params
-    return hat_load_params(n)
