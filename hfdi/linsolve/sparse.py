@@ -166,15 +166,9 @@ def _canonical_csr(a):
     return a
 
 
-def _rows_and_offsets(a):
-    """Row and ``row − column`` of every stored entry of the CSR ``a`` (int64)."""
-    rows = np.repeat(np.arange(a.shape[0], dtype=np.int64), np.diff(a.indptr))
-    return rows, rows - a.indices
-
-
 def _offsets(a):
     """``row − column`` of every stored entry of the CSR ``a`` (int64)."""
-    return _rows_and_offsets(a)[1]
+    return np.repeat(np.arange(a.shape[0], dtype=np.int64), np.diff(a.indptr)) - a.indices
 
 
 #: Patterns of the last sparse matrices put into band storage: the model's
@@ -246,6 +240,8 @@ def solve_band(ab, lower, upper, b):
     """Solve with a matrix in ``gbsv`` storage (``lower`` extra rows on top); ``ab``
     is overwritten. Tridiagonal matrices go to ``gtsv``, as in
     :func:`scipy.linalg.solve_banded`."""
+    if not all_finite(ab):
+        raise SingularMatrixError("matrix has non-finite entries")
     n = ab.shape[1]
     if n == 1:
         x = b / ab[lower + upper, 0]
@@ -298,8 +294,6 @@ class _ShiftedTangent:
                 return Factorization(self.tocsr()).solve(b)
             ab, lower, upper = band
             ab[lower + upper] += self.d
-        if not all_finite(ab):
-            raise SingularMatrixError("matrix has non-finite entries")
         return solve_band(ab, lower, upper, b)
 
 
@@ -342,23 +336,15 @@ def _common_band(a, other):
 
 class _InterleavedBlockTangent:
     """HFDI tangent ``S B⁻¹ S + R`` for a diagonal ``B`` and sparse ``K``, ``T``,
-    solved as the equivalent block system in banded form.
+    solved as the scaled block system with its unknowns interleaved, in banded
+    form (docs/algorithm.md, "Schemes": why, and the system).
 
     ``S = M − c K`` and ``R = C + c₂ K − c T`` (``M``, ``C`` diagonal,
-    ``c = h²/6``, ``c₂ = 2h/3``). With ``ŷ = B^{1/2} y`` the system
-    ``[[B, −S], [S, R]] [y; Δu] = [0; b]`` becomes
-    ``[[I, −B^{-1/2} S], [S B^{-1/2}, R]] [ŷ; Δu] = [0; b]``, whose Schur
-    complement is the tangent. Its entries go straight from the CSR arrays of
-    ``K`` and ``T`` into LAPACK band storage with the unknowns interleaved,
-    ``(ŷ₀, Δu₀, ŷ₁, Δu₁, …)``: ``2 l + 1`` diagonals below and ``2 u + 1``
-    above for a tangent band ``(l, u)``. One banded LU with partial pivoting
-    (``gbsv``) of size ``2n`` per solve: linear in ``n``, no sparse matrix
-    product, and, unlike ``S B⁻¹ S + R`` formed explicitly, well conditioned
-    when ``B`` has tiny entries (the lumped rotary inertia of the toss rule
-    at 6000 elements is ~6e-10 of its translational mass): pivoting may then
-    take an ``S`` entry instead of a huge ``S B⁻¹ S`` one. A band wider than
-    :data:`BANDED_MAX_WIDTH` goes to SuperLU as
-    :class:`_BlockTangent`.
+    ``c = h²/6``, ``c₂ = 2h/3``). The entries go straight from the CSR arrays
+    of ``K`` and ``T`` into LAPACK band storage: one ``gbsv`` of size ``2n``
+    per solve, linear in ``n``, no sparse matrix product; pivoting may take
+    an ``S`` entry instead of a huge ``S B⁻¹ S`` one. A band wider than
+    :data:`BANDED_MAX_WIDTH` goes to SuperLU as :class:`_BlockTangent`.
     """
 
     __slots__ = ("n", "b", "M", "C", "K", "T", "c", "c2", "bands")
@@ -421,8 +407,6 @@ class _InterleavedBlockTangent:
                 self.K, self.T, self.M, self.C, self.b, self.c, self.c2, lower, upper)
         else:
             ab, kl, ku = self.band()
-        if not all_finite(ab):
-            raise SingularMatrixError("matrix has non-finite entries")
         z = np.zeros(2 * self.n)
         z[1::2] = rhs
         return solve_band(ab, kl, ku, z)[1::2]
@@ -464,15 +448,16 @@ def _solve_general(a, b):
         return x
     if sp.issparse(a):
         band = banded_from_sparse(a, extra_lower=True)
-        if band is not None:
-            ab, lower, upper = band
-            if not all_finite(ab):
-                raise SingularMatrixError("matrix has non-finite entries")
-            return solve_band(ab, lower, upper, b)
-        return Factorization(a).solve(b)
+        return Factorization(a).solve(b) if band is None else solve_band(*band, b)
     if hasattr(a, "solve"):
         return a.solve(b)
     return Factorization(a).solve(b)
+
+
+def _mass_damping(data, cfg):
+    """``M`` and ``C`` (``None`` without damping) of the run, diagonal or not."""
+    return (data.Md if cfg.m_kind == DIAGONAL else data.Mf,
+            None if cfg.c_kind == NONE else (data.Cd if cfg.c_kind == DIAGONAL else data.Cf))
 
 
 @python_only(lambda vec, J, x: False)
@@ -490,8 +475,7 @@ def general_affine_tangent(vec, data, cfg, K, cM, cC, cK):
     """``cM M + cC C + cK K`` as the solver wants it: ``K`` plus a diagonal kept
     apart when ``M`` and ``C`` are diagonal (:class:`_ShiftedTangent` for a
     sparse ``K``), else the sum."""
-    M = data.Md if cfg.m_kind == DIAGONAL else data.Mf
-    C = None if cfg.c_kind == NONE else (data.Cd if cfg.c_kind == DIAGONAL else data.Cf)
+    M, C = _mass_damping(data, cfg)
     scaled = K if cK == 1.0 else cK * K
     if cfg.m_kind == DIAGONAL and cfg.c_kind in (NONE, DIAGONAL):
         shift = combine((cM, M), (cC, C))
@@ -508,8 +492,7 @@ def general_hfdi_setup(vec, data, cfg, c, c2):
     """HFDI's ``B = 2h/3 M + h²/6 C`` (``c2 = 2h/3``, ``c = h²/6``) for the step:
     0 when singular, 1 when diagonal, 2 when factorised (one more LU counted)."""
     state = vec.sparse
-    M = data.Md if cfg.m_kind == DIAGONAL else data.Mf
-    C = None if cfg.c_kind == NONE else (data.Cd if cfg.c_kind == DIAGONAL else data.Cf)
+    M, C = _mass_damping(data, cfg)
     B = combine((c2, M), (c, C))
     state.B = B
     state.b_diagonal = B if B.ndim == 1 else None
@@ -539,8 +522,7 @@ def general_velocity(vec, x):
 def general_hfdi_tangent(vec, data, cfg, K, T, c, c2):
     """``S B⁻¹ S + R``, ``S = M − c K``, ``R = C + c2 K − c T``, as the solver wants it."""
     state = vec.sparse
-    M = data.Md if cfg.m_kind == DIAGONAL else data.Mf
-    C = None if cfg.c_kind == NONE else (data.Cd if cfg.c_kind == DIAGONAL else data.Cf)
+    M, C = _mass_damping(data, cfg)
     b = state.b_diagonal
     if state.block_band and sp.issparse(K):
         return _InterleavedBlockTangent(b, M, C, K, T, c, c2, state.bands)
@@ -566,5 +548,5 @@ def general_mass_solve(vec, data, cfg, x):
     """``x ← M⁻¹ x`` (``M``'s factors kept for the run)."""
     state = vec.sparse
     if state.mass_factor is None:
-        state.mass_factor = Factorization(data.Md if cfg.m_kind == DIAGONAL else data.Mf)
+        state.mass_factor = Factorization(_mass_damping(data, cfg)[0])
     x[:] = state.mass_factor.solve(x)
