@@ -92,15 +92,11 @@ def stop_message(run, cfg, fault=None, t_limit=math.inf) -> str:
     to = f" (to t = {run.t + h:.10g})"
     if reason == codes.STOP_BELOW_RESOLUTION:
         text = f"step {run.proposed:.6g} is below the resolution of time at t"
-    elif reason == codes.STOP_MIN_STEP:
-        min_step = cfg.it_min_step if _iteration_rule(run, cfg) else cfg.er_min_step
-        text = (f"step {run.stop_next:.6g} below min_step = {min_step:.6g} after the attempt "
-                f"with h = {h:.6g} was rejected: {why}{to}")
-    elif reason == codes.STOP_HALVINGS:
-        limit = cfg.it_max_rejections if _iteration_rule(run, cfg) else cfg.er_max_rejections
-        what = f"diverged after {limit} halvings" if run.a_outcome != codes.OK else \
-            f"rejected {limit} times in a row"
-        text = f"step {what} (last attempt h = {h:.6g}): {why}{to}"
+    elif reason in (codes.STOP_MIN_STEP, codes.STOP_HALVINGS):
+        rule = _iteration_rule(run, cfg)
+        text = _guard(run, reason, cfg.it_min_step if rule else cfg.er_min_step,
+                      cfg.it_max_rejections if rule else cfg.er_max_rejections, why)
+        text += (f": {why}" if reason == codes.STOP_MIN_STEP else "") + to
     elif reason == codes.STOP_FIXED_FAILED:
         text = f"corrector failed with fixed step {h:.6g}: {why}" + (
             "" if run.first_step_pending else to)
@@ -113,7 +109,8 @@ def stop_message(run, cfg, fault=None, t_limit=math.inf) -> str:
             text = (f"no first step converged in {run.trials} trials down to h = "
                     f"{run.trials_smallest:.6g}: {why}")
         else:
-            guard = _first_step_guard(run, cfg, why)
+            # the error rule's last rejection of a first-step trial
+            guard = _guard(run, run.trial_guard, cfg.er_min_step, cfg.er_max_rejections, why)
             text = (f"no first step passed the error test in {run.trials} trials down to h = "
                     f"{run.trials_smallest:.6g}{': ' + guard if guard else ''}")
     elif reason == codes.STOP_MAX_STEPS:
@@ -151,14 +148,14 @@ def _iteration_rule(run, cfg) -> bool:
                                            and run.a_outcome != codes.OK)
 
 
-def _first_step_guard(run, cfg, why) -> str:
-    """The message of the error rule's last rejection of a first-step trial."""
-    h = run.a_h
-    if run.trial_guard == codes.STOP_MIN_STEP:
-        return (f"step {run.stop_next:.6g} below min_step = {cfg.er_min_step:.6g} after the "
-                f"attempt with h = {h:.6g} was rejected")
-    if run.trial_guard == codes.STOP_HALVINGS:
-        what = f"diverged after {cfg.er_max_rejections} halvings" if run.a_outcome != \
-            codes.OK else f"rejected {cfg.er_max_rejections} times in a row"
-        return f"step {what} (last attempt h = {h:.6g}): {why}"
+def _guard(run, reason, min_step, limit, why) -> str:
+    """What a step rule's stop ``reason`` (``STOP_MIN_STEP``, ``STOP_HALVINGS``, else
+    ``""``) says, with its ``min_step`` and its ``limit`` of rejections."""
+    if reason == codes.STOP_MIN_STEP:
+        return (f"step {run.stop_next:.6g} below min_step = {min_step:.6g} after the attempt "
+                f"with h = {run.a_h:.6g} was rejected")
+    if reason == codes.STOP_HALVINGS:
+        what = f"diverged after {limit} halvings" if run.a_outcome != codes.OK else \
+            f"rejected {limit} times in a row"
+        return f"step {what} (last attempt h = {run.a_h:.6g}): {why}"
     return ""
