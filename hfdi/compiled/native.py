@@ -37,7 +37,9 @@ TAKEN, NOT_TAKEN = 1, 0
 
 _BYTES = types.uint8[::1]
 _EVERY = 2**63 - 1
-#: The vectors a call may change, put back when it gives up.
+#: The vectors a call may change, put back when it gives up (:func:`_state`); as
+#: ``hfdi.compiled_steps._SNAPSHOT``, not imported: this module's compiled code
+#: would be compiled again at every change of that module.
 _STATE = ("u", "v", "a", "f", "p", "u_previous", "v_previous", "a_previous", "f_previous",
           "p_previous")
 # entries of ``limits``: the run's max_steps, the steps one call may take, the calls made
@@ -139,19 +141,19 @@ def _address(native):
 
 
 @jitable(inline=True)
+def _state(vec):
+    """The vectors of :data:`_STATE`, in its order."""
+    return (vec.u, vec.v, vec.a, vec.f, vec.p, vec.u_previous, vec.v_previous, vec.a_previous,
+            vec.f_previous, vec.p_previous)
+
+
+@jitable(inline=True)
 def _save(native):
-    vec = native.vec
     copy(native.saved_run, native.run_bytes)
-    copy(native.saved[0], vec.u)
-    copy(native.saved[1], vec.v)
-    copy(native.saved[2], vec.a)
-    copy(native.saved[3], vec.f)
-    copy(native.saved[4], vec.p)
-    copy(native.saved[5], vec.u_previous)
-    copy(native.saved[6], vec.v_previous)
-    copy(native.saved[7], vec.a_previous)
-    copy(native.saved[8], vec.f_previous)
-    copy(native.saved[9], vec.p_previous)
+    k = 0
+    for x in _state(native.vec):
+        copy(native.saved[k], x)
+        k += 1
     held = native.data.held
     for i in range(held.shape[0]):
         native.saved[10, i] = held[i]
@@ -159,18 +161,11 @@ def _save(native):
 
 @jitable(inline=True)
 def _restore(native):
-    vec = native.vec
     copy(native.run_bytes, native.saved_run)
-    copy(vec.u, native.saved[0])
-    copy(vec.v, native.saved[1])
-    copy(vec.a, native.saved[2])
-    copy(vec.f, native.saved[3])
-    copy(vec.p, native.saved[4])
-    copy(vec.u_previous, native.saved[5])
-    copy(vec.v_previous, native.saved[6])
-    copy(vec.a_previous, native.saved[7])
-    copy(vec.f_previous, native.saved[8])
-    copy(vec.p_previous, native.saved[9])
+    k = 0
+    for x in _state(native.vec):
+        copy(x, native.saved[k])
+        k += 1
     held = native.data.held
     for i in range(held.shape[0]):
         held[i] = native.saved[10, i]
