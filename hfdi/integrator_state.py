@@ -151,13 +151,10 @@ class IntegratorState:
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
 STATE_FORMAT = "hfdi-integrator-state/3"
 _STATE_ARRAYS = ("u", "v", "a", "f", "p")
-_STATE_SCALARS = {"proposed_step": float, "first_step_pending": bool, "status": int,
-                  "message": str, "potential": float, "initial_potential": float,
-                  "work": float, "energy_error": float, "energy_scale": float,
-                  "last_step": float, "last_iterations": int, "last_energy_increment": float,
-                  "grid_origin": float, "grid_steps": int, "newton_constant": float,
-                  "newton_guard": float, "controller": str, "n_dof": int, "scheme": str,
-                  "model_version": int}
+#: The fields of plain types, by name (the annotations are strings here).
+_STATE_SCALARS = {f.name: {"float": float, "bool": bool, "int": int, "str": str}[f.type]
+                  for f in dataclasses.fields(IntegratorState)
+                  if f.type in ("float", "bool", "int", "str")}
 _STATISTICS_FIELDS = tuple(f.name for f in dataclasses.fields(Statistics))
 
 
@@ -201,7 +198,7 @@ def check_state(saved: IntegratorState, *, n: int, controller: str, scheme: str,
             continue
         if not isinstance(st, State):
             raise ValueError(f"state.{label} must be a State, got {type(st).__name__}")
-        for name in ("u", "v", "a", "f", "p"):
+        for name in _STATE_ARRAYS:
             value = getattr(st, name)
             if value is None and name == "f":       # not kept by every scheme
                 continue
