@@ -58,6 +58,15 @@ class Struct(types.StructRef):
     """Base of the numba types of the records' structs (each a module-level
     class registered with ``structref.register``, so that cached code can name it)."""
 
+    def __init__(self, fields):
+        super().__init__(fields)
+        # numba interns types by name, and a struct's name is its class's
+        # (not its module's) and fields: the package in the name keeps a copy
+        # of these sources imported under another name (an FMU's) from
+        # sharing the library's types, whose cached code then named the
+        # copy's module and failed to load in a process without it
+        self.name = f"{type(self).__module__.split('.')[0]}.{self.name}"
+
     def preprocess_fields(self, fields):
         return tuple((n, types.unliteral(t)) for n, t in fields)
 
