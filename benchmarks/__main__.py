@@ -3,7 +3,7 @@ import sys
 
 from validation.options import UsageError, caused_by_interrupt, interrupted, watching_interrupts
 
-COMMANDS = ("precision", "scale", "profile", "cosim")
+COMMANDS = ("precision", "scale", "profile", "cosim", "proportionality")
 USAGE = f"usage: python -m benchmarks {{{','.join(COMMANDS)}}} [-h] [...]"
 
 
