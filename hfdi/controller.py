@@ -26,7 +26,7 @@ import numpy as np
 
 from . import checks
 from .core import control
-from .core.estimate import weighted_rms
+from .core.estimate import error_fraction, weighted_rms
 from .core.state import COMBINED, CONFIG, CUSTOM, ERROR, FIXED, ITERATION, RUN
 
 __all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
@@ -73,6 +73,12 @@ class Attempt:
     velocity_noise : float
         The uncertainty of ``v`` left by the corrector's tolerance, added to
         the weights of ``v`` so that it never drives the step down.
+    displacement_noise : float
+        The uncertainty of ``u`` likewise, added to the weights of ``u``.
+    elapsed : float
+        The time from the run's start to the attempt's end (NaN: unknown).
+    accepted : int
+        The steps the run accepted before the attempt.
     """
 
     h: float
@@ -86,6 +92,9 @@ class Attempt:
     y_start: np.ndarray | None = None
     y_end: np.ndarray | None = None
     velocity_noise: float = 0.0
+    displacement_noise: float = 0.0
+    elapsed: float = math.nan
+    accepted: int = 0
 
 
 @dataclass
@@ -289,15 +298,22 @@ IterationCountController = IterationCount
 
 
 class ErrorControl(Controller):
-    """Step size from the local error estimate (docs/algorithm.md, "Error control").
+    """Step size from the local error estimate (docs/algorithm.md, "Error
+    control" and "Tolerance proportionality").
 
-    ``err = ‖e / (atol + rtol·max(|y_n|, |y_{n+1}|))‖_RMS`` over the
-    first-order state ``y = (u, v)``, as IDA and ``solve_ivp`` weigh it, with
-    ``e`` from :func:`~hfdi.core.estimate.local_error`. An attempt with ``err ≤ 1`` is
+    ``err = ‖e / ((atol + rtol·max(|y_n|, |y_{n+1}|))·h̄/τ)‖_RMS`` over the
+    first-order state ``y = (u, v)``, weighed as IDA and ``solve_ivp`` weigh
+    it, but each step may spend only the share ``h̄/τ`` of the tolerance
+    (``h̄`` the run's mean step so far, ``τ`` its span), so that the local
+    errors of the whole run add up to about the tolerance and the error of
+    the answer follows ``rtol``. ``e`` is
+    :func:`~hfdi.core.estimate.local_error`. An attempt with ``err ≤ 1`` is
     accepted; otherwise it is retried. The next size is
     ``h · safety · err^{−1/(p+1)}``, limited to ``[shrink, grow]·h`` (and to
     at most ``h`` right after a rejection). A diverged corrector halves the
-    step.
+    step. With ``per_step=True`` the rule is IDA's and ``solve_ivp``'s: the
+    share is 1, and the error accumulates over the run as
+    ``rtol^{p/(p+1)}``.
 
     Parameters
     ----------
@@ -308,12 +324,24 @@ class ErrorControl(Controller):
     atol : float or array_like (N,) or (2N,), optional
         Absolute tolerance, ``> 0``, laid out as ``rtol``; in the units of
         ``u`` (and of ``v`` for the second half of a (2N,) array). Default
-        ``1e-3 · min(rtol) · u_scale``.
-    u_scale : float
-        The model's length scale, for the default ``atol`` (1).
+        ``1e-3 · min(rtol) · (U, V)``, ``U`` and ``V`` the scales of ``u``
+        and ``v`` (:func:`hfdi.options.state_scales`); an integrator fills
+        it in from its model.
+    u_scale, v_scale : float, optional
+        The scales ``U`` and ``V`` of the default ``atol`` when the
+        controller is used without an integrator (1).
     order : int, optional
         Order ``p`` of the scheme; by default the order of the scheme of the
         integrator that uses the controller.
+    per_step : bool
+        Bound the error per step (IDA's rule) instead of at a share of the
+        tolerance.
+    span : float, optional
+        ``τ``, the time the error may accumulate over. Default: the run's
+        ``t_bound − t0`` when the integrator knows it, else the time from the
+        run's start to the step's end (the share is then ``1/(n + 1)`` at
+        the ``n``-th step, and the local errors add up to ``rtol·ln n`` at
+        most).
     safety, grow, shrink : float
         The usual factors: 0.9, 5 and 0.2.
     """
@@ -322,20 +350,37 @@ class ErrorControl(Controller):
     max_iterations = 10
     kind = ERROR
 
-    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, u_scale=1.0, order: int | None = None,
-                 safety=0.9, grow=5.0, shrink=0.2, **limits):
+    def __init__(self, rtol=DEFAULT_RTOL, atol=None, *, u_scale=None, v_scale=None,
+                 order: int | None = None, per_step=False, span=None, safety=0.9, grow=5.0,
+                 shrink=0.2, **limits):
         self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
-        self.atol = _tolerance("atol", 1e-3 * np.min(self.rtol) * u_scale if atol is None
-                               else atol, 0.0, math.inf)
-        if np.any(np.asarray(self.atol) <= 0.0):
+        self.atol = None if atol is None else _tolerance("atol", atol, 0.0, math.inf)
+        if atol is not None and np.any(np.asarray(self.atol) <= 0.0):
             # a weight atol + rtol·|u| of zero would fail every step at u = 0
             raise ValueError(f"atol must be > 0 (a finite number or one per degree of freedom), "
                              f"got {atol!r}")
+        self.u_scale = None if u_scale is None else checks.positive("u_scale", u_scale)
+        self.v_scale = None if v_scale is None else checks.positive("v_scale", v_scale)
         self.order = None if order is None else checks.integer("order", order, 1)
+        if not isinstance(per_step, (bool, np.bool_)):
+            raise ValueError(f"per_step must be True or False, got {per_step!r}")
+        self.per_step = bool(per_step)
+        self.span = None if span is None else checks.positive("span", span)
         self.safety = checks.real("safety", safety, low=0.0, high=1.0, high_closed=True)
         self.grow = checks.real("grow", grow, low=1.0, high=math.inf)
         self.shrink = checks.real("shrink", shrink, low=0.0, high=1.0)
         super().__init__(**limits)
+
+    def fit_run(self, span, u_scale, v_scale):
+        """Fill in what was not given from the integrator's run: the span
+        ``τ`` (``None``: unknown) and the scales of the default ``atol``."""
+        if self.span is None and span is not None:
+            self.span = span
+        if self.u_scale is None:
+            self.u_scale = u_scale
+        if self.v_scale is None:
+            self.v_scale = v_scale
+        self.__dict__.pop("_config", None)
 
     def prepare(self, n: int, order: int) -> None:
         """Take the scheme's order unless one was given; see :meth:`check_size`."""
@@ -347,6 +392,10 @@ class ErrorControl(Controller):
     def check_size(self, n: int):
         """Refuse tolerances given per degree of freedom for another size, and
         lay those given for ``u`` out over ``(u, v)``."""
+        if self.atol is None:
+            scale = 1e-3 * float(np.min(self.rtol))
+            self.atol = np.concatenate([np.full(n, scale * (self.u_scale or 1.0)),
+                                        np.full(n, scale * (self.v_scale or 1.0))])
         for name in ("rtol", "atol"):
             value = getattr(self, name)
             if np.ndim(value) and np.shape(value) not in ((n,), (2 * n,)):
@@ -363,13 +412,19 @@ class ErrorControl(Controller):
         y0, y1 = attempt.y_start, attempt.y_end
         rtol = np.broadcast_to(self.rtol, (2 * n,)).astype(float)
         atol = np.broadcast_to(self.atol, (2 * n,)).astype(float)
+        span = math.nan if self.span is None else self.span
+        fraction = error_fraction(self.per_step, span, attempt.elapsed, attempt.accepted,
+                                  attempt.history)
         return weighted_rms(attempt.error, y0[:n], y0[n:], y1[:n], y1[n:], rtol, atol,
-                            attempt.velocity_noise, np.empty(2 * n))
+                            attempt.displacement_noise, attempt.velocity_noise, fraction,
+                            np.empty(2 * n))
 
     def settings(self):
         return {**super().settings(), "order": self.order or 0, "er_min_step": self.min_step,
                 "er_max_step": self.max_step, "er_max_rejections": self.max_rejections,
-                "safety": self.safety, "grow": self.grow, "shrink": self.shrink}
+                "safety": self.safety, "grow": self.grow, "shrink": self.shrink,
+                "per_step": self.per_step,
+                "error_span": math.nan if self.span is None else self.span}
 
     def adapt(self, attempt, rejections):
         if self.order is None:
@@ -416,7 +471,9 @@ class ErrorControl(Controller):
                               f"{': ' + message if message else ''}")
 
     def __repr__(self):
-        return f"ErrorControl(rtol={_exact(self.rtol)}, atol={_exact(self.atol)})"
+        extra = ", per_step=True" if self.per_step else \
+            ("" if self.span is None else f", span={self.span!r}")
+        return f"ErrorControl(rtol={_exact(self.rtol)}, atol={_exact(self.atol)}{extra})"
 
 
 class Combined(Controller):

@@ -12,7 +12,7 @@ import numpy as np
 from .controller import Attempt
 from .core import codes
 from .core.control import is_breakpoint, limit
-from .core.estimate import is_short, velocity_noise
+from .core.estimate import displacement_noise, is_short, velocity_noise
 from .evaluation import ModelFault
 from .messages import Status, attempt_message, stop_message
 from .stepping import attempt as stepping
@@ -91,6 +91,9 @@ def _try(itg, proposed, t_limit, landing=None):
         attempt.y_start = np.concatenate([vec.u, vec.v])
         attempt.y_end = np.concatenate([vec.u_new, vec.v_new])
         attempt.velocity_noise = velocity_noise(cfg.velocity_gain, run.a_newton_error, vec, h)
+        attempt.displacement_noise = displacement_noise(run.a_newton_error, vec)
+        attempt.elapsed = t_end - run.t_start
+        attempt.accepted = run.accepted
     return attempt
 
 

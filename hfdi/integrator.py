@@ -28,8 +28,8 @@ from .evaluation import Evaluator, ModelError, ModelFault, State
 from .compiled_steps import CompiledSteps
 from .integrator_state import IntegratorState, check_state
 from .messages import Status, stop_message
-from .options import (NEWTON_TESTS, breakpoints_of, initial_vector, make_controller,
-                      newton_tolerance, optional_positive, time_value)
+from .options import (NEWTON_TESTS, breakpoints_of, fit_error_control, initial_vector,
+                      make_controller, newton_tolerance, optional_positive, time_value)
 from .preflight import default_first_step, initial_state
 from .result import STATISTICS_FIELDS, Statistics
 from .schemes import HFDI, Scheme, get_scheme
@@ -74,11 +74,16 @@ class Integrator(CompiledSteps):
     ----------
     system : SecondOrderSystem
     scheme : {"newmark", "bathe", "hfdi", "generalized_alpha"} or Scheme
-    rtol : float or array_like (N,), optional
-        Relative tolerance of the local error of ``u``, in ``[1e-13, 0.1)``.
-    atol : float or array_like (N,), optional
-        Absolute tolerance, ``> 0``. Default ``1e-3 · rtol · u_scale`` (the
-        model's length ``u_scale``).
+    rtol : float or array_like (N,) or (2N,), optional
+        Relative tolerance, in ``[1e-13, 0.1)``: each step's local error is
+        kept below its share ``h̄/τ`` of it (``h̄`` the mean step, ``τ`` the
+        span ``t_bound − t0``, or without ``t_bound`` the time integrated so
+        far), so that the error of the answer follows it
+        (:class:`~hfdi.controller.ErrorControl`; docs/accuracy.md).
+    atol : float or array_like (N,) or (2N,), optional
+        Absolute tolerance, ``> 0``. Default ``1e-3 · rtol · U`` for ``u`` and
+        ``1e-3 · rtol · V`` for ``v``, the scales of the initial state
+        (:func:`hfdi.options.state_scales`).
     target_iterations : float, optional
         Target Newton iteration count ``N̄`` per (sub-)step (Eq. 39), in
         ``[1, 100]``. For Bathe the step's target is ``2 N̄``, as the paper's
@@ -210,20 +215,16 @@ class Integrator(CompiledSteps):
         u_scale = float(getattr(system, "u_scale", 1.0) or 1.0)
         self.controller = c = make_controller(
             controller, rtol, atol, target_iterations, step, span, min_step, max_step,
-            max_halvings, first_step_trials, u_scale, self.scheme, self.t0, self.t_bound,
+            max_halvings, first_step_trials, self.scheme, self.t0, self.t_bound,
             max_steps)
-        c.prepare(ev.n, self.scheme.order)
         self.min_step, self.max_step = c.min_step, c.max_step
         self.fixed = isinstance(c, FixedStep)
         self.max_iterations = c.max_iterations if max_iterations is None else \
             checks.integer("max_iterations", max_iterations, 1, 2**31 - 1)
-        self.tol = newton_tolerance(tol, c)
-        if newton_test is None:
-            newton_test = "error" if isinstance(c, ErrorControl) else "correction"
-        if not (isinstance(newton_test, str) and newton_test in NEWTON_TESTS):
+        if newton_test is not None and not (isinstance(newton_test, str)
+                                            and newton_test in NEWTON_TESTS):
             raise ValueError(f"newton_test must be one of {', '.join(map(repr, NEWTON_TESTS))}, "
                              f"got {newton_test!r}")
-        self.newton_test = newton_test
         self.floor = u_scale
         every = breakpoints_of(system, breakpoints)
         # the fixed step lands on those on its grid
@@ -240,6 +241,11 @@ class Integrator(CompiledSteps):
             initial.append(np.zeros(n) if given is None else
                            initial_vector(name, given, n, source))
         u0, v0 = initial
+        fit_error_control(c, span, u0, v0, u_scale)
+        self.newton_test = newton_test or (
+            "error" if isinstance(c, ErrorControl) else "correction")
+        self.tol = newton_tolerance(tol, c)
+        c.prepare(ev.n, self.scheme.order)
         first_step = optional_positive("first_step", first_step)
         if first_step is not None:
             if self.fixed:

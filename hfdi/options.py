@@ -14,7 +14,8 @@ from .controller import (DEFAULT_RTOL, Combined, Controller, ErrorControl, Fixed
 from .evaluation import brief
 
 __all__ = ["make_controller", "newton_tolerance", "breakpoints_of", "initial_vector",
-           "optional_positive", "time_value", "times", "NEWTON_TESTS"]
+           "optional_positive", "time_value", "times", "state_scales", "fit_error_control",
+           "NEWTON_TESTS"]
 
 #: Values of ``Integrator(newton_test=...)``.
 NEWTON_TESTS = ("correction", "error")
@@ -45,7 +46,7 @@ def initial_vector(name, value, n, source):
 
 
 def make_controller(controller, rtol, atol, target, step, span, min_step, max_step,
-                    max_halvings, first_step_trials, u_scale, scheme, t0, t_bound,
+                    max_halvings, first_step_trials, scheme, t0, t_bound,
                     max_steps) -> Controller:
     """The controller of the mode the arguments ask for."""
     given = {name: value for name, value in (("rtol", rtol), ("atol", atol),
@@ -108,9 +109,28 @@ def make_controller(controller, rtol, atol, target, step, span, min_step, max_st
         IterationCount(target, scheme.n_stages, **limits)
     if iteration is not None and rtol is None:
         return iteration
-    error = ErrorControl(DEFAULT_RTOL if rtol is None else rtol, atol, u_scale=u_scale,
-                         order=scheme.order, **limits)
+    error = ErrorControl(DEFAULT_RTOL if rtol is None else rtol, atol, order=scheme.order,
+                         **limits)
     return error if iteration is None else Combined(iteration, error)
+
+
+def state_scales(u0, v0, u_scale, span):
+    """``(U, V)``, the scales of ``u`` and ``v`` of the default ``atol``:
+    ``U = ‖u0‖∞``, or the model's ``u_scale`` for a model starting at
+    ``u0 = 0``; ``V = max(‖v0‖∞, U/τ)`` with ``τ`` the run's span (one
+    length per span: the slowest motion the run can show), or
+    ``max(‖v0‖∞, U)`` (per unit of time) when the span is not known."""
+    U = float(np.max(np.abs(u0), initial=0.0)) or float(u_scale)
+    V = max(float(np.max(np.abs(v0), initial=0.0)), U / span if span else U)
+    return U, V
+
+
+def fit_error_control(controller, span, u0, v0, u_scale):
+    """Give the error rule(s) of ``controller`` the run's span and the state's
+    scales (:meth:`hfdi.controller.ErrorControl.fit_run`)."""
+    for part in (controller, getattr(controller, "error", None)):
+        if isinstance(part, ErrorControl):
+            part.fit_run(span, *state_scales(u0, v0, u_scale, span))
 
 
 def newton_tolerance(tol, controller):

@@ -24,6 +24,7 @@ def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, es
         n=ev.n, stages=scheme.n_stages, order=scheme.order,
         velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,
         lagged_acceleration=scheme.lagged_acceleration,
+        acceleration_lag=scheme.acceleration_lag,
         m_kind=ev.mass_kind, c_kind=ev.damping_kind, sparse=ev.n >= DENSE_BELOW,
         exact_rate=exact_rate, tol=tol, floor=floor, max_iterations=max_iterations,
         estimated=estimated, energy_limit=math.inf if energy_limit is None else energy_limit,

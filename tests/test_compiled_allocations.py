@@ -75,7 +75,7 @@ SCRIPT = textwrap.dedent("""
     results = []
     for problem, scheme, mode, t1, t2 in json.loads(sys.argv[1]):
         model = hfdi.models.get(problem)
-        options = dict(rtol=1e-6) if mode == "error" else dict(target_iterations=3.0)
+        options = dict(rtol=1e-5) if mode == "error" else dict(target_iterations=3.0)
         itg = hfdi.Integrator(model, scheme, compiled=True, **options)
         counted_calls(itg)
         itg.advance(t1)

@@ -874,7 +874,7 @@ def test_native_and_python_fmus_agree_on_any_call_sequence(dumbbell_fmu, sequenc
     rng = np.random.default_rng(2026)
     for k in range(sequences):
         scheme = hfdi.PAPER_SCHEMES[k % 3] if k % 4 else "generalized_alpha"
-        control = {"rtol": 1e-6} if k % 2 else {"target_iterations": 3.0}
+        control = {"rtol": 1e-4} if k % 2 else {"target_iterations": 3.0}
         parameters = {"scheme": scheme, "max_internal_steps": 5000, **control}
         units = [unit(dumbbell_fmu, dict(parameters, compiled=c), f"mix-{k}-{c}")
                  for c in (True, False)]

@@ -12,6 +12,7 @@ import pytest
 
 import hfdi
 import hfdi.stepping.attempt as attempt
+from hfdi.controller import ErrorControl
 from hfdi.core.state import RUN
 from hfdi.stepping.stages import CONSTANT_MEMORY, convergence_test
 
@@ -108,7 +109,8 @@ def test_a_run_stopped_on_the_estimate_leaves_an_error_within_the_bound(
         scheme, problem, rtol, stopped_runs):
     make, t_end = EXACT[problem]
     model, _ = make()
-    result = hfdi.integrate(model, scheme, t_end, rtol=rtol, compiled=False)
+    result = hfdi.integrate(model, scheme, t_end, compiled=False,
+                            controller=ErrorControl(rtol, per_step=True))
     assert result.success
     assert len(stopped_runs) >= 2               # the estimate did stop runs
     # measured: at most 0.84 of the bound here (0.66 on the paper's models
@@ -123,8 +125,8 @@ def test_the_estimate_halves_the_corrections_at_the_same_accuracy(problem, schem
     runs = {}
     for test in ("correction", "error"):
         model, exact = make[0]()
-        result = hfdi.integrate(model, scheme, make[1], rtol=1e-6, compiled=False,
-                                newton_test=test)
+        result = hfdi.integrate(model, scheme, make[1], compiled=False, newton_test=test,
+                                controller=ErrorControl(1e-6, per_step=True))
         assert result.success
         u, _ = exact(result.t)
         runs[test] = (result.stats, float(np.abs(result.u - u).max() / np.abs(u).max()))
@@ -159,7 +161,8 @@ def test_the_corrector_memory_travels_with_the_state(compiled):
     a state restored from bytes continues exactly, one restored without its
     memory does not."""
     def make():
-        return hfdi.Integrator(hfdi.models.tetrahedra(), "hfdi", rtol=1e-6, t_bound=6.0,
+        return hfdi.Integrator(hfdi.models.tetrahedra(), "hfdi", t_bound=6.0,
+                               controller=ErrorControl(1e-6, per_step=True),
                                compiled=compiled)
 
     a = make()

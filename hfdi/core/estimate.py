@@ -12,7 +12,7 @@ from .arrays import axpy, dot, lincomb, max_abs
 from .jit import jitable, primitive
 
 __all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
-           "velocity_noise", "SHORT_STEP", "is_short"]
+           "velocity_noise", "displacement_noise", "error_fraction", "SHORT_STEP", "is_short"]
 
 #: A step shorter than this fraction of the one proposed is a *short step*,
 #: taken by Taylor's expansion (or the scheme past a stiff component) and not
@@ -100,50 +100,91 @@ def local_error(run, vec, h, order, a, a_previous):
     lincomb(ev, 1.0 / factor, vec.v_new, -1.0 / factor, dQ)
 
 
-def _ratio_loop(ratio, error, u0, v0, u1, v1, rtol, atol, noise):
+def _ratio_loop(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction):
     n = u0.shape[0]
     for i in range(2 * n):
         if error[i] == 0.0:
             ratio[i] = 0.0
             continue
         if i < n:
-            scale = atol[i] + rtol[i] * max(abs(u0[i]), abs(u1[i]))
+            scale = (atol[i] + rtol[i] * max(abs(u0[i]), abs(u1[i]))) * fraction + noise_u
         else:
-            scale = atol[i] + rtol[i] * max(abs(v0[i - n]), abs(v1[i - n])) + noise
+            scale = (atol[i] + rtol[i] * max(abs(v0[i - n]), abs(v1[i - n]))) * fraction \
+                + noise_v
         ratio[i] = error[i] / scale
 
 
 @primitive(_ratio_loop)
-def _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise):
+def _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction):
     n = u0.shape[0]
-    scale = atol + rtol * np.maximum(np.abs(np.concatenate((u0, v0))),
-                                     np.abs(np.concatenate((u1, v1))))
-    scale[n:] += noise
+    scale = (atol + rtol * np.maximum(np.abs(np.concatenate((u0, v0))),
+                                      np.abs(np.concatenate((u1, v1))))) * fraction
+    scale[:n] += noise_u
+    scale[n:] += noise_v
     with np.errstate(divide="ignore", invalid="ignore"):
         np.divide(error, scale, out=ratio)
     ratio[error == 0.0] = 0.0
 
 
 @jitable
-def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise, ratio):
-    """``‖e / (atol + rtol·max(|y_0|, |y_1|))‖_RMS`` over ``y = (u, v)``, with
-    ``noise`` added to the weights of ``v`` (:func:`velocity_noise`); entries
-    of ``e`` that are 0 count 0 (``ratio`` (2N,) is scratch)."""
-    _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise)
+def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction, ratio):
+    """``‖e / ((atol + rtol·max(|y_0|, |y_1|))·fraction + noise)‖_RMS`` over
+    ``y = (u, v)``, ``noise`` being ``noise_u`` for ``u`` and ``noise_v`` for
+    ``v`` (:func:`displacement_noise`, :func:`velocity_noise`); entries of
+    ``e`` that are 0 count 0 (``ratio`` (2N,) is scratch). ``fraction`` is
+    the share of the tolerance the step may spend (:func:`error_fraction`)."""
+    _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction)
     return math.sqrt(dot(ratio, ratio) / ratio.shape[0])
 
 
 @jitable
-def error_norm(data, vec, noise):
-    """The error norm of the estimate in ``VECTORS.error`` of the step from the
-    current state to ``VECTORS.*_new`` (:func:`weighted_rms`)."""
+def error_fraction(per_step, span, elapsed, accepted, history):
+    """The share of the tolerance a step may spend: all of it under the
+    per-step rule and on a step without history (the first, or one after a
+    restart, whose Taylor estimate of ``v`` is only ``O(h²)``); else
+    ``h̄/τ``, ``h̄ = elapsed/(accepted + 1)`` the mean step of the run so far
+    with this one (``elapsed`` from the run's start to the step's end,
+    ``accepted`` steps before it) and ``τ`` the run's span, or ``elapsed``
+    when the end is not known (``span`` NaN): the run's local errors then
+    add up to about the tolerance (docs/algorithm.md, "Tolerance
+    proportionality")."""
+    if per_step or not history:
+        return 1.0
+    tau = elapsed if math.isnan(span) else span
+    mean = elapsed / (accepted + 1.0)
+    if not tau > mean:
+        return 1.0
+    return mean / tau
+
+
+@jitable
+def error_norm(cfg, data, run, vec):
+    """The error norm of the estimate in ``VECTORS.error`` of the attempt from
+    the current state to ``VECTORS.*_new`` (:func:`weighted_rms`), with the
+    share of the tolerance the attempt may spend (:func:`error_fraction`)."""
+    h = run.a_h
+    fraction = error_fraction(cfg.per_step, cfg.error_span, run.a_t_end - run.t_start,
+                              run.accepted, run.has_previous)
     return weighted_rms(vec.error, vec.u, vec.v, vec.u_new, vec.v_new, data.rtol, data.atol,
-                        noise, vec.ratio)
+                        displacement_noise(run.a_newton_error, vec),
+                        velocity_noise(cfg.velocity_gain, run.a_newton_error, vec, h),
+                        fraction, vec.ratio)
+
+
+@jitable
+def displacement_noise(newton_error, vec):
+    """The uncertainty of ``u`` the corrector's remaining error and rounding
+    leave, ``error + ε‖u‖_∞``: below it a step's error can be neither told
+    nor controlled (it matters at a share of the tolerance, where a step's share of
+    the tolerance can fall below rounding)."""
+    return newton_error + _EPS * max_abs(vec.u_new)
 
 
 @jitable
 def velocity_noise(velocity_gain, newton_error, vec, h):
     """The uncertainty of ``v`` the corrector's remaining error and rounding
-    leave, ``g (error + ε‖u‖_∞)/h`` (``g`` the scheme's velocity gain): below it
-    the velocity's error can be neither told nor controlled."""
-    return velocity_gain * (newton_error + _EPS * max_abs(vec.u_new)) / h
+    leave, ``g (error + ε‖u_{n+1} − u_n‖_∞)/h`` (``g`` the scheme's velocity
+    gain; every scheme forms ``v`` from the increment): below it the
+    velocity's error can be neither told nor controlled."""
+    lincomb(vec.work, 1.0, vec.u_new, -1.0, vec.u)
+    return velocity_gain * (newton_error + _EPS * max_abs(vec.work)) / h

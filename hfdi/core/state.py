@@ -53,6 +53,13 @@ class Stage(NamedTuple):
     (1, 0, 1, 0 for Newmark and Bathe; generalized-α weighs both ends). An
     HFDI stage (``kind = HFDI``) uses only ``time`` and ``load_time`` (1).
     All entries are floats (one tuple type for every scheme).
+
+    A rigid shift of the displacements moves neither ``v`` nor ``a``: the
+    coefficients of ``u_n``, ``u_1`` and ``u`` in each add up to zero
+    (``a_u + a_u1 + ca = 0``, ``v_u + v_u1 + cv = 0``). The stepping code
+    relies on it and never forms the ``u_n`` terms: it iterates on the
+    increment ``u − u_n``, so that the rounding of ``v`` and ``a`` is that of
+    the increment, not of ``u`` (docs/algorithm.md, "Increments").
     """
 
     kind: float
@@ -109,6 +116,7 @@ CONFIG = Scalars("Config", [
     ("velocity_gain", "f8", 3.0),       # h Σ|coefficients of u in v| (docs/algorithm.md)
     ("keeps_force", "b1", False),       # the state keeps f(u) (HFDI, generalized-α)
     ("lagged_acceleration", "b1", False),   # the state's a is not M⁻¹(p − C v − f) (gen.-α)
+    ("acceleration_lag", "f8", 0.0),    # it is the acceleration at t + lag·h
     ("m_kind", "i8", 1),                # kinds of M and C (hfdi.core.arrays)
     ("c_kind", "i8", 0),
     ("sparse", "b1", False),            # sparse tangents (Python only)
@@ -130,6 +138,8 @@ CONFIG = Scalars("Config", [
     ("safety", "f8", 0.9),
     ("grow", "f8", 5.0),
     ("shrink", "f8", 0.2),
+    ("per_step", "b1", False),          # the error rule bounds the error per step (IDA's)
+    ("error_span", "f8", _NAN),         # else a share over this span (NaN: elapsed)
     ("first_step_trials", "i8", 40),
     ("min_step", "f8", 0.0),
     ("max_step", "f8", _INF),
@@ -233,10 +243,12 @@ VECTORS = Arrays("Vectors", [
     ("p_mid", "vector"),
     *[(f"{name}_saved", "vector") for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid")],
     ("p_stage", "vector"),          # the load at the stage's load time
+    ("a_start", "vector"),          # the state's a as the step's stages take it
     ("a_equation", "vector"),       # M⁻¹(p − C v − f) at t and t_previous, for the
     ("a_equation_previous", "vector"),  # estimate where CONFIG.lagged_acceleration
     ("p_rate", "vector"),           # HFDI's p' at the step's end
-    ("trial", "vector"),            # the Newton iterate
+    ("trial", "vector"),            # the Newton iterate: the increment u − u_n
+    ("u_iterate", "vector"),        # u_n + the increment, where the model is evaluated
     *[(name, "vector") for name in ("rhs", "residual", "du", "g", "vd", "kv", "tmp", "work",
                                     "q0", "f0", "a0", "v0", "b_diagonal", "shift")],
     ("error", "vector"), ("ratio", "vector"),                     # 2N: the error estimate

@@ -38,6 +38,9 @@ class Scheme:
         equation of motion's acceleration at ``t`` (generalized-α's lags it by
         ``(α_f − α_m) h``): the error estimate then takes the equation of
         motion's (docs/algorithm.md, "Error control").
+    acceleration_lag : float
+        Where the state's lagged ``a`` lies, as a fraction of the step after
+        ``t`` (generalized-α: ``α_m − α_f``); a change of step moves it there.
     stage : numba dispatcher
         The stage function (:func:`stage_function`).
     """
@@ -48,6 +51,7 @@ class Scheme:
     velocity_gain = 3.0
     keeps_force = False
     lagged_acceleration = False
+    acceleration_lag = 0.0
     stage = None
 
     @property

@@ -48,6 +48,8 @@ class GeneralizedAlpha(Scheme):
         r = self.rho_inf
         self.alpha_m = (2.0 * r - 1.0) / (r + 1.0)
         self.alpha_f = r / (r + 1.0)
+        # the state's a is the acceleration at t + (α_m − α_f) h
+        self.acceleration_lag = self.alpha_m - self.alpha_f
         self.gamma = 0.5 - self.alpha_m + self.alpha_f
         self.beta = 0.25 * (1.0 - self.alpha_m + self.alpha_f) ** 2
         # v = γ/(βh) (u − u_n) + …

@@ -49,6 +49,23 @@ def _failed(run, outcome, stage, iterations):
 
 
 @jitable
+def start_acceleration(cfg, run, vec, h):
+    """``VECTORS.a_start``, the state's ``a`` as a step of size ``h`` takes it:
+    ``a`` itself, or where it is the acceleration at ``t + lag·H`` of the
+    previous step's ``H`` (``CONFIG.acceleration_lag``, generalized-α), moved
+    to ``t + lag·h`` along the slope of the last two, so that a change of
+    step does not disturb the scheme's lagged acceleration (docs/algorithm.md,
+    "Tolerance proportionality")."""
+    lag = cfg.acceleration_lag
+    if lag != 0.0 and run.has_previous:
+        H = run.t - run.t_previous
+        c = lag * (h - H) / H
+        lincomb(vec.a_start, 1.0 + c, vec.a, -c, vec.a_previous)
+    else:
+        copy(vec.a_start, vec.a)
+
+
+@jitable
 def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
     """One attempt at the step from ``RUN.t`` to ``t_end`` (``left``: it lands on
     a load breakpoint, whose load is taken from the left): every stage,
@@ -72,6 +89,8 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
     for s in range(MAX_STAGES):
         iterations[s] = 0
     constant, guard = run.newton_constant, run.newton_guard
+    if hfdi is None:
+        start_acceleration(cfg, run, vec, h)
     total = 0
     newton_error = 0.0
     for s in range(cfg.stages):
@@ -81,6 +100,7 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
         if outcome != OK:
             return _failed(run, outcome, s, total)
         predict(run, vec, h if st.time == 1.0 else st.time * h, vec.trial)
+        axpy(vec.trial, -1.0, vec.u)        # Newton's unknown is the increment
         if hfdi is not None:
             outcome = hfdi_setup(fn, cfg, data, run, vec, h, t_end, left)
         else:

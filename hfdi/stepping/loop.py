@@ -18,7 +18,7 @@ from ..core.codes import (FIRST_STEP_FAILED, HALVINGS_EXHAUSTED, MAX_STEPS, MODE
                           STOP_NONE, STOP_SHORT_FAILED, STOP_SHORT_NOT_FINITE, SUCCESS)
 from ..core.control import (adapt, clip, error_adapt, is_breakpoint, iteration_search, limit,
                             uses_error)
-from ..core.estimate import error_norm, is_short, velocity_noise
+from ..core.estimate import error_norm, is_short
 from ..core.jit import entry, jitable
 from ..core.state import COMBINED, ERROR, FIXED
 from .attempt import (SHORT_STEP_RATE, _is_shape_fault, accept, attempt, estimate_error,
@@ -49,8 +49,7 @@ def try_attempt(fn, cfg, data, run, vec, proposed, t_limit, t_end, clipped, hfdi
     outcome = attempt(fn, cfg, data, run, vec, t_end, left, hfdi)
     if outcome == OK and uses_error(cfg):
         estimate_error(cfg, data, run, vec, run.a_h)
-        run.a_err = error_norm(data, vec, velocity_noise(cfg.velocity_gain, run.a_newton_error,
-                                                         vec, run.a_h))
+        run.a_err = error_norm(cfg, data, run, vec)
     return outcome
 
 

@@ -179,6 +179,7 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
     u = vec.trial
     du = vec.du
     previous = math.inf
+    lincomb(vec.u_iterate, 1.0, vec.u, 1.0, u)
     for k in range(1, cfg.max_iterations + 1):
         if hfdi is not None:
             outcome, J = _hfdi_residual(fn, cfg, data, run, vec, u, h)
@@ -202,7 +203,9 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
         if not math.isfinite(du2) and not all_finite(du):
             return CORRECTION_NOT_FINITE, k, math.inf, constant, guard
         axpy(u, 1.0, du)
-        size = math.sqrt(dot(u, u))
+        # the unknown is the increment u − u_n: the test's scale is ‖u‖
+        lincomb(vec.u_iterate, 1.0, vec.u, 1.0, u)
+        size = math.sqrt(dot(vec.u_iterate, vec.u_iterate))
         step = math.sqrt(du2)
         done, error, constant, guard = convergence_test(
             step, du2, previous, max(size, cfg.floor), cfg.tol, constant, guard, cfg.estimated)
@@ -215,14 +218,17 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
 # -- affine stages -------------------------------------------------------------------
 
 @jitable
-def _combine_sources(out, vec, cu, cv, ca, cu1, cv1, ca1):
-    """``out = cu u + cv v + ca a + cu1 u_1 + cv1 v_1 + ca1 a_1`` over the
-    step's start and the first stage's end, terms with a zero coefficient skipped."""
-    lincomb(out, cu, vec.u, cv, vec.v)
+def _combine_sources(out, vec, cv, ca, cu1, cv1, ca1):
+    """``out = cu1 (u_1 − u_n) + cv v + ca a + cv1 v_1 + ca1 a_1`` over the
+    step's start and the first stage's end, terms with a zero coefficient
+    skipped: ``a`` or ``v`` of the stage without its term in the increment
+    ``u − u_n`` (the ``u_n`` terms add up to zero, :class:`Stage`)."""
+    scale(out, cv, vec.v)
     if ca != 0.0:
-        axpy(out, ca, vec.a)
+        axpy(out, ca, vec.a_start)
     if cu1 != 0.0:
-        axpy(out, cu1, vec.u_mid)
+        lincomb(vec.tmp, 1.0, vec.u_mid, -1.0, vec.u)
+        axpy(out, cu1, vec.tmp)
     if cv1 != 0.0:
         axpy(out, cv1, vec.v_mid)
     if ca1 != 0.0:
@@ -231,17 +237,17 @@ def _combine_sources(out, vec, cu, cv, ca, cu1, cv1, ca1):
 
 @jitable
 def affine_setup(fn, cfg, data, run, vec, st):
-    """What an affine stage keeps over its iterations: ``a0``, ``v0``, the
-    right-hand side ``p − m_new M a0 − m_old M a_n − f_new C v0 − f_old (C v_n
+    """What an affine stage keeps over its iterations: ``a0``, ``v0`` (``a`` and
+    ``v`` at a zero increment), the right-hand side ``p − m_new M a0 − m_old M a_n − f_new C v0 − f_old (C v_n
     + f_n)`` and the diagonal part of the tangent ``m_new ca M + f_new cv C``
     (``VECTORS.shift``). An outcome code (``f_n`` may be evaluated)."""
-    _combine_sources(vec.a0, vec, st.a_u, st.a_v, st.a_a, st.a_u1, st.a_v1, st.a_a1)
-    _combine_sources(vec.v0, vec, st.v_u, st.v_v, st.v_a, st.v_u1, st.v_v1, st.v_a1)
+    _combine_sources(vec.a0, vec, st.a_v, st.a_a, st.a_u1, st.a_v1, st.a_a1)
+    _combine_sources(vec.v0, vec, st.v_v, st.v_a, st.v_u1, st.v_v1, st.v_a1)
     work, rhs = vec.work, vec.rhs
     times(cfg.m_kind, data.Md, data.Mf, vec.a0, work)
     lincomb(rhs, 1.0, vec.p_stage, -st.m_new, work)
     if st.m_old != 0.0:
-        times(cfg.m_kind, data.Md, data.Mf, vec.a, work)
+        times(cfg.m_kind, data.Md, data.Mf, vec.a_start, work)
         axpy(rhs, -st.m_old, work)
     if cfg.c_kind != NONE:
         times(cfg.c_kind, data.Cd, data.Cf, vec.v0, work)
@@ -268,12 +274,12 @@ def affine_setup(fn, cfg, data, run, vec, st):
 
 @jitable
 def _affine_residual(fn, cfg, data, run, vec, u, st):
-    """The residual ``m_new ca M u + f_new (cv C u + f(u)) − rhs`` into
-    ``VECTORS.residual`` and the tangent ``m_new ca M + f_new cv C + f_new K``:
-    ``(outcome, tangent)``."""
+    """The residual ``m_new ca M d + f_new (cv C d + f(u_n + d)) − rhs`` of the
+    increment ``d`` (``u``) into ``VECTORS.residual`` and the tangent
+    ``m_new ca M + f_new cv C + f_new K``: ``(outcome, tangent)``."""
     cM, cC, cK = st.m_new * st.ca, st.f_new * st.cv, st.f_new
     f, work, r = vec.g, vec.work, vec.residual
-    outcome = force_into(fn, cfg, data, run, u, f)
+    outcome = force_into(fn, cfg, data, run, vec.u_iterate, f)
     if outcome != OK:
         return outcome, vec.J
     times(cfg.m_kind, data.Md, data.Mf, u, work)
@@ -282,7 +288,7 @@ def _affine_residual(fn, cfg, data, run, vec, u, st):
     if cfg.c_kind != NONE:
         times(cfg.c_kind, data.Cd, data.Cf, u, work)
         axpy(r, cC, work)
-    outcome, K = stiffness_of(fn, cfg, data, run, u)
+    outcome, K = stiffness_of(fn, cfg, data, run, vec.u_iterate)
     if outcome != OK:
         return outcome, vec.J
     if cfg.sparse:
@@ -300,11 +306,13 @@ def _affine_residual(fn, cfg, data, run, vec, u, st):
 
 @jitable
 def affine_end(fn, cfg, data, run, vec, st, u, v, a):
-    """The stage's end state from the converged ``VECTORS.trial``:
-    ``u``, ``v = cv u + v0``, ``a = ca u + a0`` into ``u``, ``v``, ``a``."""
-    copy(u, vec.trial)
-    lincomb(v, st.cv, u, 1.0, vec.v0)
-    lincomb(a, st.ca, u, 1.0, vec.a0)
+    """The stage's end state from the converged increment ``d`` in
+    ``VECTORS.trial``: ``u_n + d``, ``v = cv d + v0``, ``a = ca d + a0`` into
+    ``u``, ``v``, ``a``."""
+    d = vec.trial
+    lincomb(u, 1.0, vec.u, 1.0, d)
+    lincomb(v, st.cv, d, 1.0, vec.v0)
+    lincomb(a, st.ca, d, 1.0, vec.a0)
     return OK if all_finite(u) and all_finite(v) and all_finite(a) else END_NOT_FINITE
 
 
@@ -357,13 +365,11 @@ def hfdi_setup(fn, cfg, data, run, vec, h, t_end, left):
         for i in range(b.shape[0]):
             if not (b[i] != 0.0 and math.isfinite(b[i])):
                 return STEP_MATRIX_SINGULAR
-    # q0 = −M (u_n + h/3 v_n); F0 = −M v_n − C u_n − h/3 g_n
-    lincomb(f_n, 1.0, vec.u, h / 3.0, vec.v)
-    times(cfg.m_kind, data.Md, data.Mf, f_n, vec.q0)
-    scale(vec.q0, -1.0, vec.q0)
+    # The stage iterates on the increment d = u − u_n (docs/algorithm.md):
+    # q0 = −h/3 M v_n; F0 = −M v_n − h/3 g_n
     times(cfg.m_kind, data.Md, data.Mf, vec.v, vec.f0)
-    times(cfg.c_kind, data.Cd, data.Cf, vec.u, work)
-    lincomb(vec.f0, -1.0, vec.f0, -1.0, work)
+    scale(vec.q0, -(h / 3.0), vec.f0)
+    scale(vec.f0, -1.0, vec.f0)
     axpy(vec.f0, -(h / 3.0), g_n)
     return OK
 
@@ -378,7 +384,8 @@ def _add_matrix(out, c, kind, diagonal, full):
 
 @jitable
 def _velocity(cfg, data, vec, u, g, h, out):
-    """``out = v_D(u)`` of Eq. 19: ``B v_D = M u + q0 + h²/6 g``."""
+    """``out = v_D`` of Eq. 19 from the increment ``u = u_{n+1} − u_n``:
+    ``B v_D = M u + q0 + h²/6 g``."""
     times(cfg.m_kind, data.Md, data.Mf, u, out)
     axpy(out, 1.0, vec.q0)
     axpy(out, h * h / 6.0, g)
@@ -397,11 +404,12 @@ def _hfdi_residual(fn, cfg, data, run, vec, u, h):
     h²/6 T(u)[v_D]``, ``S = M − h²/6 K``: ``(outcome, tangent)``."""
     c, c2 = h * h / 6.0, 2.0 * h / 3.0
     f, g, vd, kv, work, r, gt = vec.tmp, vec.g, vec.vd, vec.kv, vec.work, vec.residual, vec.du
-    outcome = force_into(fn, cfg, data, run, u, f)
+    ua = vec.u_iterate
+    outcome = force_into(fn, cfg, data, run, ua, f)
     if outcome != OK:
         return outcome, vec.J
     lincomb(g, 1.0, vec.p_stage, -1.0, f)
-    outcome, K = stiffness_of(fn, cfg, data, run, u)
+    outcome, K = stiffness_of(fn, cfg, data, run, ua)
     if outcome != OK:
         return outcome, vec.J
     _velocity(cfg, data, vec, u, g, h, vd)
@@ -414,7 +422,7 @@ def _hfdi_residual(fn, cfg, data, run, vec, u, h):
     if cfg.c_kind != NONE:
         times(cfg.c_kind, data.Cd, data.Cf, u, work)
         axpy(r, 1.0, work)
-    outcome, T = derivative_of(fn, cfg, data, run, u, vd)
+    outcome, T = derivative_of(fn, cfg, data, run, ua, vd)
     if outcome != OK:
         return outcome, vec.J
     if cfg.sparse:
@@ -440,12 +448,12 @@ def hfdi_end(fn, cfg, data, run, vec, h):
     """The end state from the converged ``VECTORS.trial``: ``u``, ``f(u)``,
     ``v = v_D(u)`` and ``a = M⁻¹(p − f − C v)`` (Eq. 14) into ``VECTORS.*_new``."""
     u = vec.u_new
-    copy(u, vec.trial)
+    lincomb(u, 1.0, vec.u, 1.0, vec.trial)
     outcome = force_into(fn, cfg, data, run, u, vec.f_new)
     if outcome != OK:
         return outcome
     lincomb(vec.g, 1.0, vec.p_stage, -1.0, vec.f_new)
-    _velocity(cfg, data, vec, u, vec.g, h, vec.v_new)
+    _velocity(cfg, data, vec, vec.trial, vec.g, h, vec.v_new)
     a = vec.a_new
     times(cfg.c_kind, data.Cd, data.Cf, vec.v_new, vec.work)
     lincomb(a, 1.0, vec.p_stage, -1.0, vec.f_new)
