@@ -328,7 +328,9 @@ def test_max_min_and_abs_kernels_match_the_python_path_on_and_off_the_kinks():
         _assert_kernels_match(kernels, p, model, np.array(u), np.array([0.3, -1.1]), 1e-14)
     runs = [hfdi.integrate(model, "hfdi", 2.0, rtol=1e-6, compiled=c) for c in (False, True)]
     assert runs[0].success and runs[1].success
-    assert runs[1].stats.steps == runs[0].stats.steps
+    # the kernels agree with the methods to rounding (1e-14), not bit for bit:
+    # near a kink that can turn one step's verdict
+    assert abs(runs[1].stats.steps - runs[0].stats.steps) <= 0.01 * runs[0].stats.steps
     assert _relative(runs[1].u[-1], runs[0].u[-1]) < 1e-8
 
 
