@@ -20,6 +20,10 @@ from hfdi.compiled import CompiledKernels, CompiledUnavailable
 from hfdi.controller import Combined, ErrorControl, IterationCount
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
 
+#: the per-step rule where a test is about the path, not the accuracy: its runs
+#: take the steps they took before the default spent shares of the tolerance
+PER_STEP = ErrorControl(1e-6, per_step=True)
+
 numba = pytest.importorskip("numba")
 
 #: Short horizons: a few hundred steps at most under error control; the
@@ -675,7 +679,8 @@ def test_user_model_with_compiled_load_and_dense_matrices(scheme, damping):
     both, products of M and C need not), so to rounding."""
     model = DrivenChain(damping)
     assert hfdi.check_derivatives(model, samples=3, spread=0.1).ok(1e-7)
-    compiled, python = _pair(lambda: DrivenChain(damping), scheme, rtol=1e-6, t_bound=0.5)
+    compiled, python = _pair(lambda: DrivenChain(damping), scheme, controller=PER_STEP,
+                             t_bound=0.5)
     for itg in (compiled, python):
         assert itg.advance(0.5)
     assert compiled.statistics.steps > 20
@@ -700,7 +705,7 @@ def test_a_held_load_is_driven_as_the_python_driver_adds_it():
     value = np.zeros(6)
     runs = []
     for drive in (True, False):
-        itg = hfdi.Integrator(articulated(), "bathe", rtol=1e-6, compiled=drive,
+        itg = hfdi.Integrator(articulated(), "bathe", controller=PER_STEP, compiled=drive,
                               extra_load=hfdi.HeldLoad(lambda: value))
         assert itg.compiled == drive
         value[:] = 0.0
@@ -718,7 +723,7 @@ def test_a_faulty_held_load_fails_the_run_as_on_the_python_path(fault):
     outcomes = []
     for drive in (True, False):
         value = np.zeros(6)
-        itg = hfdi.Integrator(articulated(), "hfdi", rtol=1e-6, compiled=drive,
+        itg = hfdi.Integrator(articulated(), "hfdi", controller=PER_STEP, compiled=drive,
                               extra_load=hfdi.HeldLoad(lambda: value))
         assert itg.advance(0.01)
         value[1] = fault

@@ -1030,21 +1030,22 @@ def test_set_state_follows_the_parameters_of_an_energy_model():
         return EnergyModel([x], energy, mass=[1.0], parameters={k: 30.0},
                            initial_displacement=[0.2])
 
+    per_step = hfdi.ErrorControl(1e-8, per_step=True)     # the subject is the state
     for scheme in ("newmark", "bathe", "hfdi"):
         model = make(k * x**2 / 2 + x**4)
-        first = hfdi.Integrator(model, scheme, rtol=1e-8, compiled=False)
+        first = hfdi.Integrator(model, scheme, controller=per_step, compiled=False)
         assert first.advance(0.5)
         saved = first.get_state()
         model.set_parameters(k=60.0)
-        restored = hfdi.Integrator(model, scheme, rtol=1e-8, compiled=False)
+        restored = hfdi.Integrator(model, scheme, controller=per_step, compiled=False)
         restored.set_state(saved)
-        refreshed = hfdi.Integrator(model, scheme, rtol=1e-8, compiled=False)
+        refreshed = hfdi.Integrator(model, scheme, controller=per_step, compiled=False)
         refreshed.set_state(saved)
         refreshed.model_changed()
         for itg in (restored, refreshed):
             assert itg.advance(1.0)
         np.testing.assert_array_equal(restored.state.u, refreshed.state.u)
-        other = hfdi.Integrator(make(k * x**2 / 2 + 3 * x**4), scheme, rtol=1e-8,
+        other = hfdi.Integrator(make(k * x**2 / 2 + 3 * x**4), scheme, controller=per_step,
                                 compiled=False)
         if scheme == "hfdi":
             with pytest.raises(ValueError, match="saved from another model"):

@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 import hfdi
+from hfdi.controller import ErrorControl
 from hfdi.models import articulated, dumbbell
 
 SCHEMES = ["newmark", "bathe", "hfdi"]
-MODES = {"iterations": dict(target_iterations=3), "error": dict(rtol=1e-6),
+MODES = {"iterations": dict(target_iterations=3),
+         "error": dict(controller=ErrorControl(1e-6, per_step=True)),
          "fixed": dict(step=2e-3)}
 
 
