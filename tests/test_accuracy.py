@@ -156,7 +156,7 @@ def test_error_follows_the_tolerance(problem, scheme):
     assert abs(work_slope + 1.0 / order) < 0.06, (work_slope, steps)
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+@pytest.mark.parametrize("scheme", [pytest.param("newmark", marks=pytest.mark.slow), "hfdi"])
 def test_the_per_step_rule_lets_the_error_pile_up_and_the_share_does_not(scheme):
     """IDA's rule (``per_step=True``) bounds each step's error: over the run
     the error over rtol grows as the tolerance tightens (as rtol^(−1/(p+1)));
@@ -184,7 +184,7 @@ def _scaled_chain(factor):
     return scaled, (lambda t: tuple(factor * x for x in exact(t)))
 
 
-@pytest.mark.parametrize("scheme", ["bathe", "hfdi"])
+@pytest.mark.parametrize("scheme", [pytest.param("bathe", marks=pytest.mark.slow), "hfdi"])
 def test_the_default_atol_follows_the_scale_of_the_state(scheme):
     """The damped chain scaled by 1e-4 has the relative error of the unscaled
     one at the same rtol: the default atol takes u's and v's scales from the
