@@ -15,7 +15,7 @@ from .integrate import integrate
 from .integrator import Integrator
 from .integrator_state import IntegratorState
 from .messages import Status
-from .result import Result, Statistics
+from .result import Result, Statistics, global_error_ratio
 from .schemes import (HFDI, PAPER_SCHEMES, SCHEMES, Bathe, GeneralizedAlpha, Newmark, Scheme,
                       get_scheme)
 from .system import (DerivativeCheck, HeldLoad, LinearSystem, SecondOrderSystem, System,
@@ -25,6 +25,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "integrate", "Integrator", "IntegratorState", "Result", "Statistics", "Status", "State",
+    "global_error_ratio",
     "Scheme", "Newmark", "Bathe", "HFDI", "GeneralizedAlpha", "SCHEMES", "PAPER_SCHEMES",
     "get_scheme", "Controller", "ErrorControl", "IterationCount", "Combined", "FixedStep",
     "IterationCountController", "DEFAULT_RTOL", "Solution",

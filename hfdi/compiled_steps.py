@@ -187,4 +187,4 @@ class CompiledSteps:
 
 #: The vectors a call of the compiled loop may leave half written when a kernel raises.
 _SNAPSHOT = ("u", "v", "a", "f", "p", "u_previous", "v_previous", "a_previous", "f_previous",
-             "p_previous")
+             "p_previous", "global_error")

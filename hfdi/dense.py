@@ -143,17 +143,62 @@ class Solution:
         first state, the one after starts with the second.
     u, v, a : ndarray (K, N)
         The states there.
+    global_error : ndarray (K, 2N), optional
+        The estimated global error there (:attr:`hfdi.Result.global_error`).
     """
 
-    def __init__(self, t, u, v, a):
+    def __init__(self, t, u, v, a, global_error=None):
         self.t = np.asarray(t, dtype=float)
         self.u, self.v, self.a = np.asarray(u), np.asarray(v), np.asarray(a)
+        self._global_error = None if global_error is None else np.asarray(global_error)
         if self.t.ndim != 1 or self.t.size < 1 or np.any(np.diff(self.t) < 0):
             raise ValueError("Solution: t must be a non-empty, non-decreasing 1-D array")
 
     @property
     def t_span(self):
         return float(self.t[0]), float(self.t[-1])
+
+    def _times(self, t):
+        """``(times (n,), scalar)`` of ``t``, checked against the run's interval."""
+        times = checks.real_array(t)
+        if times is None:
+            raise ValueError(f"t must be real times in the run's interval, got {t!r:.80}")
+        if times.ndim > 1:
+            raise ValueError(f"t must be a time or a 1-D array of times, got shape {times.shape}")
+        scalar = times.ndim == 0
+        times = np.atleast_1d(times)
+        t0, t1 = self.t_span
+        if not np.all(np.isfinite(times)) or times.size and (times.min() < t0 or
+                                                             times.max() > t1):
+            raise ValueError(f"t must lie in the run's interval [{t0!r}, {t1!r}], got "
+                             f"{t!r}" if scalar else
+                             f"t must lie in the run's interval [{t0!r}, {t1!r}], got values "
+                             f"in [{times.min()!r}, {times.max()!r}]")
+        return times, scalar
+
+    def global_error(self, t):
+        """The estimated global error of ``(u, v)`` at ``t``: linear between the
+        step ends (it changes by a step's local error and its propagation
+        over a step, both small against itself).
+
+        Returns
+        -------
+        ndarray (2N,) for a scalar ``t``, else (n, 2N)
+        """
+        if self._global_error is None:
+            raise ValueError("this Solution was made without the global error estimate")
+        times, scalar = self._times(t)
+        g = self._global_error
+        if self.t.size == 1:
+            out = np.repeat(g[:1], times.size, axis=0)
+        else:
+            # the right end of a repeated time (a load jump) holds the same estimate
+            i = np.clip(np.searchsorted(self.t, times, side="right") - 1, 0, self.t.size - 2)
+            t0, t1 = self.t[i], self.t[i + 1]
+            width = t1 - t0
+            w = np.divide(times - t0, width, out=np.zeros_like(times), where=width > 0)
+            out = g[i] + w[:, None] * (g[i + 1] - g[i])
+        return out[0] if scalar else out
 
     def evaluate(self, t):
         """``u(t)`` and ``v(t)`` by :func:`interpolate_state`.
@@ -172,20 +217,7 @@ class Solution:
         ValueError
             For a time outside the run or not finite.
         """
-        times = checks.real_array(t)
-        if times is None:
-            raise ValueError(f"t must be real times in the run's interval, got {t!r:.80}")
-        if times.ndim > 1:
-            raise ValueError(f"t must be a time or a 1-D array of times, got shape {times.shape}")
-        scalar = times.ndim == 0
-        times = np.atleast_1d(times)
-        t0, t1 = self.t_span
-        if not np.all(np.isfinite(times)) or times.size and (times.min() < t0 or
-                                                             times.max() > t1):
-            raise ValueError(f"t must lie in the run's interval [{t0!r}, {t1!r}], got "
-                             f"{t!r}" if scalar else
-                             f"t must lie in the run's interval [{t0!r}, {t1!r}], got values "
-                             f"in [{times.min()!r}, {times.max()!r}]")
+        times, scalar = self._times(t)
         if self.t.size == 1:
             u = np.repeat(self.u[:1], times.size, axis=0)
             v = np.repeat(self.v[:1], times.size, axis=0)

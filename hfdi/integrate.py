@@ -11,22 +11,29 @@ import numpy as np
 from . import checks
 from .dense import interpolate_state
 from .evaluation import State
+from .controller import RTOL_RANGE
 from .integrator import Integrator
 from .messages import Status
 from .options import times as _times
 from .result import Result, Rows
 from .system import SecondOrderSystem
 
-__all__ = ["integrate", "PROGRESS_INTERVAL"]
+__all__ = ["integrate", "PROGRESS_INTERVAL", "ERROR_MODES", "GLOBAL_RUNS", "GLOBAL_MARGIN"]
 
 
 #: Wall-clock seconds between two calls of integrate's progress callback.
 PROGRESS_INTERVAL = 0.5
+#: Values of ``integrate(error=...)``.
+ERROR_MODES = ("local", "global")
+#: ``error="global"``: the most runs made, and where a rerun aims, as a share of
+#: the tolerance (docs/algorithm.md, "Global error estimate").
+GLOBAL_RUNS = 3
+GLOBAL_MARGIN = 0.5
 
 
 def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
               target_iterations=None, step=None, u0=None, v0=None, t0=0.0, t_eval=None,
-              save_steps=True, progress=None, tol=None, **options) -> Result:
+              save_steps=True, progress=None, tol=None, error="local", **options) -> Result:
     """Integrate ``M u'' + C u' + f(u) = p(t)`` from ``t0`` to ``t_end``.
 
     The mode follows the arguments (see :class:`Integrator`): error control
@@ -61,6 +68,18 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         stalled run shows.
     tol : float, optional
         Newton tolerance ``η`` (Eq. 38); see :class:`Integrator`.
+    error : {"local", "global"}
+        What ``rtol`` and ``atol`` bound under error control. ``"local"``
+        (default): each step's local error, at the step's share of the
+        tolerance, so that the error of the answer follows ``rtol``
+        (docs/accuracy.md). ``"global"``: the answer's estimated global
+        error, ``|g_i(t)| ≤ atol_i + rtol_i·S`` at every kept step and
+        component (:attr:`Result.global_error_ratio` ``≤ 1``, ``S`` the
+        largest ``|u|``, or ``|v|``, of the run): the run is repeated with
+        the tolerance its estimate says is needed, at most
+        :data:`GLOBAL_RUNS` runs in all; ``Status.TOLERANCE_NOT_MET`` when
+        the last one still misses it. Error control alone (not with
+        ``target_iterations``, ``step`` or ``controller``).
     **options
         Passed to :class:`Integrator` (``first_step``, ``min_step``,
         ``max_step``, ``max_halvings``, ``max_steps``, ``max_iterations``,
@@ -71,7 +90,8 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     Result
         ``status`` and ``message`` say how the run ended; on failure the
         arrays end at the last good state and the message starts with its
-        time (``"t = ...: "``).
+        time (``"t = ...: "``). ``global_error`` holds the estimated
+        global error of every kept step.
 
     Raises
     ------
@@ -102,6 +122,20 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     if progress is not None and not callable(progress):
         raise ValueError(f"progress must be callable as progress(t, statistics), got "
                          f"{progress!r}")
+    if not (isinstance(error, str) and error in ERROR_MODES):
+        raise ValueError(f"error must be one of {', '.join(map(repr, ERROR_MODES))}, got "
+                         f"{error!r}")
+    if error == "global":
+        other = [name for name, value in (("target_iterations", target_iterations),
+                                          ("step", step),
+                                          ("controller", options.get("controller")))
+                 if value is not None]
+        if other:
+            raise ValueError(f"error='global' needs error control alone (rtol, atol); got "
+                             f"{', '.join(other)}")
+        if options.get("global_error") is False:
+            raise ValueError("error='global' needs the global error estimate; got "
+                             "global_error=False")
     allowed = [name for name in inspect.signature(Integrator).parameters
                if name not in ("system", "scheme", "rtol", "atol", "target_iterations", "step",
                                "t0", "u0", "v0", "tol", "t_bound")]
@@ -109,13 +143,54 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)} of integrate; allowed: "
                          f"{', '.join(allowed)}")
-    integrator = Integrator(system, scheme, rtol=rtol, atol=atol,
-                            target_iterations=target_iterations, step=step, t0=t0, u0=u0, v0=v0,
-                            tol=tol, t_bound=t_end, **options)
+    def run(rtol, atol):
+        integrator = Integrator(system, scheme, rtol=rtol, atol=atol,
+                                target_iterations=target_iterations, step=step, t0=t0, u0=u0,
+                                v0=v0, tol=tol, t_bound=t_end, **options)
+        return _integrate(integrator, system, t_end, t_eval, save_steps, progress)
+
+    result = run(rtol, atol)
+    if error == "local":
+        return result
+    # the tolerance asked for, against which every run is measured
+    asked_rtol, asked_atol = result.rtol, result.atol
+    runs, factor = 1, 1.0
+    while True:
+        ratio = result.global_error_ratio
+        if ratio <= 1.0 or runs == GLOBAL_RUNS or not result.success or not math.isfinite(
+                ratio) or float(np.min(asked_rtol)) * factor * GLOBAL_MARGIN / ratio \
+                < RTOL_RANGE[0]:
+            break
+        # the error of the answer follows rtol (docs/algorithm.md, "Tolerance
+        # proportionality"): the rtol that puts it at GLOBAL_MARGIN
+        factor *= GLOBAL_MARGIN / ratio
+        result = run(asked_rtol * factor, asked_atol * factor)
+        result.rtol, result.atol = asked_rtol, asked_atol
+        runs += 1
+    result.runs = runs
+    ratio = result.global_error_ratio
+    if result.success and not ratio <= 1.0:
+        result.status = Status.TOLERANCE_NOT_MET
+        result.message = (f"reached t_end, but the estimated global error is {ratio:.3g} times "
+                          f"the tolerance after {runs} run(s) (the last at rtol "
+                          f"{float(np.min(asked_rtol)) * factor:.3g})" if math.isfinite(ratio)
+                          else f"reached t_end, but the global error estimate was lost "
+                               f"(the stiffness failed or the propagator's matrix was "
+                               f"singular) after {runs} run(s)")
+    elif result.success:
+        result.message = (f"reached t_end; estimated global error {ratio:.3g} of the "
+                          f"tolerance after {runs} run(s)")
+    return result
+
+
+def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Result:
+    """One run of ``integrator`` to ``t_end`` as a :class:`Result`."""
+    t0 = integrator.t0
     s0 = integrator.state
     rows = Rows(integrator.ev.n)
-    rows.append(s0, math.nan, 0, 0.0, integrator.total_energy, 0.0)
-    last = [s0, math.nan, 0, 0.0, integrator.total_energy, 0.0]
+    g0 = integrator.global_error
+    rows.append(s0, math.nan, 0, 0.0, integrator.total_energy, 0.0, g0)
+    last = [s0, math.nan, 0, 0.0, integrator.total_energy, 0.0, g0]
     if t_eval is not None:
         u_eval = np.full((t_eval.size, integrator.ev.n), np.nan)
         v_eval = np.full_like(u_eval, np.nan)
@@ -152,7 +227,7 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         last[:] = [State(float(t[-1]), arrays["u"][-1], arrays["v"][-1], arrays["a"][-1], None,
                          None), float(arrays["step_size"][-1]), int(arrays["iterations"][-1]),
                    float(arrays["energy_increment"][-1]), float(arrays["total_energy"][-1]),
-                   float(arrays["external_work"][-1])]
+                   float(arrays["external_work"][-1]), arrays["global_error"][-1]]
         report(float(t[-1]))
 
     ok = integrator.advance(t_end, rows=record_rows)
@@ -162,9 +237,9 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         rows.append(*last)
     status = integrator.status if not ok else Status.SUCCESS
     message = integrator.message if not ok else "reached t_end"
-    result = Result(**rows.arrays(), status=status, message=message,
-                    stats=integrator.statistics, scheme=integrator.scheme.name,
-                    t_eval=t_eval, u_eval=None if t_eval is None else u_eval,
-                    v_eval=None if t_eval is None else v_eval, system=system,
-                    steps_saved=save_steps)
-    return result
+    rtol, atol = integrator.tolerances or (None, None)
+    return Result(**rows.arrays(), status=status, message=message,
+                  stats=integrator.statistics, scheme=integrator.scheme.name,
+                  t_eval=t_eval, u_eval=None if t_eval is None else u_eval,
+                  v_eval=None if t_eval is None else v_eval, system=system,
+                  steps_saved=save_steps, rtol=rtol, atol=atol)

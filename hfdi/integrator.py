@@ -165,6 +165,16 @@ class Integrator(CompiledSteps):
         (said once when a model's kernels cannot be used); ``True``: compiled
         or :class:`hfdi.compiled.CompiledUnavailable` naming the reason;
         ``False``: Python. Both run the same code (:mod:`hfdi.stepping`).
+    global_error : bool
+        Carry the estimate of the global error (:attr:`global_error`,
+        ``Result.global_error``): per step one more evaluation of ``K`` and one
+        factorisation of an N×N matrix (docs/algorithm.md, "Global error
+        estimate"). Default ``True``.
+    error_span : float, optional
+        The time ``τ`` over which error control shares out the tolerance
+        (:class:`~hfdi.controller.ErrorControl`'s ``span``) where it is not
+        ``t_bound − t0``: a co-simulation unit knows the experiment's stop
+        time but steps without a bound.
 
     Raises
     ------
@@ -185,8 +195,10 @@ class Integrator(CompiledSteps):
                  tol=None, first_step=None, min_step=None, max_step=None, max_halvings=30,
                  max_steps=1_000_000, max_iterations=None, first_step_trials=40, t_bound=None,
                  energy_limit=None, extra_load=None, breakpoints=None, check_stiffness=True,
-                 compiled=None, newton_test=None):
+                 compiled=None, newton_test=None, global_error=True, error_span=None):
         self.scheme: Scheme = get_scheme(scheme)
+        if not isinstance(global_error, (bool, np.bool_)):
+            raise ValueError(f"global_error must be True or False, got {global_error!r}")
         checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
         if not isinstance(check_stiffness, bool):
             raise ValueError(f"check_stiffness must be True or False, got {check_stiffness!r}")
@@ -241,7 +253,8 @@ class Integrator(CompiledSteps):
             initial.append(np.zeros(n) if given is None else
                            initial_vector(name, given, n, source))
         u0, v0 = initial
-        fit_error_control(c, span, u0, v0, u_scale)
+        error_span = optional_positive("error_span", error_span)
+        fit_error_control(c, span if error_span is None else error_span, u0, v0, u_scale)
         self.newton_test = newton_test or (
             "error" if isinstance(c, ErrorControl) else "correction")
         self.tol = newton_tolerance(tol, c)
@@ -274,7 +287,8 @@ class Integrator(CompiledSteps):
         self._cfg = run_records.config(
             ev, c, self.scheme, exact_rate=exact, tol=self.tol, floor=self.floor,
             max_iterations=self.max_iterations, estimated=self.newton_test == "error",
-            energy_limit=self.energy_limit, max_steps=max_steps, t_bound=self.t_bound)
+            energy_limit=self.energy_limit, max_steps=max_steps, t_bound=self.t_bound,
+            global_error=bool(global_error))
         self._data = run_records.data(ev, c, self.scheme, self.breakpoints)
         self._vec, self._state_block = run_records.vectors(ev, 0)
         proposed = c.step if self.fixed else \
@@ -435,6 +449,26 @@ class Integrator(CompiledSteps):
         """``Σ ΔE`` since the start: the spurious energy of the run."""
         return self._run.energy_error
 
+    @property
+    def tolerances(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(rtol, atol)`` of the error rule, each (2N,) over ``(u, v)``, or
+        ``None`` in a mode without error control."""
+        error = getattr(self.controller, "error", self.controller)
+        if not isinstance(error, ErrorControl):
+            return None
+        n = 2 * self.ev.n
+        return (np.broadcast_to(np.asarray(error.rtol, dtype=float), (n,)).copy(),
+                np.broadcast_to(np.asarray(error.atol, dtype=float), (n,)).copy())
+
+    @property
+    def global_error(self) -> np.ndarray:
+        """The estimated global error of ``(u, v)`` now (2N: ``u``'s N entries,
+        then ``v``'s), a copy: the local error estimates of the steps so far
+        carried through the linearised motion (docs/algorithm.md, "Global
+        error estimate"). NaN where it was lost (``K`` failed or the
+        propagator's matrix was singular), zero with ``global_error=False``."""
+        return self._vec.global_error.copy()
+
     # -- saving and restoring -------------------------------------------------------
     def get_state(self, copy_arrays: bool = True) -> IntegratorState:
         """A copy of the integrator's state, for :meth:`set_state`: the current and
@@ -458,7 +492,8 @@ class Integrator(CompiledSteps):
             grid_steps=run.grid_steps, newton_constant=run.newton_constant,
             newton_guard=run.newton_guard, controller=repr(self.controller), n_dof=self.ev.n,
             scheme=repr(self.scheme),
-            model_version=-1 if self._model_version is None else int(self._model_version))
+            model_version=-1 if self._model_version is None else int(self._model_version),
+            global_error=vec.global_error.copy())
 
     def set_state(self, saved: IntegratorState) -> None:
         """Restore a state from :meth:`get_state`; the run then continues
@@ -513,6 +548,10 @@ class Integrator(CompiledSteps):
         run.last_energy_increment = saved.last_energy_increment
         run.grid_origin, run.grid_steps = saved.grid_origin, saved.grid_steps
         run.newton_constant, run.newton_guard = saved.newton_constant, saved.newton_guard
+        if saved.global_error is None:
+            self._vec.global_error[:] = 0.0
+        else:
+            self._vec.global_error[:] = saved.global_error
         for name in STATISTICS_FIELDS:
             if name != "cpu_time":
                 setattr(run, name, getattr(saved.statistics, name))
@@ -782,4 +821,5 @@ class Integrator(CompiledSteps):
                     "iterations": vec.row_iterations[:count].astype(int),
                     "energy_increment": vec.row_increment[:count].copy(),
                     "total_energy": vec.row_energy[:count].copy(),
-                    "external_work": vec.row_work[:count].copy()})
+                    "external_work": vec.row_work[:count].copy(),
+                    "global_error": vec.row_global[:count].copy()})

@@ -64,6 +64,9 @@ class IntegratorState:
     #: The model's ``parameter_version`` the state was computed with (-1: a
     #: model that does not count parameter changes).
     model_version: int = -1
+    #: The global error estimate of ``(u, v)`` at ``current.t`` (2N; NaN:
+    #: lost, see :attr:`Integrator.global_error`); ``None`` is zero.
+    global_error: np.ndarray | None = None
 
     def copy(self, copy_arrays: bool = True) -> IntegratorState:
         """A deep copy, field by field: a co-simulation step saves one before
@@ -75,6 +78,7 @@ class IntegratorState:
         if copy_arrays:
             new.current = self.current.copy()
             new.previous = None if self.previous is None else self.previous.copy()
+            new.global_error = None if self.global_error is None else self.global_error.copy()
         new.statistics = _clone(self.statistics)
         return new
 
@@ -91,6 +95,8 @@ class IntegratorState:
                     arrays[f"{label}.{name}"] = np.asarray(value, dtype=np.float64)
             return {"t": float(st.t), "f": st.f is not None}
 
+        if self.global_error is not None:
+            arrays["global_error"] = np.asarray(self.global_error, dtype=np.float64)
         header = {name: kind(getattr(self, name)) for name, kind in _STATE_SCALARS.items()}
         header.update(format=STATE_FORMAT, current=one("current", self.current),
                       previous=one("previous", self.previous),
@@ -137,6 +143,11 @@ class IntegratorState:
             return State(_field(entry, "t", float), **values)
 
         current, previous = one("current"), one("previous")
+        global_error = arrays.pop("global_error", None)
+        if global_error is not None and not (global_error.dtype == np.float64
+                                             and global_error.shape == (2 * n,)):
+            raise ValueError(f"serialized state: global_error must be a float64 array of "
+                             f"shape ({2 * n},)")
         if arrays:
             raise ValueError(f"serialized state: unexpected entries {sorted(arrays)}")
         counts = header.get("statistics")
@@ -145,11 +156,12 @@ class IntegratorState:
         statistics = Statistics(**{k: _field(counts, k, type(getattr(Statistics, k)))
                                    for k in _STATISTICS_FIELDS})
         scalars = {k: _field(header, k, kind) for k, kind in _STATE_SCALARS.items()}
-        return cls(current=current, previous=previous, statistics=statistics, **scalars)
+        return cls(current=current, previous=previous, statistics=statistics,
+                   global_error=global_error, **scalars)
 
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
-STATE_FORMAT = "hfdi-integrator-state/3"
+STATE_FORMAT = "hfdi-integrator-state/4"
 _STATE_ARRAYS = ("u", "v", "a", "f", "p")
 #: The fields of plain types, by name (the annotations are strings here).
 _STATE_SCALARS = {f.name: {"float": float, "bool": bool, "int": int, "str": str}[f.type]
@@ -217,6 +229,11 @@ def check_state(saved: IntegratorState, *, n: int, controller: str, scheme: str,
     if saved.previous is not None and not saved.previous.t < saved.current.t:
         raise ValueError(f"state.previous.t = {saved.previous.t!r} must be before "
                          f"state.current.t = {saved.current.t!r}")
+    g = saved.global_error
+    if g is not None and not (isinstance(g, np.ndarray) and g.shape == (2 * n,)
+                              and g.dtype == np.float64 and not np.isinf(g).any()):
+        raise ValueError(f"state.global_error must be None or a float array of shape "
+                         f"({2 * n},) without infinities (NaN: lost), got {brief(g)}")
     st = saved.statistics
     if not isinstance(st, Statistics):
         raise ValueError(f"state.statistics must be a Statistics, got "

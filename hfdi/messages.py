@@ -22,6 +22,10 @@ class Status(enum.IntEnum):
     (Eqs. 40–41) is beyond floating point, an infinite kinetic energy, work
     of the load or potential energy (a load or state of the order of 1e150
     or more); that state is not accepted.
+
+    ``TOLERANCE_NOT_MET``: ``integrate(error="global")`` reached ``t_end``,
+    but its last run's estimated global error is above the tolerance (or
+    the estimate was lost); the result is that run's, complete.
     """
 
     SUCCESS = codes.SUCCESS
@@ -34,6 +38,7 @@ class Status(enum.IntEnum):
     FIRST_STEP_FAILED = codes.FIRST_STEP_FAILED
     MODEL_ERROR = codes.MODEL_ERROR
     OVERFLOW = codes.OVERFLOW
+    TOLERANCE_NOT_MET = codes.TOLERANCE_NOT_MET
 
 
 _ATTEMPT = {

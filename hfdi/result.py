@@ -2,6 +2,7 @@
 accepted steps."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -11,7 +12,20 @@ from .evaluation import State
 from .messages import Status
 from .system import SecondOrderSystem
 
-__all__ = ["Statistics", "Result", "Rows", "STATISTICS_FIELDS"]
+__all__ = ["Statistics", "Result", "Rows", "STATISTICS_FIELDS", "global_error_ratio"]
+
+
+def global_error_ratio(global_error, rtol, atol, u_scale, v_scale) -> float:
+    """The estimated global error over the tolerance, at its worst:
+    ``max |g_i| / (atol_i + rtol_i·S)`` over the rows of ``global_error``
+    ((k, 2N) or (2N,)) and the components, ``S`` being ``u_scale`` for
+    ``u``'s and ``v_scale`` for ``v``'s; NaN where the estimate was lost."""
+    g = np.abs(np.atleast_2d(global_error))
+    if np.isnan(g).any():
+        return math.nan
+    n = g.shape[1] // 2
+    scale = np.concatenate([np.full(n, float(u_scale)), np.full(n, float(v_scale))])
+    return float((g / (atol + rtol * scale)).max()) if g.size else 0.0
 
 
 @dataclass
@@ -93,6 +107,12 @@ class Result:
         ``W = V + T`` at ``t``.
     external_work : ndarray (n,)
         Work of the load from the start (Eq. 41, summed).
+    global_error : ndarray (n, 2N)
+        The estimated global error of ``(u, v)`` at ``t`` (``u``'s N columns,
+        then ``v``'s): the local error estimates carried through the
+        linearised motion (docs/algorithm.md, "Global error estimate",
+        with its limits). Zero at the start; NaN from where it was lost;
+        zero throughout with ``global_error=False``.
     status : Status
     message : str
     success : bool
@@ -105,6 +125,12 @@ class Result:
         failed run).
     system : SecondOrderSystem
         The model integrated.
+    rtol, atol : ndarray (2N,) or None
+        The tolerances of ``u`` and ``v`` the run was asked for (with
+        ``error="global"``: the global ones, also where a rerun took
+        tighter ones); ``None`` in the modes without error control.
+    runs : int
+        The runs made (``error="global"`` may repeat one).
     """
 
     t: np.ndarray
@@ -116,6 +142,7 @@ class Result:
     energy_increment: np.ndarray
     total_energy: np.ndarray
     external_work: np.ndarray
+    global_error: np.ndarray
     status: Status
     message: str
     stats: Statistics
@@ -125,19 +152,37 @@ class Result:
     v_eval: np.ndarray | None = None
     system: SecondOrderSystem | None = field(default=None, repr=False)
     steps_saved: bool = True
+    rtol: np.ndarray | None = None
+    atol: np.ndarray | None = None
+    runs: int = 1
 
     @property
     def success(self) -> bool:
         return self.status == Status.SUCCESS
 
     @property
+    def global_error_ratio(self) -> float | None:
+        """The estimated global error over the tolerance, at its worst:
+        ``max |g_i(t)| / (atol_i + rtol_i·S)`` over the kept steps and the
+        components, ``S`` the largest ``|u|`` of the kept steps for ``u``'s
+        components and the largest ``|v|`` for ``v``'s (the solution's
+        scale: a component that passes through zero is not held to its own
+        size there). NaN where the estimate was lost; ``None`` without
+        ``rtol``."""
+        if self.rtol is None:
+            return None
+        return global_error_ratio(self.global_error, self.rtol, self.atol,
+                                  np.abs(self.u).max(), np.abs(self.v).max())
+
+    @property
     def sol(self) -> Solution:
         """Dense output over the run: ``sol(t)`` gives ``(u, v)`` at any ``t``
         in ``[t[0], t[-1]]`` by Hermite interpolants on the step ends
-        (:class:`~hfdi.dense.Solution`: quintic in ``u``, cubic in ``v``)."""
+        (:class:`~hfdi.dense.Solution`: quintic in ``u``, cubic in ``v``), and
+        ``sol.global_error(t)`` the estimated global error there."""
         if not self.steps_saved:
             raise ValueError("sol needs the steps: this run was made with save_steps=False")
-        return Solution(self.t, self.u, self.v, self.a)
+        return Solution(self.t, self.u, self.v, self.a, self.global_error)
 
     def quantities(self, system: SecondOrderSystem | None = None) -> dict:
         """The quantities of interest of ``system`` (default: the model
@@ -170,12 +215,13 @@ class Rows:
                      "v": np.empty((capacity, self.n)), "a": np.empty((capacity, self.n)),
                      "step_size": np.empty(capacity), "iterations": np.empty(capacity, int),
                      "energy_increment": np.empty(capacity), "total_energy": np.empty(capacity),
-                     "external_work": np.empty(capacity)}
+                     "external_work": np.empty(capacity),
+                     "global_error": np.empty((capacity, 2 * self.n))}
         if old is not None:
             for key, arr in old.items():
                 self.data[key][:self._open] = arr[:self._open]
 
-    def append(self, state: State, h, iterations, increment, energy, work):
+    def append(self, state: State, h, iterations, increment, energy, work, global_error):
         if self._open == self.data["t"].shape[0]:
             self._alloc(2 * self._open)
         i = self._open
@@ -189,6 +235,7 @@ class Rows:
         d["energy_increment"][i] = increment
         d["total_energy"][i] = energy
         d["external_work"][i] = work
+        d["global_error"][i] = global_error
         self._open += 1
         self.size += 1
 

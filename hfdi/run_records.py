@@ -11,24 +11,28 @@ from .core.state import CONFIG, CUSTOM, DATA, MAX_STAGES, VECTORS
 from .evaluation import DENSE_BELOW
 from .linsolve.dense import work_ints
 from .linsolve.sparse import General
+from .stepping.global_error import PROPAGATOR_STAGES
 
 __all__ = ["config", "data", "vectors", "row_arrays"]
 
 
 def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, estimated,
-           energy_limit, max_steps, t_bound):
+           energy_limit, max_steps, t_bound, global_error=True):
     """:data:`CONFIG` of a run of the model ``ev`` (an Evaluator)."""
     settings = controller.settings() if core_kind(controller) != CUSTOM else \
         {"controller": CUSTOM}
     values = dict(
         n=ev.n, stages=scheme.n_stages, order=scheme.order,
         velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,
+        velocity_defect=1.0 / (24.0 * scheme.velocity_error_constant)
+        if scheme.velocity_error_constant else 0.0,
         lagged_acceleration=scheme.lagged_acceleration,
         acceleration_lag=scheme.acceleration_lag,
         m_kind=ev.mass_kind, c_kind=ev.damping_kind, sparse=ev.n >= DENSE_BELOW,
         exact_rate=exact_rate, tol=tol, floor=floor, max_iterations=max_iterations,
         estimated=estimated, energy_limit=math.inf if energy_limit is None else energy_limit,
         max_steps=max_steps, t_bound=math.inf if t_bound is None else t_bound,
+        global_error=global_error,
         mass_floor=ev.mass_floor(), damping_rate=ev.damping_rate())
     values.update(settings)         # ErrorControl(order=p) overrides the scheme's order
     return CONFIG.new(**values)
@@ -77,9 +81,11 @@ def vectors(ev, rows):
     for name, kind in VECTORS.fields:
         if name.startswith("row_") or name in values:
             continue
-        if name in ("error", "ratio"):
+        if name in ("error", "ratio", "global_error", "g_z"):
             values[name] = np.zeros(2 * n)
-        elif name in ("pivots", "b_pivots"):
+        elif name == "g_stages":
+            values[name] = np.zeros((PROPAGATOR_STAGES, 2 * n))
+        elif name in ("pivots", "b_pivots", "g_pivots"):
             values[name] = np.zeros(m, np.int32)
         elif name in ("ints", "b_ints"):
             values[name] = work_ints()
@@ -101,4 +107,4 @@ def row_arrays(n, rows):
                 row_iterations=np.zeros(rows, np.int64), row_increment=np.zeros(rows),
                 row_energy=np.zeros(rows), row_work=np.zeros(rows),
                 row_u=np.zeros((rows, n)), row_v=np.zeros((rows, n)),
-                row_a=np.zeros((rows, n)))
+                row_a=np.zeros((rows, n)), row_global=np.zeros((rows, 2 * n)))

@@ -73,8 +73,12 @@ def amplification_matrix(scheme, tau: float) -> np.ndarray:
     for j in range(3):
         r = np.zeros(3)
         r[j] = 1.0
-        itg._put_current(State(0.0, r[:1].copy(), r[1:2] / h, r[2:3] / h ** 2, None,
-                               np.zeros(1)))
+        state = State(0.0, r[:1].copy(), r[1:2] / h, r[2:3] / h ** 2, None, np.zeros(1))
+        # a lagged a is the scheme's own, taken as it is in the middle of a run
+        # of steps h, not moved as the equation's at a start
+        # (hfdi.stepping.attempt.start_acceleration)
+        itg._put_current(state, State(-h, state.u, state.v, state.a, None, state.p)
+                         if scheme.lagged_acceleration else None)
         itg._run.newton_constant = itg._run.newton_guard = np.inf
         with np.errstate(all="ignore"):
             outcome = attempt(itg._functions(), itg._cfg, itg._data, itg._run, itg._vec, h,

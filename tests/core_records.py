@@ -35,12 +35,13 @@ def predict(current, previous, s):
     return out
 
 
-def local_error(current, previous, new, h, order, acceleration=None):
+def local_error(current, previous, new, h, order, acceleration=None, defect=0.0):
     """The error estimate of the step from ``current`` to ``new`` (2N: u, v),
-    with the states' accelerations or ``acceleration(state)``."""
+    with the states' accelerations or ``acceleration(state)``, and ``defect``
+    the scheme's ``CONFIG.velocity_defect``."""
     from hfdi.core.estimate import local_error as core_local_error
     run, vec = records(current, previous, new)
     accelerate = acceleration or (lambda state: state.a)
-    core_local_error(run, vec, h, order, accelerate(current),
+    core_local_error(run, vec, h, order, defect, accelerate(current),
                      accelerate(previous) if previous is not None else current.a)
     return vec.error.copy()

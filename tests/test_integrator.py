@@ -542,7 +542,7 @@ def test_rows_join_single_steps_and_driver_blocks_in_order():
 
     def one(k):
         state = State(float(k), np.full(n, k), np.full(n, -k), np.full(n, 2.0 * k), None, None)
-        rows.append(state, 0.5 * k, k, 0.1 * k, 10.0 * k, 100.0 * k)
+        rows.append(state, 0.5 * k, k, 0.1 * k, 10.0 * k, 100.0 * k, np.full(2 * n, 1e-3 * k))
         expected.append(k)
 
     def block(ks):
@@ -550,7 +550,8 @@ def test_rows_join_single_steps_and_driver_blocks_in_order():
         rows.extend({"t": ks, "u": np.repeat(ks[:, None], n, 1), "v": -np.repeat(ks[:, None], n, 1),
                      "a": 2.0 * np.repeat(ks[:, None], n, 1), "step_size": 0.5 * ks,
                      "iterations": ks.astype(int), "energy_increment": 0.1 * ks,
-                     "total_energy": 10.0 * ks, "external_work": 100.0 * ks})
+                     "total_energy": 10.0 * ks, "external_work": 100.0 * ks,
+                     "global_error": 1e-3 * np.repeat(ks[:, None], 2 * n, 1)})
         expected.extend(int(k) for k in ks)
 
     one(0)
@@ -568,4 +569,5 @@ def test_rows_join_single_steps_and_driver_blocks_in_order():
     np.testing.assert_array_equal(got["a"][:, 1], 2.0 * ks)
     np.testing.assert_array_equal(got["iterations"], ks.astype(int))
     np.testing.assert_array_equal(got["external_work"], 100.0 * ks)
+    np.testing.assert_array_equal(got["global_error"], 1e-3 * np.repeat(ks[:, None], 2 * n, 1))
     assert all(arr.flags.c_contiguous and arr.flags.owndata for arr in got.values())

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["error_norm", "error_norms", "relative_error"]
+__all__ = ["error_norm", "error_norms", "relative_error", "estimated_error_norm"]
 
 
 def _trapezoid(t, f):
@@ -95,3 +95,15 @@ def error_norms(model, result, reference) -> dict:
     u_ref, v_ref = reference.at(t)
     z_ref = model.quantities(t, u_ref, v_ref)
     return {name: error_norm(t, z[name], z_ref[name]) for name in z}
+
+
+def estimated_error_norm(result) -> float:
+    """``ε_u`` of Eq. 42 as the run's own global error estimate tells it,
+    without a reference: ``sqrt(∫|g_u|² dt / ∫|u|² dt)``, ``g_u`` the ``u``
+    columns of :attr:`hfdi.Result.global_error` (NaN where it was lost)."""
+    t = np.asarray(result.t, dtype=float)
+    if t.size < 2:
+        return math.nan
+    n = result.u.shape[1]
+    g = np.asarray(result.global_error)[:, :n]
+    return relative_error(t, np.sum(g ** 2, axis=1), np.sum(np.asarray(result.u) ** 2, axis=1))

@@ -21,7 +21,7 @@ import numpy as np
 
 import hfdi
 
-from .errors import error_norms
+from .errors import error_norms, estimated_error_norm
 from .experiments import ENERGY_LIMIT, PAPER_SCHEMES, experiment
 from .reference import cached_reference, default_atol, default_cache_dir
 
@@ -46,6 +46,8 @@ class RunRecord:
     t_reached: float
     eps: dict = field(default_factory=dict)
     rtol: float | None = None
+    #: ε_u as the run's global error estimate tells it (:func:`estimated_error_norm`)
+    eps_u_estimated: float = math.nan
 
     @property
     def label(self) -> str:
@@ -95,7 +97,7 @@ def make_record(problem, scheme, target, model, result, reference=None, rtol=Non
     return RunRecord(problem, scheme, None if target is None else float(target), st.steps,
                      st.mean_iterations, st.mean_step, st.cpu_time, result.status.name,
                      result.message, float(result.t[-1]), eps,
-                     None if rtol is None else float(rtol))
+                     None if rtol is None else float(rtol), estimated_error_norm(result))
 
 
 #: References kept by :func:`problem_reference` in one process, most recently used

@@ -55,6 +55,11 @@ def format_table(records: list) -> str:
             cells = [("div " if r.diverged else "") + format(r.eps.get(name, math.nan), ".2e")
                      for r in rows]
             lines.append(f"  {'ε_' + name:<16}" + "".join(f"{c:>{width}}" for c in cells))
+            if name == "u":
+                # beside the true ε_u, the run's own estimate of it (no reference)
+                cells = [format(r.eps_u_estimated, ".2e") for r in rows]
+                lines.append(f"  {'ε_u estimated':<16}" + "".join(f"{c:>{width}}"
+                                                                   for c in cells))
         for r in rows:
             if r.diverged:
                 lines.append(f"  div at {head} = {r.label}: {r.status}, {r.message}"
@@ -73,7 +78,7 @@ def records_to_csv(records: list, path) -> None:
     from hfdi.files import write_output
     names = sorted({n for r in records for n in r.eps})
     fields = ["problem", "scheme", "target", "rtol", "steps", "mean_iterations", "mean_step",
-              "cpu_time", "status", "t_reached"]
+              "cpu_time", "status", "t_reached", "eps_u_estimated"]
     text = io.StringIO(newline="")
     writer = csv.writer(text)
     writer.writerow(fields + [f"eps_{n}" for n in names] + ["message"])

@@ -37,8 +37,8 @@ TAKEN, NOT_TAKEN = 1, 0
 
 _BYTES = types.uint8[::1]
 _EVERY = 2**63 - 1
-#: The vectors a call may change, put back when it gives up (:func:`_state`); as
-#: ``hfdi.compiled_steps._SNAPSHOT``, not imported: this module's compiled code
+#: The vectors a call may change, put back when it gives up (:func:`_state`, and
+#: the global error estimate); as ``hfdi.compiled_steps._SNAPSHOT``, not imported: this module's compiled code
 #: would be compiled again at every change of that module.
 _STATE = ("u", "v", "a", "f", "p", "u_previous", "v_previous", "a_previous", "f_previous",
           "p_previous")
@@ -106,6 +106,7 @@ NATIVE = Arrays("Native", [
     ("run", types.Array(from_dtype(RUN.dtype), 1, "C")),
     ("run_bytes", _BYTES), ("saved_run", _BYTES),              # the run record as bytes
     ("saved", MATRIX),                                         # _STATE, then the held load
+    ("saved_global", VECTOR),                                  # the global error estimate
     ("inputs", VECTOR),                                        # the host's held-load inputs
     ("limits", INT64_VECTOR),
 ])
@@ -157,6 +158,7 @@ def _save(native):
     held = native.data.held
     for i in range(held.shape[0]):
         native.saved[10, i] = held[i]
+    copy(native.saved_global, native.vec.global_error)
 
 
 @jitable(inline=True)
@@ -169,6 +171,7 @@ def _restore(native):
     held = native.data.held
     for i in range(held.shape[0]):
         held[i] = native.saved[10, i]
+    copy(native.vec.global_error, native.saved_global)
 
 
 @jitable(inline=True)
@@ -326,7 +329,8 @@ class NativeAdvance:
         return dict(loop=loop, fn=fn, data=data, vec=vec, cfg=self._cfg, run=self._run,
                     run_bytes=self._run.view(np.uint8),
                     saved_run=np.zeros(self._run.nbytes, np.uint8),
-                    saved=np.zeros((len(_STATE) + 1, self.n)), inputs=self._inputs,
+                    saved=np.zeros((len(_STATE) + 1, self.n)),
+                    saved_global=np.zeros(2 * self.n), inputs=self._inputs,
                     limits=self._limits)
 
     def sync(self, cpu_time: float = 0.0) -> int:

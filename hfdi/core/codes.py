@@ -38,6 +38,7 @@ ENERGY_GROWTH = -5
 FIRST_STEP_FAILED = -6
 MODEL_ERROR = -7
 OVERFLOW = -8
+TOLERANCE_NOT_MET = -9         # integrate(error="global") missed its tolerance
 
 # -- which guard stopped a run (RUN.stop), for its message ---------------------------------
 STOP_NONE = 0

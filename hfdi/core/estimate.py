@@ -54,21 +54,26 @@ def predict(run, vec, s, out):
 
 
 @jitable
-def velocity_history_factor(sigma, order):
-    """``c_v(σ) = 1 + (3σ² + 2σ³)/σ^{p+1}``: ``v_{n+1} − Q'(h)`` over the local
-    error of ``v`` in a run (the previous step's error enters through
-    ``v_{n−1}``)."""
-    return 1.0 + (3.0 + 2.0 * sigma) * sigma ** float(1 - order)
+def velocity_history_factor(sigma, order, defect):
+    """``c_v(σ) = 1 + (3σ² + 2σ³)/σ^{p+1} + d (1 + 1/σ)²``: ``v_{n+1} − Q'(h)``
+    over the local error of ``v`` in a run, signed. The second term is the
+    previous step's error, which enters through ``v_{n−1}``; the third,
+    ``Q'``'s own defect ``v^{(4)} h²(h + H)²/24`` against a leading error
+    ``λ h⁴ v^{(4)}`` (``d = 1/(24λ)``, order 3; 0 for order 2, whose error
+    is of lower order than the defect). For HFDI (``λ = −1/72``) it is
+    ``−2 − 4/σ``: the difference has the opposite sign of the error."""
+    w = 1.0 + 1.0 / sigma
+    return 1.0 + (3.0 + 2.0 * sigma) * sigma ** float(1 - order) + defect * (w * w)
 
 
 @jitable
-def local_error(run, vec, h, order, a, a_previous):
+def local_error(run, vec, h, order, defect, a, a_previous):
     """The estimate of the local error of ``u`` and ``v`` of the step from the
     current state to ``VECTORS.*_new`` into ``VECTORS.error`` (2N): the new
     state minus the quartic ``Q`` with ``Q(0) = u``, ``Q'(0) = v``,
     ``Q''(0) = a``, ``Q'(−H) = v_{n−1}``, ``Q''(−H) = a_{n−1}`` (Milne's
     device, no extra evaluation); the velocity's difference divided by
-    :func:`velocity_history_factor`. Without history the Taylor polynomial
+    :func:`velocity_history_factor` (``defect`` its ``d``). Without history the Taylor polynomial
     ``u + h v + h² a/2`` (and ``v + h a``), erring on the safe side. ``a``
     and ``a_previous`` are the accelerations at ``t`` and ``t_previous``
     (the state's, or the equation of motion's where the state's lags)."""
@@ -95,7 +100,7 @@ def local_error(run, vec, h, order, a, a_previous):
         axpy(Q, s2 * s2, c4)
         axpy(dQ, 3.0 * s2, c3)
         axpy(dQ, 4.0 * s2 * h, c4)
-        factor = velocity_history_factor(h / H, order)
+        factor = velocity_history_factor(h / H, order, defect)
     lincomb(eu, 1.0, vec.u_new, -1.0, Q)
     lincomb(ev, 1.0 / factor, vec.v_new, -1.0 / factor, dQ)
 

@@ -114,6 +114,7 @@ CONFIG = Scalars("Config", [
     ("stages", "i8", 1),                # stages of the scheme
     ("order", "i8", 2),                 # its order (the error rule's exponent)
     ("velocity_gain", "f8", 3.0),       # h Σ|coefficients of u in v| (docs/algorithm.md)
+    ("velocity_defect", "f8", 0.0),     # 1/(24 λ), λ the scheme's v error constant (or 0)
     ("keeps_force", "b1", False),       # the state keeps f(u) (HFDI, generalized-α)
     ("lagged_acceleration", "b1", False),   # the state's a is not M⁻¹(p − C v − f) (gen.-α)
     ("acceleration_lag", "f8", 0.0),    # it is the acceleration at t + lag·h
@@ -141,6 +142,7 @@ CONFIG = Scalars("Config", [
     ("per_step", "b1", False),          # the error rule bounds the error per step (IDA's)
     ("error_span", "f8", _NAN),         # else a share over this span (NaN: elapsed)
     ("first_step_trials", "i8", 40),
+    ("global_error", "b1", True),       # carry the global error estimate (VECTORS.global_error)
     ("min_step", "f8", 0.0),
     ("max_step", "f8", _INF),
     ("energy_limit", "f8", _INF),       # inf: no limit
@@ -197,6 +199,7 @@ RUN = Scalars("Run", [
     ("a_iterations", "i8", 0),          # its Newton corrections, all stages
     ("a_newton_error", "f8", 0.0),      # the corrector's estimated remaining error
     ("a_err", "f8", _NAN),              # the error norm (error control)
+    ("a_estimated", "b1", False),       # VECTORS.error is the last attempt's estimate
     ("bad_rows", "i8", 0),              # a kernel's value of a wrong shape
     ("bad_columns", "i8", 0),
     ("stop", "i8", 0),                  # hfdi.core.codes: which guard stopped the run
@@ -252,13 +255,17 @@ VECTORS = Arrays("Vectors", [
     *[(name, "vector") for name in ("rhs", "residual", "du", "g", "vd", "kv", "tmp", "work",
                                     "q0", "f0", "a0", "v0", "b_diagonal", "shift")],
     ("error", "vector"), ("ratio", "vector"),                     # 2N: the error estimate
+    ("global_error", "vector"), ("g_z", "vector"),                # 2N: the global estimate
+    ("g_stages", "matrix"),         # (3, 2N): its propagator's stage derivatives
     *[(name, "matrix") for name in ("J", "lu", "S", "SB", "product", "B", "B_lu",
                                     "columns")],
-    ("pivots", "int32 vector"), ("b_pivots", "int32 vector"),
+    ("G", "matrix"), ("G_lu", "matrix"),                          # the propagator's matrix
+    ("pivots", "int32 vector"), ("b_pivots", "int32 vector"), ("g_pivots", "int32 vector"),
     ("ints", "int32 vector"), ("b_ints", "int32 vector"),
     ("stage_iterations", "int64 vector"),                         # MAX_STAGES
     ("row_t", "vector"), ("row_h", "vector"), ("row_iterations", "int64 vector"),
     ("row_increment", "vector"), ("row_energy", "vector"), ("row_work", "vector"),
     ("row_u", "matrix"), ("row_v", "matrix"), ("row_a", "matrix"),
+    ("row_global", "matrix"),       # (rows, 2N)
     ("sparse", "vector"),           # Python only: the sparse solvers' cache (empty here)
 ])

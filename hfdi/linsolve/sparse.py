@@ -28,7 +28,8 @@ from . import dense
 __all__ = ["DENSE_BELOW", "BANDED_MAX_WIDTH", "BLOCK_SPREAD", "SingularMatrixError",
            "General", "combine", "Factorization", "banded_from_sparse", "solve_band",
            "general_solve", "general_affine_tangent", "general_hfdi_setup",
-           "general_velocity", "general_hfdi_tangent", "general_mass_solve"]
+           "general_velocity", "general_hfdi_tangent", "general_mass_solve",
+           "general_propagation_factor", "general_propagation_solve"]
 
 #: Models of fewer DOFs than this are dense: below about a hundred unknowns a
 #: dense LU costs microseconds, while every scipy.sparse operation costs tens
@@ -435,6 +436,7 @@ class General:
         self.B = self.b_diagonal = self.B_factor = None
         self.block_band = False
         self.mass_factor = None
+        self.propagation = None
 
 
 def _solve_general(a, b):
@@ -485,6 +487,25 @@ def general_affine_tangent(vec, data, cfg, K, cM, cC, cK):
             return tangent
         return _ShiftedTangent(scaled, shift, vec.sparse.bands)
     return combine((cM, M), (cC, C), (1.0, scaled))
+
+
+@python_only(lambda vec, data, cfg, K, gh: False)
+def general_propagation_factor(vec, data, cfg, K, gh):
+    """Factorise ``M + γh C + (γh)² K`` (``gh = γh``) for the global error's
+    propagator (:mod:`hfdi.stepping.global_error`); false when singular."""
+    S = general_affine_tangent(vec, data, cfg, K, 1.0, gh, gh * gh)
+    try:
+        vec.sparse.propagation = Factorization(S.tocsr() if isinstance(S, _ShiftedTangent)
+                                               else S)
+    except SingularMatrixError:
+        return False
+    return True
+
+
+@python_only(lambda vec, x: None)
+def general_propagation_solve(vec, x):
+    """``x ← S⁻¹ x`` with :func:`general_propagation_factor`'s factors."""
+    x[:] = vec.sparse.propagation.solve(x)
 
 
 @python_only(lambda vec, data, cfg, c, c2: 0)

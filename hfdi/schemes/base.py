@@ -41,6 +41,11 @@ class Scheme:
     acceleration_lag : float
         Where the state's lagged ``a`` lies, as a fraction of the step after
         ``t`` (generalized-α: ``α_m − α_f``); a change of step moves it there.
+    velocity_error_constant : float
+        ``λ`` of the leading local error of ``v``, ``λ h^{p+1} v^{(p+1)}``,
+        where the error estimate needs it: from order 3 on, the estimate's
+        quartic has a defect in ``v`` of the same order (docs/algorithm.md,
+        "Global error estimate"); 0 where it is of higher order (order 2).
     stage : numba dispatcher
         The stage function (:func:`stage_function`).
     """
@@ -52,6 +57,7 @@ class Scheme:
     keeps_force = False
     lagged_acceleration = False
     acceleration_lag = 0.0
+    velocity_error_constant = 0.0
     stage = None
 
     @property

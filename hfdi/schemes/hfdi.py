@@ -36,6 +36,9 @@ class HFDI(Scheme):
     order = 3
     #: Eq. 19: v_D = B⁻¹(M u + q0 + …) with B ≈ 2h/3 M and q0 = −M(u_n + h/3 v_n)
     velocity_gain = 3.0
+    #: ``v``'s local error is ``−h⁴ v⁗/72`` (as ``u``'s is ``−h⁴ u⁗/72``;
+    #: measured −0.01386 at h = 0.005 on an oscillator from its exact state)
+    velocity_error_constant = -1.0 / 72.0
     keeps_force = True
     stage = staticmethod(hfdi_stage)
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import math
 
-from ..core.arrays import all_finite, axpy, copy, dot, kinetic, lincomb, row_sum_max, times
+from ..core.arrays import (all_finite, axpy, copy, dot, kinetic, lincomb, matvec, row_sum_max,
+                           times)
 from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFLOW,
                           SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
                           STOP_OVERFLOW, STOP_POTENTIAL_LOST)
@@ -19,11 +20,12 @@ from ..core.control import is_breakpoint
 from ..core.estimate import is_short, local_error, predict
 from ..core.jit import jitable
 from ..core.state import FIXED, MAX_STAGES
+from .global_error import propagate
 from .stages import (affine_end, affine_setup, force_into, hfdi_end, hfdi_setup, load_into,
                      mass_solve, newton, one_sided, stiffness_of)
 
 __all__ = ["attempt", "accept", "estimate_error", "taylor_step", "fastest_rate", "SHORT_STEP_RATE", "refresh",
-           "stop", "energy_overflows"]
+           "stop", "energy_overflows", "carry_global_error"]
 
 #: Taylor's expansion is explicit: a short step is taken by it only where
 #: ``h (ω_max + γ_max) ≤ SHORT_STEP_RATE`` (:func:`fastest_rate`); past a
@@ -49,20 +51,44 @@ def _failed(run, outcome, stage, iterations):
 
 
 @jitable
-def start_acceleration(cfg, run, vec, h):
+def start_acceleration(fn, cfg, data, run, vec, h):
     """``VECTORS.a_start``, the state's ``a`` as a step of size ``h`` takes it:
-    ``a`` itself, or where it is the acceleration at ``t + lag·H`` of the
+    ``a`` itself, or where it is the acceleration at ``t + lag·h`` of the
     previous step's ``H`` (``CONFIG.acceleration_lag``, generalized-α), moved
     to ``t + lag·h`` along the slope of the last two, so that a change of
     step does not disturb the scheme's lagged acceleration (docs/algorithm.md,
-    "Tolerance proportionality")."""
+    "Tolerance proportionality"). Without history (the first step, a
+    restart) the state's ``a`` is the equation of motion's at ``t``, and the
+    lagged one is ``a + lag·h ȧ``, ``M ȧ = p' − C a − K v`` with ``p'`` a
+    forward difference over ``|lag|·h``: started at ``a`` itself, the scheme
+    makes an ``O(h)`` error in its first steps that the estimate does not
+    see (docs/algorithm.md, "Global error estimate")."""
     lag = cfg.acceleration_lag
-    if lag != 0.0 and run.has_previous:
+    if lag == 0.0:
+        copy(vec.a_start, vec.a)
+    elif run.has_previous:
         H = run.t - run.t_previous
         c = lag * (h - H) / H
         lincomb(vec.a_start, 1.0 + c, vec.a, -c, vec.a_previous)
     else:
-        copy(vec.a_start, vec.a)
+        tau = lag * h
+        delta = abs(tau)
+        jerk, work = vec.a_start, vec.work
+        outcome, K = stiffness_of(fn, cfg, data, run, vec.u)
+        if outcome == OK:
+            outcome = load_into(fn, cfg, data, run, run.t + delta, jerk)
+        if outcome != OK:
+            copy(vec.a_start, vec.a)
+            return
+        lincomb(jerk, 1.0 / delta, jerk, -1.0 / delta, vec.p)
+        matvec(K, vec.v, work)
+        axpy(jerk, -1.0, work)
+        times(cfg.c_kind, data.Cd, data.Cf, vec.a, work)
+        axpy(jerk, -1.0, work)
+        if not mass_solve(cfg, data, vec, jerk):
+            copy(vec.a_start, vec.a)
+            return
+        lincomb(vec.a_start, 1.0, vec.a, tau, jerk)
 
 
 @jitable
@@ -85,12 +111,13 @@ def attempt(fn, cfg, data, run, vec, t_end, left, hfdi):
     run.a_iterations = 0
     run.a_newton_error = 0.0
     run.a_err = math.nan
+    run.a_estimated = False
     iterations = vec.stage_iterations
     for s in range(MAX_STAGES):
         iterations[s] = 0
     constant, guard = run.newton_constant, run.newton_guard
     if hfdi is None:
-        start_acceleration(cfg, run, vec, h)
+        start_acceleration(fn, cfg, data, run, vec, h)
     total = 0
     newton_error = 0.0
     for s in range(cfg.stages):
@@ -164,9 +191,9 @@ def estimate_error(cfg, data, run, vec, h):
         if _equation_acceleration(cfg, data, vec, vec.v, vec.f, vec.p, now) and (
                 not run.has_previous or _equation_acceleration(
                     cfg, data, vec, vec.v_previous, vec.f_previous, vec.p_previous, before)):
-            local_error(run, vec, h, cfg.order, now, before)
+            local_error(run, vec, h, cfg.order, cfg.velocity_defect, now, before)
             return
-    local_error(run, vec, h, cfg.order, vec.a, vec.a_previous)
+    local_error(run, vec, h, cfg.order, cfg.velocity_defect, vec.a, vec.a_previous)
 
 
 @jitable
@@ -211,7 +238,25 @@ def taylor_step(fn, cfg, data, run, vec, t_end, left):
     run.a_h = h
     run.a_t_end = t_end
     run.a_iterations = 0
+    run.a_estimated = False
     return OK if all_finite(u) and all_finite(v) and all_finite(a) else END_NOT_FINITE
+
+
+@jitable
+def carry_global_error(fn, cfg, data, run, vec, h, taylor):
+    """``g_{n+1} = Φ_n g_n + ℓ_{n+1}`` for the accepted step
+    (:mod:`hfdi.stepping.global_error`), ``ℓ`` the step's local error
+    estimate (made here where the controller did not). A step without
+    history adds nothing: its estimate, Taylor's, bounds ``O(h³)`` terms
+    that are not its error, and the error rule sizes such a step so that
+    its true error is far below (docs/algorithm.md, "Global error
+    estimate"); a short step by Taylor's expansion adds nothing either."""
+    propagate(fn, cfg, data, run, vec, h)
+    if taylor or not run.has_previous:
+        return
+    if not run.a_estimated:
+        estimate_error(cfg, data, run, vec, h)
+    axpy(vec.global_error, 1.0, vec.error)
 
 
 @jitable(inline=True)
@@ -234,6 +279,7 @@ def _row(run, vec, h, iterations, increment, energy):
     copy(vec.row_u[i], vec.u)
     copy(vec.row_v[i], vec.v)
     copy(vec.row_a[i], vec.a)
+    copy(vec.row_global[i], vec.global_error)
     run.rows = i + 1
 
 
@@ -275,6 +321,8 @@ def accept(fn, cfg, data, run, vec):
         run.stop_potential = potential
         return stop(run, OVERFLOW, STOP_OVERFLOW)
     increment = potential - run.potential + kinetic_new - kinetic_old - work   # Eq. 40
+    if cfg.global_error:
+        carry_global_error(fn, cfg, data, run, vec, h, taylor)
     if not is_short(h, run.proposed):
         copy(vec.u_previous, vec.u)
         copy(vec.v_previous, vec.v)

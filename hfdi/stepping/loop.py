@@ -49,6 +49,7 @@ def try_attempt(fn, cfg, data, run, vec, proposed, t_limit, t_end, clipped, hfdi
     outcome = attempt(fn, cfg, data, run, vec, t_end, left, hfdi)
     if outcome == OK and uses_error(cfg):
         estimate_error(cfg, data, run, vec, run.a_h)
+        run.a_estimated = True
         run.a_err = error_norm(cfg, data, run, vec)
     return outcome
 
@@ -114,6 +115,7 @@ def _restore(run, vec):
     run.a_proposed, run.a_clipped = run.saved_proposed, run.saved_clipped
     run.a_iterations, run.a_newton_error = run.saved_iterations, run.saved_newton_error
     run.a_err = run.saved_err
+    run.a_estimated = False             # VECTORS.error is the last trial's
     run.a_outcome = OK
     copy(vec.u_new, vec.u_saved)
     copy(vec.v_new, vec.v_saved)

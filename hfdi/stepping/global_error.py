@@ -1,0 +1,97 @@
+"""The global error estimate: the local error estimates carried through the
+linearised motion (docs/algorithm.md, "Global error estimate").
+
+The error ``e_n = y_n − y(t_n)`` of ``y = (u, v)`` obeys, to first order in
+``e``, ``e_{n+1} = Φ_n e_n + ℓ_{n+1}``: ``ℓ_{n+1}`` the step's local error
+(:func:`hfdi.core.estimate.local_error` estimates it) and ``Φ_n`` the
+derivative of the exact flow over the step at ``y_n``, the solution operator
+of the variational equation ``M δu'' + C δu' + K(u(t)) δu = 0``.
+:func:`propagate` applies ``Φ_n`` to ``VECTORS.global_error`` by one step of
+an L-stable SDIRK method of order 3 with ``K`` frozen at the step's
+midpoint: one evaluation of ``K``, one factorisation of ``M + γh C + (γh)²
+K`` and three solves with it.
+"""
+from __future__ import annotations
+
+import math
+
+from ..core.arrays import all_finite, axpy, copy, fill, lincomb, matvec, scaled_into, times
+from ..core.codes import OK
+from ..core.jit import jitable
+from ..linsolve.dense import getrf, getrs
+from ..linsolve.sparse import general_propagation_factor, general_propagation_solve
+from .stages import _add_matrix, stiffness_of
+
+__all__ = ["GAMMA", "PROPAGATOR", "PROPAGATOR_STAGES", "propagate"]
+
+#: Alexander's three-stage SDIRK (1977): order 3, L-stable, stiffly accurate
+#: (the step's end is its last stage), every stage with the diagonal ``γ``,
+#: the root of ``6γ³ − 18γ² + 9γ − 1`` in (1/6, 1/2). L-stable, so that an
+#: error in a stiff, damped component dies out as the motion's own does.
+GAMMA = 0.43586652150845899942
+_B1 = -1.5 * GAMMA * GAMMA + 4.0 * GAMMA - 0.25
+_B2 = 1.5 * GAMMA * GAMMA - 5.0 * GAMMA + 1.25
+#: Its coefficients below the diagonal, row by row (``a_ij``, ``j < i``).
+PROPAGATOR = (0.0, 0.0, 0.0,
+              0.5 * (1.0 - GAMMA), 0.0, 0.0,
+              _B1, _B2, 0.0)
+PROPAGATOR_STAGES = 3
+
+
+@jitable
+def _factor(fn, cfg, data, run, vec, gh):
+    """Factorise ``S = M + γh C + (γh)² K``, ``K`` at the step's midpoint
+    ``(u_n + u_{n+1})/2``; ``(done, K)``."""
+    u_mid = vec.residual
+    lincomb(u_mid, 0.5, vec.u, 0.5, vec.u_new)
+    outcome, K = stiffness_of(fn, cfg, data, run, u_mid)
+    if outcome != OK:
+        return False, K
+    run.nlu += 1
+    if cfg.sparse:
+        return general_propagation_factor(vec, data, cfg, K, gh), K
+    G = vec.G
+    scaled_into(G, gh * gh, K)
+    _add_matrix(G, 1.0, cfg.m_kind, data.Md, data.Mf)
+    _add_matrix(G, gh, cfg.c_kind, data.Cd, data.Cf)
+    return getrf(G, vec.G_lu, vec.g_pivots, vec.ints), K
+
+
+@jitable
+def propagate(fn, cfg, data, run, vec, h):
+    """``VECTORS.global_error ← Φ g`` over the step of size ``h`` from the
+    current state to ``VECTORS.*_new`` (the module's docstring). Each stage
+    ``Y = z + γh J Y`` of the first-order form ``y' = J y`` solves ``S W =
+    M z_v − γh K z_u`` for its velocity ``W`` and has ``X = z_u + γh W``; its
+    derivative ``(Y − z)/(γh) = (W, (W − z_v)/(γh))`` needs no mass solve.
+    ``g`` becomes NaN (no estimate from here on) where ``K`` cannot be
+    evaluated or ``S`` is singular; the run goes on."""
+    n = cfg.n
+    g = vec.global_error
+    if not g[0] == g[0]:
+        return                        # NaN: the estimate was lost before
+    gh = GAMMA * h
+    done, K = _factor(fn, cfg, data, run, vec, gh)
+    if not done:
+        fill(g, math.nan)
+        return
+    z, F, w, work = vec.g_z, vec.g_stages, vec.rhs, vec.work
+    zu, zv = z[:n], z[n:]
+    for i in range(PROPAGATOR_STAGES):
+        copy(z, g)
+        for j in range(i):
+            axpy(z, h * PROPAGATOR[3 * i + j], F[j])
+        times(cfg.m_kind, data.Md, data.Mf, zv, w)
+        matvec(K, zu, work)
+        axpy(w, -gh, work)
+        if cfg.sparse:
+            general_propagation_solve(vec, w)
+        else:
+            getrs(vec.G_lu, vec.g_pivots, vec.ints, w)
+        copy(F[i][:n], w)
+        lincomb(F[i][n:], 1.0 / gh, w, -1.0 / gh, zv)
+    # stiffly accurate: the step's end is the last stage's Y
+    lincomb(g[:n], 1.0, zu, gh, w)
+    copy(g[n:], w)
+    if not all_finite(g):
+        fill(g, math.nan)
