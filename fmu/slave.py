@@ -79,20 +79,24 @@ Fmi2Status = importlib.import_module(_pythonfmu.__name__ + ".enums").Fmi2Status
 __all__ = ["HfdiSlave", "FmuError", "load_bundle"]
 
 #: Serialized FMU states start with this line; a version bump makes old ones unreadable.
-_MAGIC = b"hfdi-fmu-state/2\n"
+_MAGIC = b"hfdi-fmu-state/3\n"
 #: The FMU's own fields of a serialized state (beside its arrays and the integrator's key).
-_STATE_HEADER = ("model", "bundle", "phase", "params", "mparams", "start_time", "stop_time")
+_STATE_HEADER = ("model", "bundle", "phase", "params", "mparams", "start_time", "stop_time",
+                 "scales")
 
 _SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "rtol": 0.0, "tolerance": 0.0,
                     "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000,
-                    "compiled": False, "master_rtol": 0.0}
+                    "compiled": False, "master_rtol": 0.0, "error_mode": "local"}
+#: Values of the parameter error_mode.
+_ERROR_MODES = ("local", "global")
 #: Largest target_iterations: Newton may run 2 N-bar corrections per attempt
 #: and 31 attempts per step, each unbounded in time when it cannot converge.
 _MAX_TARGET_ITERATIONS = 100.0
 #: hfdi's per-run step limit, lifted: the FMU bounds each doStep instead.
 _UNLIMITED_STEPS = 2 ** 62
 _RESERVED = frozenset(_SOLVER_DEFAULTS) | {"u", "v", "a", "F", "W", "dE", "internal_steps",
-                                           "newton_iterations", "time"}
+                                           "newton_iterations", "time", "global_error_u",
+                                           "global_error_v"}
 _INT32_MAX = 2 ** 31 - 1
 #: The slave's life cycle, as its log messages name it.
 _PHASES = {"instantiated": "instantiated", "initialization": "in initialization mode",
@@ -250,6 +254,7 @@ class HfdiSlave(Fmi2Slave):
         self._F_input = np.zeros(n)          # inputs as last set by the master
         self._F_applied = np.zeros(n)        # inputs the integrator's current state was computed with
         self._cache = None                   # outputs at the current state, computed on demand
+        self._scales = (0.0, 0.0)            # largest |u|, |v| at the communication points
         self._state_outputs = {}             # value reference of u[i], v[i], a[i] -> (key, i)
         self._inputs = {}                    # value reference of F[i + 1] -> i
         self._read_plans = {}                # references -> how get_real reads them (_read_plan)
@@ -330,6 +335,16 @@ class HfdiSlave(Fmi2Slave):
             "extracted compiles (said in the log). false: the Python path",
             getter=lambda: self._params["compiled"],
             setter=self._param_setter("compiled", bool), **fixed))
+        self.register_variable(String(
+            "error_mode", description="what rtol bounds. local: each internal step's local "
+            "error, at its share of the tolerance over the experiment (start to stop time), "
+            "so that the error of the outputs follows rtol; global: that, and a doStep whose "
+            "end would have an estimated global error (global_error_u, global_error_v) above "
+            "atol + rtol * (largest |u|, |v| at the communication points) is discarded, the "
+            "log naming the rtol that would meet it (a co-simulation cannot be rerun from "
+            "inside; needs rtol)",
+            getter=lambda: self._params["error_mode"],
+            setter=self._param_setter("error_mode", str), **fixed))
         self.register_variable(Integer(
             "max_internal_steps", description="internal steps (diverged attempts included) "
             "one doStep may take, >= 1; a communication step needing more is discarded",
@@ -417,6 +432,17 @@ class HfdiSlave(Fmi2Slave):
             "dE", unit="J", description="cumulative energy error: sum of Delta E of the "
                                         "accepted steps (paper Eq. 40)",
             getter=lambda: self._outputs()["dE"], **continuous))
+        for part, index in (("u", 0), ("v", 1)):
+            unit = self._dof_units[0] if index == 0 else _DERIVED.get(
+                self._dof_units[0], (self._dof_units[0] + "/s",))[0]
+            if len(set(self._dof_units)) > 1:
+                unit = "1"
+            self.register_variable(_Real(
+                f"global_error_{part}", unit=unit,
+                description=f"estimated global error of {part}: its largest component "
+                            f"(the local error estimates carried through the linearised "
+                            f"motion; NaN where it was lost)",
+                getter=(lambda k=f"g_{part}": self._outputs()[k]), **continuous))
         discrete = dict(variability=Fmi2Variability.discrete, **out)
         self.register_variable(Integer(
             "internal_steps", description="predictor-corrector steps since the start, "
@@ -511,6 +537,7 @@ class HfdiSlave(Fmi2Slave):
             self._reject(f"initialization failed: {exc!r}")
         self._itg = itg
         self._itg_key = (dict(self._params), dict(self._mparams), self._start_time)
+        self._scales = self._scales_with(itg, (0.0, 0.0))
         self._phase = "stepping"
         self._cache = None
         self._prepare_native()
@@ -575,6 +602,13 @@ class HfdiSlave(Fmi2Slave):
             if not (_finite_number(value) and value >= 0.0):
                 errors.append(f"parameter {name} = {value!r} must be a finite number >= 0 "
                               f"(0: {zero})")
+        mode = params.get("error_mode", "local")
+        if mode not in _ERROR_MODES:
+            errors.append(f"parameter error_mode = {mode!r} must be one of "
+                          f"{', '.join(_ERROR_MODES)}")
+        elif mode == "global" and not (rtol or params.get("master_rtol", 0.0)):
+            errors.append("parameter error_mode = 'global' needs a tolerance: set rtol, or "
+                          "the master's tolerance in fmi2SetupExperiment")
         budget = params["max_internal_steps"]
         if isinstance(budget, bool) or not isinstance(budget, numbers.Integral) or budget < 1:
             errors.append(f"parameter max_internal_steps = {budget!r} must be an integer >= 1")
@@ -604,6 +638,8 @@ class HfdiSlave(Fmi2Slave):
                                   first_step=float(params["initial_step"]) or None,
                                   max_step=float(params["max_step"]) or None,
                                   max_steps=_UNLIMITED_STEPS, compiled=compiled,
+                                  error_span=None if self._stop_time is None
+                                  else self._stop_time - float(start_time),
                                   extra_load=hfdi.HeldLoad(self._held_input))
         except hfdi.compiled.CompiledUnavailable as exc:
             raise FmuError(f"parameter compiled = true: {exc}") from None
@@ -696,8 +732,13 @@ class HfdiSlave(Fmi2Slave):
                               f"t = {itg.t!r}")
             self._cache = None
             if ok:
-                self._open_gate()
-                return True
+                scales = self._scales_with(itg, self._scales)
+                missed = self._global_tolerance_missed(itg, scales)
+                if not missed:
+                    self._scales = scales
+                    self._open_gate()
+                    return True
+                reason = missed
             self._rollback(snapshot)
             return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
                                  f"t = {t!r}: retry with a shorter communication step or "
@@ -793,8 +834,9 @@ class HfdiSlave(Fmi2Slave):
     def _armed_native(self, itg):
         """The integrator's NativeAdvance armed from its state, or ``None`` when
         the next doStep must be this slave's."""
-        if not itg.compiled or self._F_input.tolist() != self._F_applied.tolist():
-            return None
+        if not itg.compiled or self._F_input.tolist() != self._F_applied.tolist() \
+                or self._itg_key[0].get("error_mode") == "global":
+            return None                # global: this slave checks every doStep's end
         native = self._native
         if native is None or native.integrator is not itg:
             native = self._native = itg.native_advance()
@@ -831,6 +873,29 @@ class HfdiSlave(Fmi2Slave):
         self._F_applied = self._F_input.copy()
         self._itg.load_changed()
 
+    @staticmethod
+    def _scales_with(itg, scales):
+        """The largest ``|u|`` and ``|v|`` of ``scales`` and the current state."""
+        state = itg.state
+        return (max(scales[0], float(np.abs(state.u).max())),
+                max(scales[1], float(np.abs(state.v).max())))
+
+    def _global_tolerance_missed(self, itg, scales):
+        """Under ``error_mode = global``, why the estimated global error misses
+        the tolerance now (``hfdi.global_error_ratio`` with the scales of the
+        communication points), else ``""``."""
+        if self._itg_key[0].get("error_mode") != "global" or itg.tolerances is None:
+            return ""
+        rtol, atol = itg.tolerances
+        ratio = self._hfdi.global_error_ratio(itg.global_error, rtol, atol, *scales)
+        if ratio <= 1.0:
+            return ""
+        if not math.isfinite(ratio):
+            return "error_mode = global: the global error estimate was lost"
+        return (f"error_mode = global: the estimated global error would be {ratio:.3g} "
+                f"times the tolerance at t = {itg.t!r}; rerun the experiment with rtol <= "
+                f"{0.5 * float(rtol.min()) / ratio:.3g}")
+
     def _rollback(self, snapshot):
         saved, applied = snapshot
         self._itg.set_state(saved)
@@ -862,9 +927,13 @@ class HfdiSlave(Fmi2Slave):
             except Exception:
                 nan = np.full(self._n, np.nan)
                 return {"u": nan, "v": nan, "a": nan, "z": np.full(self._nz, np.nan),
-                        "W": math.nan, "dE": math.nan, "steps": 0, "iterations": 0, "itg": None}
+                        "W": math.nan, "dE": math.nan, "steps": 0, "iterations": 0, "itg": None,
+                        "g_u": math.nan, "g_v": math.nan}
         state, stats = itg.state, itg.statistics
+        g = np.abs(itg.global_error)
+        n = self._n
         return {"u": state.u, "v": state.v, "a": state.a, "z": None,
+                "g_u": float(g[:n].max()), "g_v": float(g[n:].max()),
                 "W": float(itg.total_energy), "dE": float(itg.energy_error),
                 "steps": min(int(stats.steps), _INT32_MAX),
                 "iterations": min(int(stats.newton_iterations), _INT32_MAX), "itg": itg}
@@ -999,7 +1068,7 @@ class HfdiSlave(Fmi2Slave):
             return {"model": self.model_name, "bundle": self.bundle, "phase": self._phase,
                     "params": dict(self._params), "mparams": dict(self._mparams),
                     "start_time": self._start_time, "stop_time": self._stop_time,
-                    "inputs": self._F_input.copy(), "applied": self._F_applied.copy(),
+                    "scales": list(self._scales), "inputs": self._F_input.copy(), "applied": self._F_applied.copy(),
                     "integrator": None if self._itg is None else self._itg.get_state(),
                     "built": None if self._itg_key is None else
                     (dict(self._itg_key[0]), dict(self._itg_key[1]), self._itg_key[2])}
@@ -1017,6 +1086,10 @@ class HfdiSlave(Fmi2Slave):
             params = _like("parameters", state["params"], self._params)
             mparams = _like("model parameters", state["mparams"], self._mparams)
             start_time, stop_time = state["start_time"], state["stop_time"]
+            scales = state["scales"]
+            if not (isinstance(scales, (list, tuple)) and len(scales) == 2 and all(
+                    isinstance(x, float) and math.isfinite(x) and x >= 0 for x in scales)):
+                raise FmuError("the state is malformed")
             inputs = np.array(state["inputs"], dtype=float)
             applied = np.array(state["applied"], dtype=float)
             phase = state["phase"]
@@ -1058,6 +1131,7 @@ class HfdiSlave(Fmi2Slave):
             self._itg, self._itg_key = itg, key
             self._params, self._mparams = params, mparams
             self._start_time, self._stop_time = start_time, stop_time
+            self._scales = (scales[0], scales[1])
             self._F_input, self._F_applied = inputs, applied
             self._phase = phase
             self._cache = None
