@@ -20,7 +20,8 @@ that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
   (0: not used), ``rtol`` (error control; 0: the master's tolerance of
   ``fmi2SetupExperiment`` when defined), ``tolerance`` (Newton tolerance η;
   0: automatic), ``initial_step`` (0: automatic),
-  ``max_step`` (0: no limit), ``max_internal_steps``, ``compiled`` (the
+  ``max_step`` (0: no limit), ``max_internal_steps``, ``error_mode`` (local |
+  global: a doStep whose end misses the tolerance is discarded), ``compiled`` (the
   compiled driver of :mod:`hfdi.compiled`; false by default) and every scalar constructor parameter of the
   model (``model.NAME`` when the bare name is taken);
 * inputs: ``F[i]``, an external force added to the model's load through
@@ -29,8 +30,9 @@ that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
 * outputs: ``u[i]``, ``v[i]``, ``a[i]``, the model's quantities of interest
   (``NAME`` or ``NAME[k]``; ``z.NAME`` when the bare name is taken; a
   quantity equal to the displacement is not repeated), ``W`` (total energy),
-  ``dE`` (Σ ΔE, paper Eq. 40), and the Integer outputs ``internal_steps`` and
-  ``newton_iterations``.
+  ``dE`` (Σ ΔE, paper Eq. 40), ``global_error_u`` and ``global_error_v`` (the
+  largest entries of the estimated global error of ``u`` and ``v``), and the
+  Integer outputs ``internal_steps`` and ``newton_iterations``.
 
 How the FMU's native layer (``fmu/native/hfdi_fmi2.c``, through
 :mod:`fmu.entry`) maps this slave's behaviour onto FMI 2.0 statuses:

@@ -126,13 +126,7 @@ def test_corrector_minus_its_own_predictor_is_minus_six_local_errors(scheme):
 def _tolerance_cases():
     for scheme in SCHEMES:
         for problem in sorted(PROBLEMS):
-            marks = []
-            if (scheme, problem) == ("generalized_alpha", "kepler"):
-                # measured: error/rtol 1.68, 1.10, 0.76, 0.54, slope 1.16 (1.09 over
-                # 1e-3…1e-8 in benchmarks/proportionality.py): the error falls faster
-                # than rtol at loose tolerances
-                marks = [pytest.mark.xfail(strict=True, reason="slope 1.16 > 1.1")]
-            yield pytest.param(scheme, problem, marks=marks, id=f"{scheme}-{problem}")
+            yield pytest.param(scheme, problem, id=f"{scheme}-{problem}")
 
 
 @pytest.mark.slow

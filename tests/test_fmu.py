@@ -886,3 +886,46 @@ def test_native_and_python_fmus_agree_on_any_call_sequence(dumbbell_fmu, sequenc
         finally:
             for u in units:
                 u.close()
+
+
+# -- the global error estimate ------------------------------------------------------------
+def test_global_error_outputs_are_the_integrators(dumbbell_fmu):
+    """global_error_u and global_error_v: the largest entries of u's and v's
+    halves of hfdi.Integrator.global_error, as in-process."""
+    u = unit(dumbbell_fmu, {"rtol": 1e-5, "target_iterations": 0.0})
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), "hfdi", rtol=1e-5)
+    t = 0.0
+    for _ in range(10):
+        assert u.step(t, 0.02)
+        t += 0.02
+        assert itg.advance(t)
+    g = np.abs(itg.global_error)
+    got = u.get(["global_error_u", "global_error_v"])
+    np.testing.assert_allclose(got, [g[:N].max(), g[N:].max()], rtol=1e-9)
+    assert got[0] > 0 and got[1] > 0
+    u.close()
+
+
+def test_error_mode_global_discards_a_step_past_the_tolerance(dumbbell_fmu):
+    """error_mode = global: a doStep whose end has an estimate above the
+    tolerance is discarded, the FMU back at its start, the log naming the
+    rtol to rerun with; it needs a tolerance. (HFDI at rtol 1e-2 steps over
+    the dumbbell's stiff bar while it turns: its estimate grows past the
+    tolerance, docs/algorithm.md, "Global error estimate".)"""
+    u = unit(dumbbell_fmu, {"rtol": 1e-2, "target_iterations": 0.0, "error_mode": "global"})
+    t, h, missed = 0.0, 0.1, None
+    while t < 2.0:
+        if not u.step(t, h):
+            missed = u.messages[-1][2]
+            break
+        t += h
+    assert missed is not None and "error_mode = global" in missed, missed
+    assert re.search(r"rerun the experiment with rtol <= [0-9.e-]+", missed)
+    assert u.last_successful_time() == t
+    u.close()
+    path, unzip = dumbbell_fmu
+    bad = Unit(path, "no tolerance", unzip_dir=unzip)
+    with pytest.raises(FMICallException):
+        bad.initialize({"target_iterations": 3.0, "error_mode": "global"})
+    assert any("error_mode = 'global' needs a tolerance" in m[2] for m in bad.messages)
+    bad.close(terminate=False)

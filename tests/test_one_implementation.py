@@ -81,12 +81,6 @@ def _pair(make, *args, **options):
 @pytest.mark.parametrize("model", MODELS)
 def test_a_run_is_the_same_at_both_speeds(model, scheme, mode):
     """integrate() to its step limit: the same rows, counters and status."""
-    if (model, scheme, mode) == ("toss_rule", "generalized_alpha", "error"):
-        # open (docs/algorithm.md, "Tolerance proportionality"): at rtol 1e-6
-        # the share of the tolerance of the run's first, tiny steps is below
-        # what generalized-α's estimate resolves while its lagged
-        # acceleration settles; both speeds stop alike at t = 2e-8
-        pytest.xfail("generalized-α on the toss rule stops at t = 2e-8 (STEP_BELOW_MINIMUM)")
     T = _observation_time(model)
     options = MODES[mode](T)
     if mode == "fixed":
