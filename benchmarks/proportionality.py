@@ -380,7 +380,7 @@ def _run_hfdi(model, scheme, t_end, rtol, atol, per_step, max_steps):
             "steps": int(st.steps), "accepted_steps": int(getattr(st, "accepted", st.steps)),
             "rejected_steps": int(getattr(st, "rejected", 0)),
             "newton_iterations": int(getattr(st, "newton_iterations", 0)),
-            "nfev": int(getattr(st, "nfev", 0))}
+            "nfev": int(getattr(st, "nfev", 0)), "g": np.asarray(result.global_error)}
 
 
 def _run_scipy(model, method, t_end, rtol, atol, max_nfev):
@@ -447,8 +447,16 @@ def _errors(problem, out, U, V):
     u_ref, v_ref = problem.reference(t)
     eu = np.abs(u - u_ref).max(axis=1) / U
     ev = np.abs(v - v_ref).max(axis=1) / V
-    return {"err_u_end": float(eu[-1]), "err_u_max": float(eu.max()),
-            "err_v_end": float(ev[-1]), "err_v_max": float(ev.max())}
+    errors = {"err_u_end": float(eu[-1]), "err_u_max": float(eu.max()),
+              "err_v_end": float(ev[-1]), "err_v_max": float(ev.max())}
+    if "g" in out:
+        # hfdi's own global error estimate against the true error of u, at the
+        # end and at its worst over the run
+        n = u.shape[1]
+        gu = np.abs(out["g"][:, :n]).max(axis=1) / U
+        errors.update(estimate_over_true_end=float(gu[-1] / eu[-1]),
+                      estimate_over_true_max=float(gu.max() / eu.max()))
+    return errors
 
 
 def run_one(problem, solver, rtol, atol, U, V, max_steps=MAX_STEPS, max_nfev=MAX_NFEV):
@@ -656,6 +664,22 @@ def format_tables(data):
             f"{_fmt(s['worst_max_over_rtol'])} | {at(s['worst_max_at'])} | {s['failures']} | "
             + " | ".join(f"{_fmt(s['slopes'][n]['end'], '.2f')} / "
                          f"{_fmt(s['slopes'][n]['max'], '.2f')}" for n in names) + " |")
+    lines += ["", "### hfdi's global error estimate of u over the true error (end / worst "
+                  "over the run)", "",
+              "| problem | solver | " + " | ".join(f"{r:.0e}" for r in rtols) + " |",
+              "|---|---|" + "---|" * len(rtols)]
+    for p in problems:
+        for solver in solvers:
+            by_rtol = {r["rtol"]: r for r in p["runs"] if r["solver"] == solver}
+            if not any("estimate_over_true_end" in r for r in by_rtol.values()):
+                continue
+            cells = []
+            for rtol in rtols:
+                r = by_rtol.get(rtol) or {}
+                cells.append(f"{r['estimate_over_true_end']:.2f} / "
+                             f"{r['estimate_over_true_max']:.2f}"
+                             if "estimate_over_true_end" in r else "")
+            lines.append(f"| {p['name']} | {solver} | " + " | ".join(cells) + " |")
     lines += ["", "### Checks (hfdi's schemes, default rule: error above "
                   f"{FLAG_FACTOR:g}×rtol, slope outside [{SLOPE_RANGE[0]:g}, "
                   f"{SLOPE_RANGE[1]:g}])", ""]
