@@ -218,10 +218,18 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
             clock[0] = time.monotonic()
             progress(t, integrator.statistics)
 
+    # the largest |u|, |v| and |g| (per component) of every accepted step, kept
+    # or not: Result.global_error_ratio's scales and extremes
+    peaks = [float(np.abs(s0.u).max()), float(np.abs(s0.v).max()), np.abs(g0)]
+
     def record_rows(arrays: dict):
         """The accepted steps of a call of the stepping code, in bulk."""
         t = arrays["t"]
         outputs(t, arrays["u"], arrays["v"], arrays["a"])
+        peaks[0] = max(peaks[0], float(np.abs(arrays["u"]).max()))
+        peaks[1] = max(peaks[1], float(np.abs(arrays["v"]).max()))
+        # NaN (the estimate lost) stays NaN: np.maximum propagates it
+        peaks[2] = np.maximum(peaks[2], np.abs(arrays["global_error"]).max(axis=0))
         if save_steps:
             rows.extend(arrays)
         last[:] = [State(float(t[-1]), arrays["u"][-1], arrays["v"][-1], arrays["a"][-1], None,
@@ -242,4 +250,5 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
                   stats=integrator.statistics, scheme=integrator.scheme.name,
                   t_eval=t_eval, u_eval=None if t_eval is None else u_eval,
                   v_eval=None if t_eval is None else v_eval, system=system,
-                  steps_saved=save_steps, rtol=rtol, atol=atol)
+                  steps_saved=save_steps, rtol=rtol, atol=atol,
+                  peaks=(peaks[0], peaks[1], peaks[2]))

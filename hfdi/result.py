@@ -155,6 +155,9 @@ class Result:
     rtol: np.ndarray | None = None
     atol: np.ndarray | None = None
     runs: int = 1
+    #: The largest |u|, |v| and |g| (2N) over every accepted step, kept or not
+    #: (:attr:`global_error_ratio`); None: from the kept rows.
+    peaks: tuple | None = field(default=None, repr=False)
 
     @property
     def success(self) -> bool:
@@ -164,13 +167,17 @@ class Result:
     def global_error_ratio(self) -> float | None:
         """The estimated global error over the tolerance, at its worst:
         ``max |g_i(t)| / (atol_i + rtol_i·S)`` over the kept steps and the
-        components, ``S`` the largest ``|u|`` of the kept steps for ``u``'s
+        components, ``S`` the largest ``|u|`` of the run for ``u``'s
         components and the largest ``|v|`` for ``v``'s (the solution's
         scale: a component that passes through zero is not held to its own
-        size there). NaN where the estimate was lost; ``None`` without
-        ``rtol``."""
+        size there); over every accepted step, also those not kept
+        (``save_steps=False``). NaN where the estimate was lost; ``None``
+        without ``rtol``."""
         if self.rtol is None:
             return None
+        if self.peaks is not None:
+            u_peak, v_peak, g_peak = self.peaks
+            return global_error_ratio(g_peak, self.rtol, self.atol, u_peak, v_peak)
         return global_error_ratio(self.global_error, self.rtol, self.atol,
                                   np.abs(self.u).max(), np.abs(self.v).max())
 

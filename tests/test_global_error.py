@@ -188,3 +188,17 @@ def test_the_estimate_on_the_sparse_path():
     e = np.abs(np.hstack([result.u[keep] - u, result.v[keep] - v])).max(axis=1)
     g = np.abs(result.global_error[keep]).max(axis=1)
     assert 1 / 3 < g.max() / e.max() < 3 and 1 / 3 < g[-1] / e[-1] < 3, (g, e)
+
+
+def test_the_ratio_sees_every_step_also_those_not_kept():
+    """global_error_ratio is the worst over the run with save_steps=False too
+    (the estimate's extremes are taken as the steps pass)."""
+    model, _ = kepler()
+    kept = hfdi.integrate(model, "hfdi", 4 * np.pi, rtol=1e-3)
+    lean = hfdi.integrate(model, "hfdi", 4 * np.pi, rtol=1e-3, save_steps=False)
+    assert lean.t.size == 2
+    assert lean.global_error_ratio == pytest.approx(kept.global_error_ratio, rel=1e-12)
+    n = model.n_dof
+    scale = np.concatenate([np.full(n, np.abs(kept.u).max()), np.full(n, np.abs(kept.v).max())])
+    worst = (np.abs(kept.global_error) / (kept.atol + kept.rtol * scale)).max()
+    assert kept.global_error_ratio == pytest.approx(worst, rel=1e-12)
