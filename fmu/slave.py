@@ -252,7 +252,7 @@ class HfdiSlave(Fmi2Slave):
         self._stop_time = None
         self._phase = "instantiated"
         self._itg = None                     # the hfdi.Integrator, from exitInitializationMode on
-        self._itg_key = None                 # (params, model params, t0) it was made with
+        self._itg_key = None                 # (params, model params, t0, stop) it was made with
         self._F_input = np.zeros(n)          # inputs as last set by the master
         self._F_applied = np.zeros(n)        # inputs the integrator's current state was computed with
         self._cache = None                   # outputs at the current state, computed on demand
@@ -531,14 +531,16 @@ class HfdiSlave(Fmi2Slave):
             if bad:
                 raise FmuError(f"input {', '.join(bad)} is not finite")
             self._F_applied = self._F_input.copy()
-            model, itg = self._make_integrator(self._params, self._mparams, self._start_time)
+            model, itg = self._make_integrator(self._params, self._mparams, self._start_time,
+                                               self._stop_time)
             self._check_outputs_finite(itg)
         except FmuError as exc:
             self._reject(f"initialization rejected: {exc}")
         except Exception as exc:
             self._reject(f"initialization failed: {exc!r}")
         self._itg = itg
-        self._itg_key = (dict(self._params), dict(self._mparams), self._start_time)
+        self._itg_key = (dict(self._params), dict(self._mparams), self._start_time,
+                         self._stop_time)
         self._scales = self._scales_with(itg, (0.0, 0.0))
         self._phase = "stepping"
         self._cache = None
@@ -571,7 +573,7 @@ class HfdiSlave(Fmi2Slave):
     def terminate(self):
         self._phase = "terminated"
 
-    def _make_integrator(self, params, mparams, start_time):
+    def _make_integrator(self, params, mparams, start_time, stop_time=None):
         """Check the parameters and make the model and its integrator.
 
         Raises
@@ -640,8 +642,8 @@ class HfdiSlave(Fmi2Slave):
                                   first_step=float(params["initial_step"]) or None,
                                   max_step=float(params["max_step"]) or None,
                                   max_steps=_UNLIMITED_STEPS, compiled=compiled,
-                                  error_span=None if self._stop_time is None
-                                  else self._stop_time - float(start_time),
+                                  error_span=None if stop_time is None
+                                  else float(stop_time) - float(start_time),
                                   extra_load=hfdi.HeldLoad(self._held_input))
         except hfdi.compiled.CompiledUnavailable as exc:
             raise FmuError(f"parameter compiled = true: {exc}") from None
@@ -740,7 +742,10 @@ class HfdiSlave(Fmi2Slave):
                     self._scales = scales
                     self._open_gate()
                     return True
-                reason = missed
+                self._rollback(snapshot)
+                # an accumulated error: no shorter step undoes it
+                return self._discard(f"step [{t!r}, {t_end!r}] rejected ({missed}); back "
+                                     f"at t = {t!r}")
             self._rollback(snapshot)
             return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
                                  f"t = {t!r}: retry with a shorter communication step or "
@@ -925,7 +930,8 @@ class HfdiSlave(Fmi2Slave):
             # initialization mode: the initial state the current parameters give
             try:
                 self._F_applied = self._F_input.copy()
-                _, itg = self._make_integrator(self._params, self._mparams, self._start_time)
+                _, itg = self._make_integrator(self._params, self._mparams, self._start_time,
+                                               self._stop_time)
             except Exception:
                 nan = np.full(self._n, np.nan)
                 return {"u": nan, "v": nan, "a": nan, "z": np.full(self._nz, np.nan),
@@ -1073,7 +1079,8 @@ class HfdiSlave(Fmi2Slave):
                     "scales": list(self._scales), "inputs": self._F_input.copy(), "applied": self._F_applied.copy(),
                     "integrator": None if self._itg is None else self._itg.get_state(),
                     "built": None if self._itg_key is None else
-                    (dict(self._itg_key[0]), dict(self._itg_key[1]), self._itg_key[2])}
+                    (dict(self._itg_key[0]), dict(self._itg_key[1]), self._itg_key[2],
+                     self._itg_key[3])}
         except Exception as exc:
             self._reject(f"fmi2GetFMUstate failed: {exc!r}")
 
@@ -1115,8 +1122,10 @@ class HfdiSlave(Fmi2Slave):
             if saved is not None:
                 key = state["built"]
                 key = (_like("parameters", key[0], self._params),
-                       _like("model parameters", key[1], self._mparams), key[2])
-                if not (isinstance(key[2], float) and math.isfinite(key[2])):
+                       _like("model parameters", key[1], self._mparams), key[2], key[3])
+                if not (isinstance(key[2], float) and math.isfinite(key[2])) or not (
+                        key[3] is None or isinstance(key[3], float) and math.isfinite(key[3])
+                        and key[3] > key[2]):
                     raise FmuError("the state is malformed")
                 if self._itg is not None and self._itg_key == key:
                     itg = self._itg
@@ -1126,7 +1135,7 @@ class HfdiSlave(Fmi2Slave):
                     # made without inputs, which the model was valid with.
                     current, self._F_applied = self._F_applied, np.zeros(self._n)
                     try:
-                        itg = self._make_integrator(key[0], key[1], key[2])[1]
+                        itg = self._make_integrator(*key)[1]
                     finally:
                         self._F_applied = current
                 itg.set_state(saved)
@@ -1177,11 +1186,11 @@ class HfdiSlave(Fmi2Slave):
             self._reject("fmi2DeSerializeFMUstate: the serialized state is malformed")
         built = header.pop("built")
         if built is not None:
-            if not (isinstance(built, list) and len(built) == 3
+            if not (isinstance(built, list) and len(built) == 4
                     and isinstance(built[0], dict) and isinstance(built[1], dict)):
                 self._reject("fmi2DeSerializeFMUstate: the serialized state's integrator key "
                              "is malformed")
-            built = (built[0], built[1], built[2])
+            built = (built[0], built[1], built[2], built[3])
         integrator = arrays.get("integrator")
         return dict(header, built=built, inputs=arrays["inputs"], applied=arrays["applied"],
                     integrator=None if integrator is None else integrator.tobytes())

@@ -133,7 +133,7 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         if other:
             raise ValueError(f"error='global' needs error control alone (rtol, atol); got "
                              f"{', '.join(other)}")
-        if options.get("global_error") is False:
+        if not options.get("global_error", True):
             raise ValueError("error='global' needs the global error estimate; got "
                              "global_error=False")
     allowed = [name for name in inspect.signature(Integrator).parameters
@@ -154,32 +154,46 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         return result
     # the tolerance asked for, against which every run is measured
     asked_rtol, asked_atol = result.rtol, result.atol
-    runs, factor = 1, 1.0
-    while True:
+    runs, factor, why = 1, 1.0, ""
+    while result.success:
         ratio = result.global_error_ratio
-        if ratio <= 1.0 or runs == GLOBAL_RUNS or not result.success or not math.isfinite(
-                ratio) or float(np.min(asked_rtol)) * factor * GLOBAL_MARGIN / ratio \
-                < RTOL_RANGE[0]:
+        if ratio <= 1.0 or not math.isfinite(ratio):
+            break
+        if runs == GLOBAL_RUNS:
+            why = f"after {runs} runs"
+            break
+        tighter = factor * GLOBAL_MARGIN / ratio
+        if float(np.min(asked_rtol)) * tighter < RTOL_RANGE[0]:
+            why = (f"the rtol that would meet it, {float(np.min(asked_rtol)) * tighter:.3g}, "
+                   f"is below {RTOL_RANGE[0]:g}")
             break
         # the error of the answer follows rtol (docs/algorithm.md, "Tolerance
         # proportionality"): the rtol that puts it at GLOBAL_MARGIN
-        factor *= GLOBAL_MARGIN / ratio
-        result = run(asked_rtol * factor, asked_atol * factor)
-        result.rtol, result.atol = asked_rtol, asked_atol
+        again = run(asked_rtol * tighter, asked_atol * tighter)
         runs += 1
+        again.rtol, again.atol = asked_rtol, asked_atol
+        if not again.success:
+            # the complete answer stays; the failed rerun is said
+            why = (f"the rerun at rtol {float(np.min(asked_rtol)) * tighter:.3g} failed "
+                   f"({again.status.name}: {again.message})")
+            break
+        result, factor = again, tighter
     result.runs = runs
+    if not result.success:
+        return result
     ratio = result.global_error_ratio
-    if result.success and not ratio <= 1.0:
+    last = float(np.min(asked_rtol)) * factor
+    if not ratio <= 1.0:
         result.status = Status.TOLERANCE_NOT_MET
         result.message = (f"reached t_end, but the estimated global error is {ratio:.3g} times "
-                          f"the tolerance after {runs} run(s) (the last at rtol "
-                          f"{float(np.min(asked_rtol)) * factor:.3g})" if math.isfinite(ratio)
-                          else f"reached t_end, but the global error estimate was lost "
-                               f"(the stiffness failed or the propagator's matrix was "
-                               f"singular) after {runs} run(s)")
-    elif result.success:
+                          f"the tolerance (the run at rtol {last:.3g}; {why})"
+                          if math.isfinite(ratio) else
+                          f"reached t_end, but the global error estimate was lost (the "
+                          f"stiffness failed or the propagator's matrix was singular) in the "
+                          f"run at rtol {last:.3g}")
+    else:
         result.message = (f"reached t_end; estimated global error {ratio:.3g} of the "
-                          f"tolerance after {runs} run(s)")
+                          f"tolerance (the run at rtol {last:.3g}, {runs} run(s))")
     return result
 
 
@@ -226,6 +240,8 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
         """The accepted steps of a call of the stepping code, in bulk."""
         t = arrays["t"]
         outputs(t, arrays["u"], arrays["v"], arrays["a"])
+        if not integrator.carries_global_error:
+            arrays["global_error"][:] = np.nan
         peaks[0] = max(peaks[0], float(np.abs(arrays["u"]).max()))
         peaks[1] = max(peaks[1], float(np.abs(arrays["v"]).max()))
         # NaN (the estimate lost) stays NaN: np.maximum propagates it

@@ -199,6 +199,8 @@ class Integrator(CompiledSteps):
         self.scheme: Scheme = get_scheme(scheme)
         if not isinstance(global_error, (bool, np.bool_)):
             raise ValueError(f"global_error must be True or False, got {global_error!r}")
+        #: whether the run carries the global error estimate (``global_error=``)
+        self.carries_global_error = bool(global_error)
         checks.callable_or_none("extra_load", extra_load, "t -> (N,)")
         if not isinstance(check_stiffness, bool):
             raise ValueError(f"check_stiffness must be True or False, got {check_stiffness!r}")
@@ -466,7 +468,9 @@ class Integrator(CompiledSteps):
         then ``v``'s), a copy: the local error estimates of the steps so far
         carried through the linearised motion (docs/algorithm.md, "Global
         error estimate"). NaN where it was lost (``K`` failed or the
-        propagator's matrix was singular), zero with ``global_error=False``."""
+        propagator's matrix was singular) and with ``global_error=False``."""
+        if not self.carries_global_error:
+            return np.full(2 * self.ev.n, np.nan)
         return self._vec.global_error.copy()
 
     # -- saving and restoring -------------------------------------------------------

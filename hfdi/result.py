@@ -111,8 +111,8 @@ class Result:
         The estimated global error of ``(u, v)`` at ``t`` (``u``'s N columns,
         then ``v``'s): the local error estimates carried through the
         linearised motion (docs/algorithm.md, "Global error estimate",
-        with its limits). Zero at the start; NaN from where it was lost;
-        zero throughout with ``global_error=False``.
+        with its limits). Zero at the start; NaN from where it was lost,
+        and throughout with ``global_error=False``.
     status : Status
     message : str
     success : bool

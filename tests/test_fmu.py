@@ -929,3 +929,25 @@ def test_error_mode_global_discards_a_step_past_the_tolerance(dumbbell_fmu):
         bad.initialize({"target_iterations": 3.0, "error_mode": "global"})
     assert any("error_mode = 'global' needs a tolerance" in m[2] for m in bad.messages)
     bad.close(terminate=False)
+
+
+def test_a_state_restores_under_another_stop_time(dumbbell_fmu):
+    """The integrator's error control shares the tolerance over the
+    experiment (start to stop time): a state saved under one stop time is
+    restored, into an instance set up with another, with the integrator it
+    was made with, and continues as the original does."""
+    path, unzip = dumbbell_fmu
+    a = Unit(path, "stop 1", unzip_dir=unzip)
+    a.initialize({"rtol": 1e-5, "target_iterations": 0.0}, stop_time=1.0)
+    b = Unit(path, "no stop", unzip_dir=unzip)
+    b.initialize({"rtol": 1e-5, "target_iterations": 0.0})
+    assert a.step(0.0, 0.1)
+    state = a.fmu.getFMUstate()
+    data = a.fmu.serializeFMUstate(state)
+    b.fmu.setFMUstate(b.fmu.deSerializeFMUstate(data))
+    for u in (a, b):
+        assert u.step(0.1, 0.1)
+    assert np.array_equal(a.get(OBSERVED), b.get(OBSERVED))
+    a.fmu.freeFMUstate(state)
+    a.close()
+    b.close()

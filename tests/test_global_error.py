@@ -4,6 +4,7 @@ solutions, and ``integrate(error="global")`` against its tolerance."""
 from __future__ import annotations
 
 import importlib
+import math
 
 import numpy as np
 import pytest
@@ -96,17 +97,19 @@ def test_bad_error_arguments_are_named():
         hfdi.integrate(model, "hfdi", 1.0, error="globl")
     with pytest.raises(ValueError, match="error='global' needs error control alone.*step"):
         hfdi.integrate(model, "hfdi", 1.0, step=0.01, error="global")
-    with pytest.raises(ValueError, match="global_error=False"):
-        hfdi.integrate(model, "hfdi", 1.0, error="global", global_error=False)
+    for off in (False, np.False_):
+        with pytest.raises(ValueError, match="global_error=False"):
+            hfdi.integrate(model, "hfdi", 1.0, error="global", global_error=off)
     with pytest.raises(ValueError, match="global_error must be True or False"):
         hfdi.Integrator(model, "hfdi", global_error="yes")
 
 
-def test_without_the_estimate_it_is_zero_and_costs_nothing():
+def test_without_the_estimate_there_is_none_and_it_costs_nothing():
     model, _ = damped_chain()
     on = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-4)
     off = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-4, global_error=False)
-    assert not off.global_error.any() and on.global_error[1:].any()
+    assert np.isnan(off.global_error).all() and math.isnan(off.global_error_ratio)
+    assert on.global_error[1:].any() and not np.isnan(on.global_error).any()
     # the estimate is carried beside the run: the steps are the same
     np.testing.assert_array_equal(on.t, off.t)
     np.testing.assert_array_equal(on.u, off.u)
@@ -202,3 +205,47 @@ def test_the_ratio_sees_every_step_also_those_not_kept():
     scale = np.concatenate([np.full(n, np.abs(kept.u).max()), np.full(n, np.abs(kept.v).max())])
     worst = (np.abs(kept.global_error) / (kept.atol + kept.rtol * scale)).max()
     assert kept.global_error_ratio == pytest.approx(worst, rel=1e-12)
+
+
+def forced_oscillator(with_rate):
+    """``u'' + u = sin 3t``, ``u(0) = 0.3``, ``u'(0) = 1``: a smooth load, with
+    or without its exact rate (HFDI's difference quotient then errs as h³)."""
+    model = hfdi.LinearSystem(np.array([1.0]), np.array([[1.0]]), None,
+                              load=lambda t: np.array([np.sin(3.0 * t)]),
+                              initial_displacement=[0.3], initial_velocity=[1.0])
+    if with_rate:
+        model.load_rate = lambda t: np.array([3.0 * np.cos(3.0 * t)])
+
+    def exact(t):
+        t = np.atleast_1d(t)
+        b = 1.0 + 3.0 / 8.0
+        u = 0.3 * np.cos(t) + b * np.sin(t) - np.sin(3.0 * t) / 8.0
+        v = -0.3 * np.sin(t) + b * np.cos(t) - 3.0 * np.cos(3.0 * t) / 8.0
+        return u[:, None], v[:, None]
+
+    return model, exact
+
+
+@pytest.mark.parametrize("with_rate", [False, True], ids=["difference", "exact-rate"])
+def test_the_estimate_has_the_sign_of_the_error(with_rate):
+    """Signed, component by component: g/e near +1 where the error is large,
+    for HFDI with a smooth load, with and without its exact rate (the
+    velocity estimate's error constant holds only with an exact rate)."""
+    model, exact = forced_oscillator(with_rate)
+    result = hfdi.integrate(model, "hfdi", 10.0, rtol=1e-4)
+    e, g = true_error(result, exact), result.global_error
+    for k in range(2):
+        large = np.abs(e[:, k]) > 0.3 * np.abs(e[:, k]).max()
+        ratio = np.median(g[large, k] / e[large, k])
+        assert 0.7 < ratio < 1.3, (k, ratio)
+
+
+def test_a_failed_rerun_keeps_the_complete_answer():
+    """error="global": when the tighter rerun fails (here its step limit), the
+    first, complete run is returned with TOLERANCE_NOT_MET and the reason."""
+    model, _ = kepler()
+    result = hfdi.integrate(model, "hfdi", 4 * np.pi, rtol=1e-3, error="global",
+                            max_steps=400)
+    assert result.status == hfdi.Status.TOLERANCE_NOT_MET
+    assert result.t[-1] == 4 * np.pi and result.runs == 2
+    assert "the rerun at rtol" in result.message and "MAX_STEPS" in result.message

@@ -44,7 +44,7 @@ def assert_same_result(a, b):
         if field.name != "cpu_time":
             assert getattr(a.stats, field.name) == getattr(b.stats, field.name), field.name
     for name in ("t", "u", "v", "a", "step_size", "iterations", "energy_increment",
-                 "total_energy", "external_work", "energy_error"):
+                 "total_energy", "external_work", "energy_error", "global_error"):
         x, y = getattr(a, name, None), getattr(b, name, None)
         if x is not None or y is not None:
             np.testing.assert_array_equal(x, y, err_msg=name)
@@ -60,6 +60,7 @@ def assert_same_state(a, b):
                  "newton_guard"):
         x, y = getattr(sa, name), getattr(sb, name)
         assert x == y or (isinstance(x, float) and math.isnan(x) and math.isnan(y)), name
+    np.testing.assert_array_equal(sa.global_error, sb.global_error, err_msg="global_error")
     for which in ("current", "previous"):
         x, y = getattr(sa, which), getattr(sb, which)
         assert (x is None) == (y is None), which

@@ -67,13 +67,14 @@ def velocity_history_factor(sigma, order, defect):
 
 
 @jitable
-def local_error(run, vec, h, order, defect, a, a_previous):
+def local_error(run, vec, h, velocity_order, defect, a, a_previous):
     """The estimate of the local error of ``u`` and ``v`` of the step from the
     current state to ``VECTORS.*_new`` into ``VECTORS.error`` (2N): the new
     state minus the quartic ``Q`` with ``Q(0) = u``, ``Q'(0) = v``,
     ``Q''(0) = a``, ``Q'(−H) = v_{n−1}``, ``Q''(−H) = a_{n−1}`` (Milne's
     device, no extra evaluation); the velocity's difference divided by
-    :func:`velocity_history_factor` (``defect`` its ``d``). Without history the Taylor polynomial
+    :func:`velocity_history_factor` (of the order ``velocity_order`` of ``v``'s
+    local error, ``defect`` its ``d``). Without history the Taylor polynomial
     ``u + h v + h² a/2`` (and ``v + h a``), erring on the safe side. ``a``
     and ``a_previous`` are the accelerations at ``t`` and ``t_previous``
     (the state's, or the equation of motion's where the state's lags)."""
@@ -100,7 +101,7 @@ def local_error(run, vec, h, order, defect, a, a_previous):
         axpy(Q, s2 * s2, c4)
         axpy(dQ, 3.0 * s2, c3)
         axpy(dQ, 4.0 * s2 * h, c4)
-        factor = velocity_history_factor(h / H, order, defect)
+        factor = velocity_history_factor(h / H, velocity_order, defect)
     lincomb(eu, 1.0, vec.u_new, -1.0, Q)
     lincomb(ev, 1.0 / factor, vec.v_new, -1.0 / factor, dQ)
 

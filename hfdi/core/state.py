@@ -115,6 +115,7 @@ CONFIG = Scalars("Config", [
     ("order", "i8", 2),                 # its order (the error rule's exponent)
     ("velocity_gain", "f8", 3.0),       # h Σ|coefficients of u in v| (docs/algorithm.md)
     ("velocity_defect", "f8", 0.0),     # 1/(24 λ), λ the scheme's v error constant (or 0)
+    ("velocity_order", "i8", 2),        # the order of v's local error (the estimate's)
     ("keeps_force", "b1", False),       # the state keeps f(u) (HFDI, generalized-α)
     ("lagged_acceleration", "b1", False),   # the state's a is not M⁻¹(p − C v − f) (gen.-α)
     ("acceleration_lag", "f8", 0.0),    # it is the acceleration at t + lag·h

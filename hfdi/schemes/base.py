@@ -43,9 +43,11 @@ class Scheme:
         ``t`` (generalized-α: ``α_m − α_f``); a change of step moves it there.
     velocity_error_constant : float
         ``λ`` of the leading local error of ``v``, ``λ h^{p+1} v^{(p+1)}``,
-        where the error estimate needs it: from order 3 on, the estimate's
-        quartic has a defect in ``v`` of the same order (docs/algorithm.md,
-        "Global error estimate"); 0 where it is of higher order (order 2).
+        where the error estimate needs it: at order 3 the estimate's quartic
+        has a defect in ``v`` of the same order (docs/algorithm.md,
+        "Velocity"); 0 where it is of higher order (order 2). Used where the
+        load rate is exact (``SecondOrderSystem.load_is_piecewise_linear``
+        or the model's ``load_rate``).
     stage : numba dispatcher
         The stage function (:func:`stage_function`).
     """

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 
-from ..core.arrays import (all_finite, axpy, copy, dot, kinetic, lincomb, matvec, row_sum_max,
-                           times)
+from ..core.arrays import (all_finite, axpy, copy, dot, fill, kinetic, lincomb, matvec,
+                           row_sum_max, times)
 from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFLOW,
                           SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
                           STOP_OVERFLOW, STOP_POTENTIAL_LOST)
@@ -191,9 +191,9 @@ def estimate_error(cfg, data, run, vec, h):
         if _equation_acceleration(cfg, data, vec, vec.v, vec.f, vec.p, now) and (
                 not run.has_previous or _equation_acceleration(
                     cfg, data, vec, vec.v_previous, vec.f_previous, vec.p_previous, before)):
-            local_error(run, vec, h, cfg.order, cfg.velocity_defect, now, before)
+            local_error(run, vec, h, cfg.velocity_order, cfg.velocity_defect, now, before)
             return
-    local_error(run, vec, h, cfg.order, cfg.velocity_defect, vec.a, vec.a_previous)
+    local_error(run, vec, h, cfg.velocity_order, cfg.velocity_defect, vec.a, vec.a_previous)
 
 
 @jitable
@@ -257,6 +257,8 @@ def carry_global_error(fn, cfg, data, run, vec, h, taylor):
     if not run.a_estimated:
         estimate_error(cfg, data, run, vec, h)
     axpy(vec.global_error, 1.0, vec.error)
+    if not all_finite(vec.global_error):
+        fill(vec.global_error, math.nan)      # lost: NaN from here on, never inf
 
 
 @jitable(inline=True)
