@@ -2,8 +2,17 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import hfdi
+
+
+def schemes_quick(*quick, among=None):
+    """Parameters over the schemes ``among`` (default every registered one)
+    with all but the ``quick`` ones in the slow tier: the quick tier keeps a
+    representative of each kind of stage, ``make test`` runs them all."""
+    return [pytest.param(s, marks=() if s in quick else pytest.mark.slow)
+            for s in (among if among is not None else hfdi.SCHEMES)]
 
 
 def coupled_duffing(damping=0.05, load=None, load_rate=None, c=1.0):

@@ -19,6 +19,7 @@ from hfdi.linsolve import sparse as linsolve_sparse
 from hfdi.compiled import CompiledKernels, CompiledUnavailable
 from hfdi.controller import Combined, ErrorControl, IterationCount
 from hfdi.models import articulated, dumbbell, tetrahedra, toss_rule
+from problems import schemes_quick
 
 #: the per-step rule where a test is about the path, not the accuracy: its runs
 #: take the steps they took before the default spent shares of the tolerance
@@ -428,7 +429,7 @@ class LongChain(hfdi.SecondOrderSystem):
             lambda u, w: tangent(u, w, True))
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
 def test_a_users_sparse_model_runs_its_compiled_kernels(scheme):
     """SparseKernels of a model of one's own (not the toss rule): exact
     derivatives, taken by the default path, the same run as its Python methods."""
@@ -1068,6 +1069,7 @@ def test_a_reason_is_said_again_in_another_situation(monkeypatch):
         "hfdi: after the model changed: the reason"]
 
 
+@pytest.mark.slow
 def test_a_run_of_many_short_calls_keeps_only_its_rows():
     """A call of the driver ends at every breakpoint: the rows a run keeps
     are its rows (at most about twice them), not a full buffer per call."""

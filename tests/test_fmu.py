@@ -863,7 +863,7 @@ def _play(u, calls):
     return seen
 
 
-@pytest.mark.parametrize("sequences", [pytest.param(12, id="quick"),
+@pytest.mark.parametrize("sequences", [pytest.param(6, id="quick"),
                                        pytest.param(200, id="200", marks=pytest.mark.slow)])
 def test_native_and_python_fmus_agree_on_any_call_sequence(dumbbell_fmu, sequences):
     """The compiled FMU (its native layer takes the doSteps and reads it can)
