@@ -29,8 +29,7 @@ def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, es
     values = dict(
         n=ev.n, stages=scheme.n_stages, order=scheme.order,
         velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,
-        velocity_defect=1.0 / (24.0 * scheme.velocity_error_constant)
-        if velocity_exact else 0.0,
+        velocity_defect=scheme.velocity_defect if velocity_exact else 0.0,
         velocity_order=scheme.order if velocity_exact or not scheme.velocity_error_constant
         else 2,
         lagged_acceleration=scheme.lagged_acceleration,

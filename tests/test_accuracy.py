@@ -83,8 +83,7 @@ def estimate_options(itg):
     """The scheme's velocity defect (:attr:`~hfdi.Scheme.velocity_error_constant`);
     where its acceleration lags, the estimate takes the equation of motion's
     (M⁻¹(p − f): these problems have no damping)."""
-    constant = itg.scheme.velocity_error_constant
-    options = dict(defect=1.0 / (24.0 * constant) if constant else 0.0)
+    options = dict(defect=itg.scheme.velocity_defect)
     if itg.scheme.lagged_acceleration:
         mass = np.asarray(itg.system.mass, dtype=float)
         options["acceleration"] = lambda state: (state.p - state.f) / mass

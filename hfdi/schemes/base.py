@@ -63,6 +63,13 @@ class Scheme:
     stage = None
 
     @property
+    def velocity_defect(self) -> float:
+        """``d = 1/(24 λ)`` of the velocity estimate's factor
+        (:func:`hfdi.core.estimate.velocity_history_factor`); 0 without ``λ``."""
+        constant = self.velocity_error_constant
+        return 1.0 / (24.0 * constant) if constant else 0.0
+
+    @property
     def n_stages(self) -> int:
         return len(self.stage_fractions)
 
