@@ -38,8 +38,9 @@ TAKEN, NOT_TAKEN = 1, 0
 _BYTES = types.uint8[::1]
 _EVERY = 2**63 - 1
 #: The vectors a call may change, put back when it gives up (:func:`_state`, and
-#: the global error estimate); as ``hfdi.compiled_steps._SNAPSHOT``, not imported: this module's compiled code
-#: would be compiled again at every change of that module.
+#: the global error estimate); as ``hfdi.compiled_steps._SNAPSHOT``, not
+#: imported: this module's compiled code would be compiled again at every
+#: change of that module.
 _STATE = ("u", "v", "a", "f", "p", "u_previous", "v_previous", "a_previous", "f_previous",
           "p_previous")
 # entries of ``limits``: the run's max_steps, the steps one call may take, the calls made
