@@ -15,6 +15,12 @@ next one, ...) so that a drift of the machine's load is shared by all:
   ``rtol``; the linear solver is :mod:`validation.reference`'s ``"auto"``
   (dense up to 100 first-order unknowns, band or sparse beyond), so dense on
   the four paper problems (at most 42 unknowns);
+* IDA at machine speed (``ida_c``): the same first-order form, rtol and
+  atol, run by SUNDIALS' C library with a compiled residual and Jacobian over
+  the model's own compiled kernels (:mod:`benchmarks.ida_compiled`; Debian's
+  ``libsundials-dev``), the whole run in one compiled loop: the fair
+  competitor of our compiled path (``--compiled``). Skipped, with the reason
+  in its records, where the library or the model's kernels are missing;
 * scipy's ``solve_ivp`` ``Radau`` and ``BDF`` on the explicit first-order form
   ``y = (u, v)``, ``y' = (v, M⁻¹(p − f(u) − C v))`` with the analytic Jacobian
   ``[[0, I], [−M⁻¹K(u), −M⁻¹C]]``, a CSR matrix when the model's ``K`` is
@@ -104,7 +110,7 @@ SCHEMES = SCHEME_ORDER
 #: Our schemes under error control (``hfdi.integrate(..., rtol=...)``), one run per rtol.
 ERROR_CONTROLLED = tuple(f"{s}-rtol" for s in SCHEMES)
 OURS = SCHEMES + ERROR_CONTROLLED
-COMPETITORS = ("ida", "radau", "bdf")
+COMPETITORS = ("ida", "ida_c", "radau", "bdf")
 #: Relative tolerances of our error-controlled runs, loosest first.
 DEFAULT_OURS_RTOLS = tuple(10.0 ** -k for k in range(3, 10))
 
@@ -138,6 +144,10 @@ REPEAT_BELOW = 1.0
 #: The goal's comparison point: IDA at this rtol.
 GOAL_RTOL = 1e-6
 GOAL_FACTOR = 10.0
+#: The goals ``(competitor, its rtol, factor)``: HFDI at the competitor's ε_u
+#: at least ``factor`` times faster — scikit-sundae's IDA (a Python residual)
+#: at rtol 1e-6 by 10×; IDA in C at rtol 1e-6 by 3×, and at 1e-8 no slower.
+GOALS = (("ida", GOAL_RTOL, GOAL_FACTOR), ("ida_c", 1e-6, 3.0), ("ida_c", 1e-8, 1.0))
 #: The energy guard of the paper's tables (``validation.tables.ENERGY_LIMIT``).
 
 ATOL_RULE = ("validation.reference.default_atol(model, rtol, t_end): atol_u,i = rtol * "
@@ -200,6 +210,20 @@ def _run_ida(model, t_end, rtol, max_nfev):
         "nfev": sol["nfev"], "njev": sol["njev"], "linsolver": sol["linsolver"],
         "atol": sol["atol"].tolist(),
     }
+
+
+def _run_ida_c(model, t_end, rtol, max_nfev):
+    from . import ida_compiled
+    problem = ida_compiled.Problem(model)        # compiled once per process, untimed
+    atol = default_atol(model, rtol, t_end)
+    cpu = time.process_time()
+    start = time.perf_counter()
+    sol = ida_compiled.solve(problem, t_end, rtol=rtol, atol=atol, max_nfev=max_nfev)
+    wall = time.perf_counter() - start
+    cpu = time.process_time() - cpu
+    if sol["status"] == "BUDGET":
+        sol["u"] = sol["v"] = None           # stopped by us: no ε, as for the others
+    return {**sol, "wall": wall, "cpu": cpu, "atol": sol["atol"].tolist()}
 
 
 def _failed(wall, cpu, status, message, nfev):
@@ -305,6 +329,8 @@ def _solve(problem, method, setting, t_end, max_nfev, compiled=False):
                                 compiled=compiled)
     if method == "ida":
         return model, _run_ida(model, t_end, setting, max_nfev)
+    if method == "ida_c":
+        return model, _run_ida_c(model, t_end, setting, max_nfev)
     return model, _run_scipy(model, {"radau": "Radau", "bdf": "BDF"}[method], t_end, setting,
                              max_nfev)
 
@@ -419,7 +445,7 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
         Relative tolerances of our schemes' error-controlled runs (methods
         ``<scheme>-rtol``); empty for none.
     competitors : sequence of str
-        Of ``"ida"``, ``"radau"``, ``"bdf"``.
+        Of ``"ida"``, ``"ida_c"``, ``"radau"``, ``"bdf"``.
     t_end : float, optional
         End of every run and of the reference; default the model's ``T_o``.
     repeats : int
@@ -484,6 +510,8 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
     # the drift over all methods instead of favouring those run first.
     runs = {}
     skip_reason = {m: None for m, _ in methods}
+    if "ida_c" in skip_reason:
+        skip_reason["ida_c"] = _ida_c_missing(model)
     for k in range(max(len(ts) for _, ts in methods) if methods else 0):
         for method, settings in methods:
             if k >= len(settings):
@@ -532,14 +560,28 @@ def bench_problem(problem, *, schemes=SCHEMES, targets=None, rtols=DEFAULT_RTOLS
         "records": records,
     }
     out["speedup"] = speedups(records)
-    out["goal"] = goal(records)
     out["speedup_cpu"] = speedups(records, cost="cpu")
-    out["goal_cpu"] = goal(records, cost="cpu")
+    out["goals"] = [goal(records, rival=rival, rtol=rtol, factor=factor, cost=cost)
+                    for rival, rtol, factor in GOALS for cost in ("wall", "cpu")]
+    out["goal"], out["goal_cpu"] = out["goals"][:2]
     out["machine"] = machine_info()
     out["machine"]["loadavg_start"] = load_start
     out["machine"]["loadavg_end"] = load_average()
     out["bench_time"] = time.perf_counter() - started
     return _plain(out)
+
+
+def _ida_c_missing(model):
+    """Why ``ida_c`` cannot run this model (``None`` when it can)."""
+    from . import ida_compiled
+    ok, why = ida_compiled.available()
+    if not ok:
+        return f"skipped: {why}"
+    from hfdi.compiled import kernels_of
+    kernels, why = kernels_of(model)
+    if kernels is None or kernels.load is None:
+        return f"skipped: the model has no compiled kernels with a load ({why or 'no load'})"
+    return None
 
 
 def bench_task(problem, options):
@@ -681,30 +723,32 @@ def speedups(records, cost="wall") -> dict:
     }
 
 
-def goal(records, rtol=GOAL_RTOL, factor=GOAL_FACTOR, cost="wall") -> dict:
-    """The goal figure: HFDI against IDA at ``rtol`` (default 1e-6), at IDA's ``ε_u``.
+def goal(records, rtol=GOAL_RTOL, factor=GOAL_FACTOR, cost="wall", rival="ida") -> dict:
+    """A goal figure: HFDI against ``rival`` (IDA) at ``rtol`` (default 1e-6), at its ``ε_u``.
 
     ``ε_u`` is Eq. 42 against the tight reference; ``cost`` is ``"wall"``
-    or ``"cpu"`` (see :func:`speedups`).
+    or ``"cpu"`` (see :func:`speedups`); ``rival`` ``"ida"`` (scikit-sundae)
+    or ``"ida_c"`` (IDA in C, :mod:`benchmarks.ida_compiled`).
 
     Returns
     -------
     dict
-        ``ida``: IDA's run at ``rtol`` (``ε_u``, cost); ``hfdi``: the fastest
+        ``rival``; ``ida``: the rival's run at ``rtol`` (``ε_u``, cost); ``hfdi``: the fastest
         successful HFDI run with ``ε_u`` at most IDA's, or ``None``;
         ``ratio``: IDA's cost / that run's cost (measured against measured);
         ``hfdi_interpolated`` and ``ratio_interpolated``: HFDI's front
         interpolated at IDA's ``ε_u`` (log–log, no extrapolation);
         ``met``: ``ratio >= factor``; ``note`` says why not when not.
     """
-    out = {"cost": cost, "rtol": rtol, "factor": factor, "ida": None, "hfdi": None,
+    out = {"rival": rival, "cost": cost, "rtol": rtol, "factor": factor, "ida": None,
+           "hfdi": None,
            "ratio": None,
            "hfdi_interpolated": None, "interpolation": None,
            "ratio_interpolated": None, "met": False, "note": ""}
-    ida = [r for r in records if r["method"] == "ida" and r["rtol"] is not None
+    ida = [r for r in records if r["method"] == rival and r["rtol"] is not None
            and math.isclose(r["rtol"], rtol, rel_tol=1e-9)]
     if not ida or not ida[0]["success"]:
-        out["note"] = f"no successful IDA run at rtol {rtol:g}"
+        out["note"] = f"no successful {_method_name(rival)} run at rtol {rtol:g}"
         return out
     ida = ida[0]
     out["ida"] = {"eps_u": ida["eps_u"], cost: ida[cost], "steps": ida["steps"],
@@ -848,28 +892,10 @@ def format_problem(result) -> str:
             ratio += f"; CPU time: ×{cpu[0]['ratio']:.2f} ({cpu[0]['best_competitor']})"
         lines.append(f"    ε_u {p['eps_u']:.2e}  {p['method']} {p['label']} "
                      f"{p['wall'] * 1e3:.0f} ms | {', '.join(cells)} → {ratio}")
-    g = result["goal"]
     lines.append("")
-    if g["ida"] is None:
-        lines.append(f"  Goal (HFDI vs IDA rtol {g['rtol']:g}): {g['note']}")
-    else:
-        text = (f"  Goal (HFDI vs IDA rtol {g['rtol']:g}): IDA ε_u {g['ida']['eps_u']:.2e} in "
-                f"{g['ida']['wall'] * 1e3:.0f} ms; ")
-        if g["hfdi"] is not None:
-            text += (f"fastest HFDI run with ε_u ≤ that: {g['hfdi']['method']} {g['hfdi']['label']}, "
-                     f"ε_u {g['hfdi']['eps_u']:.2e}, {g['hfdi']['wall'] * 1e3:.0f} ms → "
-                     f"×{g['ratio']:.2f} measured")
-        else:
-            text += g["note"]
-        if g["ratio_interpolated"] is not None:
-            text += f"; on HFDI's front interpolated: ×{g['ratio_interpolated']:.2f}"
-        else:
-            text += f"; HFDI's front at IDA's ε_u: {g['interpolation']}"
-        gc = result["goal_cpu"]
-        if gc["ratio"] is not None:
-            text += f"; CPU time: ×{gc['ratio']:.2f} ({gc['hfdi']['method']} {gc['hfdi']['label']})"
-        text += (f". ≥{g['factor']:g}×: {'met' if g['met'] else 'NOT met'}")
-        lines.append(text)
+    goals = result.get("goals") or [result["goal"], result["goal_cpu"]]
+    for g, gc in zip(goals[::2], goals[1::2]):
+        lines.append(_format_goal(g, gc))
     m = result["machine"]
     lines.append(f"  ({m['cpu']}, {m['cpus_usable']} cores usable; load average "
                  f"{m['loadavg_start']} → {m['loadavg_end']}; this problem took "
@@ -883,11 +909,33 @@ def format_problem(result) -> str:
     return "\n".join(lines)
 
 
+def _format_goal(g, gc) -> str:
+    """One goal figure (:func:`goal`) by wall time, with its CPU-time ratio ``gc``."""
+    rival = _method_name(g.get("rival", "ida"))
+    head = f"  Goal (HFDI ≥{g['factor']:g}× {rival} rtol {g['rtol']:g})"
+    if g["ida"] is None:
+        return f"{head}: {g['note']}"
+    text = f"{head}: {rival} ε_u {g['ida']['eps_u']:.2e} in {g['ida']['wall'] * 1e3:.1f} ms; "
+    if g["hfdi"] is not None:
+        text += (f"fastest HFDI run with ε_u ≤ that: {g['hfdi']['method']} {g['hfdi']['label']}, "
+                 f"ε_u {g['hfdi']['eps_u']:.2e}, {g['hfdi']['wall'] * 1e3:.1f} ms → "
+                 f"×{g['ratio']:.2f} measured")
+    else:
+        text += g["note"]
+    if g["ratio_interpolated"] is not None:
+        text += f"; on HFDI's front interpolated: ×{g['ratio_interpolated']:.2f}"
+    else:
+        text += f"; HFDI's front at that ε_u: {g['interpolation']}"
+    if gc["ratio"] is not None:
+        text += f"; CPU time: ×{gc['ratio']:.2f} ({gc['hfdi']['method']} {gc['hfdi']['label']})"
+    return text + f": {'met' if g['met'] else 'NOT met'}"
+
+
 #: Colour, marker and line of each method: our schemes in the colours of every
 #: figure (:data:`validation.experiments.SCHEME_COLOURS`) with a marker by their
 #: place in :data:`hfdi.SCHEMES`, dotted when error-controlled.
 _MARKERS = SchemeStyle(("o", "s", "D", "X", "*", "h"), "x")
-_COMPETITOR_STYLE = {"ida": ("black", "^", "--"), "radau": ("tab:purple", "v", "--"),
+_COMPETITOR_STYLE = {"ida": ("black", "^", "--"), "ida_c": ("dimgray", "<", "-."), "radau": ("tab:purple", "v", "--"),
                      "bdf": ("tab:brown", "P", "--")}
 
 
@@ -904,6 +952,8 @@ def _style(method):
 
 def _method_name(method):
     """A method as the legends name it: ``HFDI``, ``GeneralizedAlpha (rtol)``, ``IDA``."""
+    if method == "ida_c":
+        return "IDA (C)"
     base, _, mode = method.partition("-")
     if base in SCHEMES:
         name = scheme_title(base)

@@ -13,6 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.__main__ import main as benchmarks_main  # noqa: E402
 from benchmarks.precision import (_mark_inaccurate, bench_problem, goal,  # noqa: E402
                                   interpolate_wall, pareto_front, speedups)
+from benchmarks.ida_compiled import available as ida_c_available  # noqa: E402
 
 # every test here runs the benchmark commands end to end: not in the quick loop
 pytestmark = pytest.mark.slow
@@ -75,6 +76,7 @@ def test_outputs_are_written(tiny):
                            ("newmark-rtol", None, 1e-5), ("bathe-rtol", None, 1e-5),
                            ("hfdi-rtol", None, 1e-5), ("generalized_alpha-rtol", None, 1e-5),
                            ("ida", None, 1e-4), ("ida", None, 1e-7),
+                           ("ida_c", None, 1e-4), ("ida_c", None, 1e-7),
                            ("radau", None, 1e-4), ("radau", None, 1e-7),
                            ("bdf", None, 1e-4), ("bdf", None, 1e-7)]
         png = (tiny / f"bench_{name}.png").read_bytes()
@@ -87,12 +89,16 @@ def test_records_are_complete_and_finite(tiny):
     for name in ("dumbbell", "articulated"):
         for r in _load(tiny, name)["records"]:
             assert RECORD_FIELDS <= set(r)
+            if r["method"] == "ida_c" and not ida_c_available()[0]:
+                # one line says why: the library is not installed
+                assert r["status"] == "SKIPPED" and "libsundials" in r["message"]
+                continue
             assert r["success"], r
             assert r["status"] == "SUCCESS" and r["t_reached"] == 0.05
             assert r["wall"] > 0 and r["cpu"] > 0 and r["steps"] > 0 and r["nfev"] > 0
             assert r["eps_u"] is not None and 0 < r["eps_u"] < 1e-2
             assert math.isclose(r["eps"]["u"], r["eps_u"], rel_tol=1e-12)
-            if r["kind"] == "ours":
+            if r["kind"] == "ours" or r["method"] == "ida_c":
                 assert r["newton_iterations"] >= r["steps"]
             else:
                 assert r["newton_iterations"] is None
@@ -101,7 +107,9 @@ def test_records_are_complete_and_finite(tiny):
 def test_competitors_converge_as_rtol_tightens(tiny):
     for name in ("dumbbell", "articulated"):
         records = _load(tiny, name)["records"]
-        for method in ("ida", "radau", "bdf"):
+        for method in ("ida", "ida_c", "radau", "bdf"):
+            if method == "ida_c" and not ida_c_available()[0]:
+                continue
             loose, tight = [r for r in records if r["method"] == method]
             assert tight["rtol"] < loose["rtol"]
             # three decades of rtol: at least one decade of ε
@@ -117,7 +125,7 @@ def test_speedup_rows_refer_to_the_runs(tiny):
         assert row["method"] in ("newmark", "bathe", "hfdi", "generalized_alpha",
                                  "newmark-rtol", "bathe-rtol", "hfdi-rtol",
                                  "generalized_alpha-rtol")
-        assert set(row["competitors"]) == {"ida", "radau", "bdf"}
+        assert set(row["competitors"]) == {"ida", "ida_c", "radau", "bdf"}
         if row["ratio"] is not None:
             best = row["competitors"][row["best_competitor"]]
             assert best["range"] == "in range"
@@ -125,6 +133,11 @@ def test_speedup_rows_refer_to_the_runs(tiny):
     g = data["goal"]
     assert g["rtol"] == 1e-6 and g["ida"] is None     # no IDA run at 1e-6 here
     assert "no successful IDA run" in g["note"]
+    # the goals against IDA in C (rtol 1e-6 and 1e-8), by wall and CPU time
+    assert [(g["rival"], g["rtol"], g["cost"]) for g in data["goals"]] == [
+        (rival, rtol, cost) for rival, rtol in (("ida", 1e-6), ("ida_c", 1e-6), ("ida_c", 1e-8))
+        for cost in ("wall", "cpu")]
+    assert "no successful IDA (C) run" in data["goals"][2]["note"]
 
 
 def test_generalized_alpha_has_its_rows_in_the_tables(tiny):
@@ -211,11 +224,12 @@ def test_blas_threads_do_not_change_the_numbers(cache_dir, tmp_path, monkeypatch
 
 
 def test_a_failed_competitor_is_recorded_not_raised(cache_dir):
+    competitors = ["ida", "bdf"] + (["ida_c"] if ida_c_available()[0] else [])
     res = bench_problem("dumbbell", schemes=["hfdi"], targets=[3.0], rtols=[1e-4, 1e-8],
-                        competitors=["ida", "bdf"], t_end=0.05, repeats=1, max_nfev=40,
+                        competitors=competitors, t_end=0.05, repeats=1, max_nfev=40,
                         skip_nfev=10)
     by = {(r["method"], r["rtol"]): r for r in res["records"]}
-    for method in ("ida", "bdf"):
+    for method in competitors:
         failed, skipped = by[(method, 1e-4)], by[(method, 1e-8)]
         assert not failed["success"] and failed["status"] == "BUDGET"
         assert "work budget" in failed["message"] and failed["eps_u"] is None
