@@ -181,12 +181,31 @@ _new_functions_compiled = njit(**JIT_OPTIONS)(_new_functions)
 _NEW_FUNCTIONS = _FUNCTIONS_TYPE(*(field_type(kind) for _, kind in FUNCTIONS.fields))
 
 
+#: The structs made so far, by their dispatchers: a struct only holds the
+#: functions' addresses and is never written after it is made, so runs of the
+#: same kernels share one (making it takes about 0.5 ms, a third of the fixed
+#: cost of ``integrate``). Bounded: a process making models without end keeps
+#: the newest.
+_FUNCTION_STRUCTS: dict = {}
+_FUNCTION_STRUCTS_KEPT = 64
+
+
 def function_struct_of(functions):
     """FUNCTIONS' struct of the named tuple ``functions`` of numba dispatchers
     (each compiled for its signature first: loaded from the disk cache, or
     compiled)."""
     # entries of the library (hfdi.core.jit.entry) stand for their dispatchers
-    functions = [getattr(function, "dispatcher", function) for function in functions]
+    functions = tuple(getattr(function, "dispatcher", function) for function in functions)
+    made = _FUNCTION_STRUCTS.get(functions)
+    if made is None:
+        made = _make_function_struct(functions)
+        if len(_FUNCTION_STRUCTS) >= _FUNCTION_STRUCTS_KEPT:
+            _FUNCTION_STRUCTS.pop(next(iter(_FUNCTION_STRUCTS)))
+        _FUNCTION_STRUCTS[functions] = made
+    return made
+
+
+def _make_function_struct(functions):
     for (name, kind), dispatcher in zip(FUNCTIONS.fields, functions):
         signature = field_type(kind).signature
         if signature.args not in dispatcher.overloads:
