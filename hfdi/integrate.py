@@ -83,7 +83,10 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     **options
         Passed to :class:`Integrator` (``first_step``, ``min_step``,
         ``max_step``, ``max_halvings``, ``max_steps``, ``max_iterations``,
-        ``energy_limit``, ``controller``, ``breakpoints``, ...).
+        ``energy_limit``, ``controller``, ``breakpoints``, ``events``,
+        ``on_event``, ...). With ``events`` the zeros are in
+        :attr:`Result.t_events` (and ``u_events``, ``v_events``); a
+        terminal event ends the run there (``Status.TERMINATED``, a success).
 
     Returns
     -------
@@ -262,7 +265,14 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
     status = integrator.status if not ok else Status.SUCCESS
     message = integrator.message if not ok else "reached t_end"
     rtol, atol = integrator.tolerances or (None, None)
+    if status == Status.TERMINATED and t_eval is not None:
+        # as solve_ivp: the output times up to where the run ended
+        keep = t_eval <= integrator.t
+        t_eval, u_eval, v_eval = t_eval[keep], u_eval[keep], v_eval[keep]
+    t_events, u_events, v_events = integrator.t_events, integrator.u_events, \
+        integrator.v_events
     return Result(**rows.arrays(), status=status, message=message,
+                  t_events=t_events, u_events=u_events, v_events=v_events,
                   stats=integrator.statistics, scheme=integrator.scheme.name,
                   t_eval=t_eval, u_eval=None if t_eval is None else u_eval,
                   v_eval=None if t_eval is None else v_eval, system=system,

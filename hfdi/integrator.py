@@ -26,6 +26,7 @@ from .core.state import CUSTOM, RUN
 from .core.state import HFDI as HFDI_STAGE
 from .evaluation import Evaluator, ModelError, ModelFault, State
 from .compiled_steps import CompiledSteps
+from .event_steps import EventSteps
 from .integrator_state import IntegratorState, check_state
 from .messages import Status, stop_message
 from .options import (NEWTON_TESTS, breakpoints_of, fit_error_control, initial_vector,
@@ -51,7 +52,7 @@ STEPS_PER_CALL = 10_000
 MAX_COUNT = 2 ** 62
 
 
-class Integrator(CompiledSteps):
+class Integrator(CompiledSteps, EventSteps):
     """Adaptive predictor–corrector integration of ``M u'' + C u' + f(u) = p(t)``.
 
     Four modes, chosen by the arguments (docs/accuracy.md says when to use
@@ -175,6 +176,18 @@ class Integrator(CompiledSteps):
         (:class:`~hfdi.controller.ErrorControl`'s ``span``) where it is not
         ``t_bound − t0``: a co-simulation unit knows the experiment's stop
         time but steps without a bound.
+    events : callable or list of callables, optional
+        Event functions ``g(t, u, v) -> float`` whose zeros the run locates
+        (``solve_ivp``'s convention: attributes ``terminal``, ``True`` or a
+        count, and ``direction``, −1, 0 or +1; :mod:`hfdi.events`), found in
+        :attr:`t_events`, :attr:`u_events`, :attr:`v_events`. A terminal
+        event ends the run at its zero (``Status.TERMINATED``, not a
+        failure).
+    on_event : callable ``on_event(t, u, v, which) -> (u, v) or None``, optional
+        Called at every zero (``which``: the event function's index); a
+        state it returns replaces the current one there (an impact), and
+        the run restarts from it as after a load breakpoint, the energy of
+        the jump counted as work done on the system (``external_work``).
 
     Raises
     ------
@@ -195,7 +208,8 @@ class Integrator(CompiledSteps):
                  tol=None, first_step=None, min_step=None, max_step=None, max_halvings=30,
                  max_steps=1_000_000, max_iterations=None, first_step_trials=40, t_bound=None,
                  energy_limit=None, extra_load=None, breakpoints=None, check_stiffness=True,
-                 compiled=None, newton_test=None, global_error=True, error_span=None):
+                 compiled=None, newton_test=None, global_error=True, error_span=None,
+                 events=None, on_event=None):
         self.scheme: Scheme = get_scheme(scheme)
         if not isinstance(global_error, (bool, np.bool_)):
             raise ValueError(f"global_error must be True or False, got {global_error!r}")
@@ -308,6 +322,7 @@ class Integrator(CompiledSteps):
         self._compiled_call = None      # (fn, cfg array, data, vec) of the compiled loop
         self._not_compiled = ""         # why the steps run in Python
         self._choose_path(compiled, current, K0, T0, potential)
+        self._setup_events(events, on_event)
         self._absorb_counts()
         self._run_cpu = time.process_time() - start
 
@@ -706,14 +721,14 @@ class Integrator(CompiledSteps):
             For ``t_limit`` before the current time.
         """
         t_limit = time_value("t_limit", t_limit)
-        if self.failed or self.finished or t_limit == self.t:
+        if self.failed or self.finished or self.terminated or t_limit == self.t:
             return False
         if not t_limit > self.t:
             raise ValueError(f"t_limit must be > t = {self.t}, got {t_limit!r}")
         if not self._follow_model():
             return False
         accepted = self._run.accepted
-        self._steps(t_limit, 1)
+        self._take_steps(t_limit, 1)
         return self._run.accepted > accepted and not self.failed
 
     def advance(self, t_stop: float, callback=None, rows=None) -> bool:
@@ -750,7 +765,7 @@ class Integrator(CompiledSteps):
             raise ValueError(f"t_stop must be finite and >= t = {self.t}, got {t_stop!r}")
         if self.t_bound is not None and t_stop > self.t_bound:
             raise ValueError(f"t_stop must be <= t_bound = {self.t_bound}, got {t_stop!r}")
-        if self.failed:             # even at t_stop = t: the run did not get there well
+        if self.failed or self.terminated:   # even at t_stop = t: it did not get there
             return False
         if rows is not None and not self._vec.row_t.shape[0]:
             self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
@@ -758,12 +773,12 @@ class Integrator(CompiledSteps):
         self._rows = rows
         try:
             while self.t < t_stop:
-                if self.failed:
+                if self.failed or self.terminated:
                     return False
                 if not self._follow_model():
                     return False
                 accepted = self._run.accepted
-                self._steps(t_stop, 1 if callback is not None else STEPS_PER_CALL)
+                self._take_steps(t_stop, 1 if callback is not None else STEPS_PER_CALL)
                 if callback is not None and self._run.accepted > accepted and (
                         not self.failed or self._run.status == Status.ENERGY_GROWTH):
                     callback(self)

@@ -23,6 +23,9 @@ class Status(enum.IntEnum):
     of the load or potential energy (a load or state of the order of 1e150
     or more); that state is not accepted.
 
+    ``TERMINATED``: a terminal event function reached its zero (its last
+    allowed one) and the run ended there, as asked; a success.
+
     ``TOLERANCE_NOT_MET``: ``integrate(error="global")`` reached ``t_end``,
     but its last run's estimated global error is above the tolerance (or
     the estimate was lost); the result is that run's, complete.
@@ -39,6 +42,8 @@ class Status(enum.IntEnum):
     MODEL_ERROR = codes.MODEL_ERROR
     OVERFLOW = codes.OVERFLOW
     TOLERANCE_NOT_MET = codes.TOLERANCE_NOT_MET
+    #: a terminal event ended the run at its zero (not a failure: ``success``)
+    TERMINATED = 2
 
 
 _ATTEMPT = {

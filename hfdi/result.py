@@ -131,6 +131,11 @@ class Result:
         tighter ones); ``None`` in the modes without error control.
     runs : int
         The runs made (``error="global"`` may repeat one).
+    t_events : list of ndarray (k,) or None
+        Per event function (``events=``), the times of its zeros, in order;
+        ``None`` without events.
+    u_events, v_events : list of ndarray (k, N) or None
+        ``u`` and ``v`` at those zeros (by the dense output).
     """
 
     t: np.ndarray
@@ -155,13 +160,17 @@ class Result:
     rtol: np.ndarray | None = None
     atol: np.ndarray | None = None
     runs: int = 1
+    t_events: list | None = None
+    u_events: list | None = None
+    v_events: list | None = None
     #: The largest |u|, |v| and |g| (2N) over every accepted step, kept or not
     #: (:attr:`global_error_ratio`); None: from the kept rows.
     peaks: tuple | None = field(default=None, repr=False)
 
     @property
     def success(self) -> bool:
-        return self.status == Status.SUCCESS
+        """Whether the run reached ``t_end``, or a terminal event, as asked."""
+        return self.status in (Status.SUCCESS, Status.TERMINATED)
 
     @property
     def global_error_ratio(self) -> float | None:

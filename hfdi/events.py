@@ -1,0 +1,254 @@
+"""Events: zero crossings of functions of the state, found between step ends.
+
+An event function is ``g(t, u, v) -> float``, with ``solve_ivp``'s optional
+attributes ``terminal`` (``True`` ends the run at the first zero, an integer
+``k`` at the ``k``-th) and ``direction`` (``+1`` only where ``g`` rises
+through zero, ``−1`` only where it falls, ``0`` both). After each accepted
+step ``g`` is evaluated at the step's end; a change of sign (or a zero at the
+end) is located on the step's dense output (:mod:`hfdi.dense`, the quintic
+Hermite of ``u`` and the cubic of ``v``) by Brent's bracketing method to
+within ``4ε`` of ``t``, as ``solve_ivp`` does. Several zeros in one step are
+taken in time order. A zero exactly at ``t0`` counts when ``g`` then leaves
+zero in the event's direction (as ``solve_ivp``); a zero exactly at a step
+end counts once, in the step that reaches it. A change of sign and back
+within one step is not seen (as in every method that samples ``g`` at step
+ends): a step no longer than the time ``g`` stays on one side is the user's
+to ask for (``max_step``).
+
+:class:`Events` keeps the functions, their last values, the counts and the
+events found; :class:`~hfdi.Integrator` asks it for the zeros of each step
+and decides what they do (docs/algorithm.md, "Events").
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from .dense import interpolate_state
+
+__all__ = ["Events", "EventError", "Crossing", "ROOT_TOLERANCE", "LEAVING"]
+
+#: Brent's absolute and relative tolerance on ``t`` (``solve_ivp``'s).
+ROOT_TOLERANCE = 4.0 * np.finfo(float).eps
+#: Where, as a share of the step, a function that starts it at a counted zero
+#: is first looked at: far enough for the motion to show above the zero's
+#: rounding, near enough that no other zero falls before it.
+LEAVING = 1e-6
+
+
+class EventError(ValueError):
+    """An event function that raised, or did not return a finite real number."""
+
+
+class Crossing:
+    """One zero of event function ``index`` at ``t``, the state ``u``, ``v`` there."""
+
+    __slots__ = ("t", "index", "u", "v")
+
+    def __init__(self, t, index, u, v):
+        self.t, self.index, self.u, self.v = t, index, u, v
+
+    def __repr__(self):
+        return f"Crossing(t={self.t!r}, index={self.index})"
+
+
+def _read_only(x):
+    """A read-only copy: an event function that writes into its arguments
+    cannot reach the run's arrays."""
+    x = np.array(x, dtype=float)
+    x.flags.writeable = False
+    return x
+
+
+def _as_list(events):
+    if callable(events):
+        return [events]
+    try:
+        items = list(events)
+    except TypeError:
+        raise ValueError(f"events must be a callable g(t, u, v) -> float or a list of them, "
+                         f"got {events!r}") from None
+    if not items:
+        raise ValueError("events must not be empty (give None for no events)")
+    for i, g in enumerate(items):
+        if not callable(g):
+            raise ValueError(f"events[{i}] must be callable as g(t, u, v) -> float, got {g!r}")
+    return items
+
+
+def _terminal(i, g):
+    """The count of zeros that ends the run (``inf``: never)."""
+    value = getattr(g, "terminal", False)
+    if isinstance(value, (bool, np.bool_)):
+        return 1.0 if value else math.inf
+    if isinstance(value, numbers.Integral) and value >= 1:
+        return float(value)
+    raise ValueError(f"events[{i}].terminal must be True, False or an integer >= 1 (the "
+                     f"count of zeros that ends the run), got {value!r}")
+
+
+def _direction(i, g):
+    value = getattr(g, "direction", 0)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) \
+            or not math.isfinite(value):
+        raise ValueError(f"events[{i}].direction must be -1, 0 or +1 (its sign is used), got "
+                         f"{value!r}")
+    return float(np.sign(value))
+
+
+class Events:
+    """The event functions of a run and what they found.
+
+    Parameters
+    ----------
+    events : callable or sequence of callables
+        ``g(t, u, v) -> float``; attributes ``terminal`` and ``direction`` as
+        in ``solve_ivp`` (module docstring).
+    """
+
+    def __init__(self, events):
+        self.functions = _as_list(events)
+        self.direction = np.array([_direction(i, g) for i, g in enumerate(self.functions)])
+        self.limit = np.array([_terminal(i, g) for i, g in enumerate(self.functions)])
+        m = len(self.functions)
+        self.count = np.zeros(m, dtype=int)
+        self.t_events = [[] for _ in range(m)]
+        self.u_events = [[] for _ in range(m)]
+        self.v_events = [[] for _ in range(m)]
+        #: ``g`` at the current time, and whether a zero there was counted
+        self.g = np.full(m, math.nan)
+        self.counted_zero = np.zeros(m, dtype=bool)
+
+    def __len__(self):
+        return len(self.functions)
+
+    def value(self, i, t, u, v) -> float:
+        """``g_i(t, u, v)`` as a float; :class:`EventError` naming ``events[i]`` when
+        it raises or gives no finite real number."""
+        try:
+            value = self.functions[i](t, u, v)
+        except Exception as exc:
+            raise EventError(f"events[{i}] raised {type(exc).__name__}: {exc} at t = {t!r}") \
+                from exc
+        try:
+            if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+                raise TypeError
+            value = float(value)
+        except (TypeError, ValueError):
+            raise EventError(f"events[{i}] must return a real number, got {value!r} at "
+                             f"t = {t!r}") from None
+        if not math.isfinite(value):
+            raise EventError(f"events[{i}] returned {value} at t = {t!r}; an event function "
+                             f"must be finite wherever the run goes")
+        return value
+
+    def values(self, t, u, v) -> np.ndarray:
+        """Every function at ``(t, u, v)`` (read-only copies are passed)."""
+        u, v = _read_only(u), _read_only(v)
+        return np.array([self.value(i, t, u, v) for i in range(len(self))])
+
+    def table(self, t, u, v) -> np.ndarray:
+        """Every function at every row of ``t`` (k,), ``u``, ``v`` (k, N): (k, m)."""
+        u, v = _read_only(u), _read_only(v)
+        out = np.empty((t.size, len(self)))
+        value = self.value
+        for i in range(len(self)):
+            column = out[:, i]
+            for j in range(t.size):
+                column[j] = value(i, float(t[j]), u[j], v[j])
+        return out
+
+    def start(self, t, u, v) -> None:
+        """The values at the initial (or a restarted) state; no zero counted there yet."""
+        self.g = self.values(t, u, v)
+        self.counted_zero[:] = False
+
+    def active(self, left, right):
+        """Which functions cross zero between the values ``left`` and ``right``
+        (arrays (..., m)) in their direction (``solve_ivp``'s rule)."""
+        up = (left <= 0) & (right >= 0)
+        down = (left >= 0) & (right <= 0)
+        return (up & (self.direction > 0)) | (down & (self.direction < 0)) | \
+            ((up | down) & (self.direction == 0))
+
+    def crossings(self, t0, u0, v0, a0, t1, u1, v1, a1, g1):
+        """The zeros in the step from ``t0`` to ``t1`` (the states at both ends,
+        ``g1`` the functions' values at ``t1``), in time order; nothing is
+        recorded (:meth:`record`, :meth:`moved`)."""
+        nodes = np.array([t0, t1])
+        stack = (np.vstack([u0, u1]), np.vstack([v0, v1]), np.vstack([a0, a1]))
+
+        def state(t):
+            u, v = interpolate_state(nodes, *stack, np.array([t]))
+            return u[0], v[0]
+
+        # A function at a zero counted at t0 (an event there, or a reset at
+        # it) starts the step on the side it leaves to: its value just after
+        # t0 on the dense output, so that leaving the zero and coming back
+        # within the step (a bounce's whole flight) is a crossing.
+        left_t = np.full(len(self), float(t0))
+        left_g = self.g.copy()
+        for i in np.flatnonzero((self.g == 0) & self.counted_zero):
+            after = t0 + LEAVING * (t1 - t0)
+            if after < t1:
+                left_t[i], left_g[i] = after, self.value(i, after, *map(_read_only,
+                                                                          state(after)))
+        active = self.active(left_g, g1)
+        # g staying at zero is no crossing, nor a zero already counted
+        active &= ~((left_g == 0) & (g1 == 0)) & ~((left_g == 0) & self.counted_zero)
+        found = []
+        for i in np.flatnonzero(active):
+            if left_g[i] == 0:
+                t_root = left_t[i]
+            elif g1[i] == 0:
+                t_root = t1
+            else:
+                t_root = self._root(i, left_t[i], t1, left_g[i], g1[i], state)
+            if t_root == t0:
+                u, v = u0.copy(), v0.copy()
+            elif t_root == t1:
+                u, v = u1.copy(), v1.copy()
+            else:
+                u, v = state(t_root)
+            found.append(Crossing(float(t_root), int(i), u, v))
+        found.sort(key=lambda c: (c.t, c.index))
+        return found
+
+    def _root(self, i, t0, t1, g0, g1, state):
+        from scipy.optimize import brentq
+
+        def g(t):
+            # the ends' values are the step ends' own (the dense output meets
+            # them there, up to rounding that could hide the bracket)
+            if t == t0:
+                return g0
+            if t == t1:
+                return g1
+            return self.value(i, t, *map(_read_only, state(t)))
+        return brentq(g, t0, t1, xtol=ROOT_TOLERANCE, rtol=ROOT_TOLERANCE)
+
+    def record(self, crossing: Crossing) -> bool:
+        """Count ``crossing``; whether it is a terminal event's last allowed zero."""
+        i = crossing.index
+        self.count[i] += 1
+        self.t_events[i].append(crossing.t)
+        self.u_events[i].append(crossing.u)
+        self.v_events[i].append(crossing.v)
+        return self.count[i] >= self.limit[i]
+
+    def moved(self, g1, counted=()) -> None:
+        """The step's end is the current time: ``g`` there, and the events whose
+        zero was counted exactly there."""
+        self.g = np.asarray(g1, dtype=float)
+        self.counted_zero[:] = False
+        for i in counted:
+            self.counted_zero[i] = True
+
+    def arrays(self, n):
+        """``t_events``, ``u_events``, ``v_events``: per function an array of
+        times (k,) and of states (k, N)."""
+        return ([np.array(t, dtype=float) for t in self.t_events],
+                [np.array(u, dtype=float).reshape(-1, n) for u in self.u_events],
+                [np.array(v, dtype=float).reshape(-1, n) for v in self.v_events])

@@ -1,0 +1,241 @@
+"""Events: zeros of g(t, u, v) located between step ends, terminal events, resets.
+
+Against exact event times: a linear oscillator's zero crossings and extrema,
+and a bouncing ball with restitution (impact times in closed form, which the
+schemes integrate exactly between impacts, so only the event machinery can
+err). Both speeds find the same events at the same times.
+"""
+import math
+
+import numpy as np
+import pytest
+
+import hfdi
+from hfdi.events import EventError
+
+from problems import schemes_quick
+
+W = 3.0          # the oscillator's angular frequency
+G, H0, E = 9.81, 1.0, 0.8
+
+
+def oscillator():
+    return hfdi.LinearSystem(mass=[1.0], stiffness=[[W * W]], initial_displacement=[1.0],
+                             initial_velocity=[0.0])
+
+
+def ball():
+    return hfdi.LinearSystem(mass=[1.0], stiffness=[[0.0]], load=lambda t: np.array([-G]),
+                             initial_displacement=[H0], initial_velocity=[0.0])
+
+
+def impact_times(count):
+    """The ball's impacts: first at √(2 H0/G), then each flight 2 eᵏ v1 / G."""
+    t1 = math.sqrt(2 * H0 / G)
+    v1 = G * t1
+    times = [t1]
+    for k in range(1, count):
+        times.append(times[-1] + 2 * E ** k * v1 / G)
+    return np.array(times)
+
+
+def floor_event():
+    def floor(t, u, v):
+        return u[0]
+    floor.direction = -1
+    return floor
+
+
+def bounce(t, u, v, which):
+    return u, -E * v
+
+
+def test_oscillator_zeros_and_extrema_hfdi():
+    """u = cos 3t: u's zeros at (k + ½)π/3, v's (the extrema) at kπ/3 — t0 too,
+    where v starts at zero and leaves it (as solve_ivp counts it)."""
+    r = hfdi.integrate(oscillator(), "hfdi", 2.0, rtol=1e-10,
+                       events=[lambda t, u, v: u[0], lambda t, u, v: v[0]])
+    assert r.success
+    tu, tv = r.t_events
+    np.testing.assert_allclose(tu, (np.arange(2) + 0.5) * math.pi / W, rtol=1e-10, atol=0)
+    np.testing.assert_allclose(tv, np.arange(2) * math.pi / W, rtol=1e-10, atol=1e-15)
+    # the state at the events: by the dense output
+    np.testing.assert_allclose(r.u_events[0][:, 0], 0.0, atol=1e-10)
+    np.testing.assert_allclose(np.abs(r.v_events[0][:, 0]), W, rtol=1e-9)
+    np.testing.assert_allclose(np.abs(r.u_events[1][:, 0]), 1.0, rtol=1e-9)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "generalized_alpha"])
+def test_oscillator_zeros_second_order_schemes(scheme):
+    r = hfdi.integrate(oscillator(), scheme, 2.0, rtol=1e-7, events=lambda t, u, v: u[0])
+    assert r.success
+    # the times are as accurate as the solution: its error over the speed
+    np.testing.assert_allclose(r.t_events[0], (np.arange(2) + 0.5) * math.pi / W, rtol=1e-7)
+
+
+def test_direction_is_honoured():
+    up = lambda t, u, v: u[0]        # noqa: E731
+    up.direction = 1
+    down = lambda t, u, v: u[0]      # noqa: E731
+    down.direction = -1
+    r = hfdi.integrate(oscillator(), "hfdi", 4.0, rtol=1e-8, events=[up, down])
+    # cos 3t falls through zero at π/6, rises at π/2, falls at 5π/6, ...
+    zeros = (np.arange(4) + 0.5) * math.pi / W
+    np.testing.assert_allclose(r.t_events[0], zeros[1::2], rtol=1e-7)
+    np.testing.assert_allclose(r.t_events[1], zeros[0::2], rtol=1e-7)
+
+
+@pytest.mark.parametrize("compiled", [False, None])
+def test_a_terminal_event_ends_the_run_at_its_zero(compiled):
+    g = lambda t, u, v: u[0]         # noqa: E731
+    g.terminal = 2
+    r = hfdi.integrate(oscillator(), "hfdi", 10.0, rtol=1e-9, events=g, compiled=compiled,
+                       t_eval=np.linspace(0, 10, 11))
+    assert r.status == hfdi.Status.TERMINATED and r.success
+    assert "events[0]" in r.message
+    expected = 1.5 * math.pi / W
+    assert r.t[-1] == r.t_events[0][-1]
+    assert r.t_events[0].size == 2
+    assert abs(r.t[-1] - expected) <= 1e-9 * expected
+    assert abs(r.u[-1, 0]) <= 1e-8
+    # t_eval only up to the end, as solve_ivp
+    assert r.t_eval[-1] <= r.t[-1] and r.u_eval.shape == (r.t_eval.size, 1)
+    assert not np.isnan(r.u_eval).any()
+
+
+def test_several_events_in_one_step_come_in_time_order():
+    """Five levels crossed by one long step (the ball's free fall is exact in
+    a few steps): each found, in time order."""
+    levels = [0.9, 0.7, 0.5, 0.3, 0.1]
+    events = [(lambda c: lambda t, u, v: u[0] - c)(c) for c in levels]
+    r = hfdi.integrate(ball(), "newmark", 0.45, step=0.45, events=events)
+    assert r.stats.steps == 1
+    found = [te[0] for te in r.t_events]
+    np.testing.assert_allclose(found, [math.sqrt(2 * (H0 - c) / G) for c in levels],
+                               rtol=1e-12)
+    order = []
+    record = []
+
+    def watch(t, u, v, which):
+        record.append((t, which))
+        return None
+    hfdi.integrate(ball(), "newmark", 0.45, step=0.45, events=events[::-1], on_event=watch)
+    order = [which for _, which in record]
+    assert order == [4, 3, 2, 1, 0]          # the functions given in reverse
+    assert [t for t, _ in record] == sorted(t for t, _ in record)
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
+def test_bouncing_ball_with_restitution(scheme):
+    """Impacts at the closed-form times (to rounding: the flight is a
+    parabola every scheme integrates exactly), the energy that each impact
+    takes recorded as work, so that the energy balance stays closed."""
+    r = hfdi.integrate(ball(), scheme, 3.0, rtol=1e-6, events=floor_event(),
+                       on_event=bounce)
+    assert r.success
+    exact = impact_times(20)
+    exact = exact[exact < 3.0]
+    np.testing.assert_allclose(r.t_events[0], exact, rtol=1e-12)
+    assert r.u.min() > -1e-12
+    # v jumps from −e^k v1 to +e^(k+1) v1 at each impact: the row after it
+    after = np.flatnonzero((r.step_size == 0) & (r.v[:, 0] > 0))
+    assert after.size == exact.size
+    v1 = G * exact[0]
+    np.testing.assert_allclose(r.v[after, 0], v1 * E ** np.arange(1, exact.size + 1),
+                               rtol=1e-12)
+    # the lost kinetic energy ½(1 − e²)v² per impact is the (negative) work
+    balance = r.total_energy - r.external_work
+    assert np.abs(balance - balance[0]).max() <= 1e-12 * G * H0
+    lost = 0.5 * (1 - E ** 2) * (v1 * E ** np.arange(exact.size)) ** 2
+    gravity_work = r.external_work[-1] - (-lost.sum())
+    u_last = r.u[-1, 0]
+    assert math.isclose(gravity_work, G * (H0 - u_last), rel_tol=1e-10)
+
+
+def test_both_speeds_find_the_same_events():
+    """The dumbbell compiled and on the Python path: the same steps and the
+    same event times, bit for bit."""
+    def g(t, u, v):
+        return u[2] - u[0]
+    runs = [hfdi.integrate(hfdi.models.get("dumbbell"), "hfdi", 0.35, rtol=1e-4, events=g,
+                           compiled=compiled) for compiled in (False, True)]
+    assert runs[1].stats.steps == runs[0].stats.steps
+    assert runs[0].t_events[0].size >= 1
+    assert np.array_equal(runs[0].t_events[0], runs[1].t_events[0])
+    assert np.array_equal(runs[0].u_events[0], runs[1].u_events[0])
+
+
+def test_events_do_not_change_the_steps():
+    g = lambda t, u, v: u[0]         # noqa: E731
+    a = hfdi.integrate(oscillator(), "hfdi", 2.0, rtol=1e-6, events=g)
+    b = hfdi.integrate(oscillator(), "hfdi", 2.0, rtol=1e-6)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.u, b.u)
+
+
+def test_an_event_at_t0():
+    """g(t0) = 0: counted at t0 when g leaves zero in its direction (as
+    solve_ivp), not when it leaves the other way."""
+    g = lambda t, u, v: v[0]         # noqa: E731
+    g.direction = -1                 # v = −3 sin 3t leaves zero downwards
+    r = hfdi.integrate(oscillator(), "hfdi", 0.5, rtol=1e-8, events=g)
+    assert r.t_events[0].tolist() == [0.0]
+    g.direction = 1
+    r = hfdi.integrate(oscillator(), "hfdi", 0.5, rtol=1e-8, events=g)
+    assert r.t_events[0].size == 0
+
+
+def test_the_integrator_reports_events_as_it_steps():
+    g = lambda t, u, v: u[0]         # noqa: E731
+    itg = hfdi.Integrator(oscillator(), "hfdi", rtol=1e-8, t_bound=2.0, events=[g])
+    assert itg.t_events[0].size == 0
+    while itg.step():
+        pass
+    assert itg.status == hfdi.Status.SUCCESS
+    np.testing.assert_allclose(itg.t_events[0], (np.arange(2) + 0.5) * math.pi / W,
+                               rtol=1e-7)
+    assert hfdi.Integrator(oscillator(), "hfdi", t_bound=1.0).t_events is None
+
+
+def test_bad_events_are_refused_by_name():
+    with pytest.raises(ValueError, match="events"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, events=3)
+    with pytest.raises(ValueError, match=r"events\[1\]"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, events=[lambda t, u, v: 0.0, 5])
+    g = lambda t, u, v: u[0]         # noqa: E731
+    g.terminal = 0
+    with pytest.raises(ValueError, match=r"events\[0\]\.terminal"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, events=g)
+    g = lambda t, u, v: u[0]         # noqa: E731
+    g.direction = "up"
+    with pytest.raises(ValueError, match=r"events\[0\]\.direction"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, events=g)
+    with pytest.raises(ValueError, match="on_event"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, on_event=bounce)
+    with pytest.raises(ValueError, match="on_event"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, events=g, on_event=4)
+    # at the initial state: refused before the run
+    with pytest.raises(EventError, match=r"events\[0\] returned nan"):
+        hfdi.integrate(oscillator(), "hfdi", 1.0, events=lambda t, u, v: math.nan)
+
+
+def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
+    def g(t, u, v):
+        if t > 0.3:
+            raise RuntimeError("out of range")
+        return u[0]
+    r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=g)
+    assert r.status == hfdi.Status.MODEL_ERROR and not r.success
+    assert "events[0] raised RuntimeError: out of range" in r.message
+    assert r.t[-1] <= 0.3 + 1e-12 or r.t[-1] < 1.0
+
+    def nan_after(t, u, v):
+        return math.nan if t > 0.3 else u[0]
+    r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=nan_after)
+    assert r.status == hfdi.Status.MODEL_ERROR and "returned nan" in r.message
+
+    def bad_reset(t, u, v, which):
+        return "no"
+    r = hfdi.integrate(ball(), "hfdi", 1.0, rtol=1e-6, events=floor_event(),
+                       on_event=bad_reset)
+    assert r.status == hfdi.Status.MODEL_ERROR and "on_event must return" in r.message
