@@ -17,7 +17,6 @@ energy balance does not report it as numerical dissipation
 """
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
