@@ -22,7 +22,13 @@ from .models.loads import hat_load_params
 from .stepping.loop import advance_affine, advance_hfdi
 from .system import HeldLoad
 
-__all__ = ["CompiledSteps"]
+__all__ = ["CompiledSteps", "FLEXIBLE_PATH"]
+
+#: What a run says once per process and reason when its model keeps it off the
+#: compiled path (docs/compiled.md, "Models", for a model that runs compiled).
+FLEXIBLE_PATH = ("the steps run in Python, 30 to 80 times slower per Newton iteration than "
+                 "compiled, because {reason}; docs/compiled.md (\"Models\") tells how a "
+                 "model runs compiled")
 
 
 class CompiledSteps:
@@ -48,6 +54,7 @@ class CompiledSteps:
         if reason:
             compiled_path.refused(compiled, reason, "the compiled path cannot run")
             self._not_compiled = str(reason)
+            compiled_path.say_once(reason, FLEXIBLE_PATH)
             return
         self._use_compiled(kernels)
 
