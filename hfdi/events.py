@@ -54,6 +54,29 @@ class Crossing:
         return f"Crossing(t={self.t!r}, index={self.index})"
 
 
+def _compiled(g) -> bool:
+    """Whether ``g`` is a numba dispatcher (``@numba.njit``), without importing numba."""
+    return type(g).__module__.startswith("numba.") and hasattr(g, "py_func")
+
+
+_TABLE = []
+
+
+def _compiled_table():
+    """``table(g, t, u, v, out)``: ``out[j] = g(t[j], u[j], v[j])`` compiled (one
+    specialisation per event function ``g``, as numba compiles a function for
+    each function it is given)."""
+    if not _TABLE:
+        import numba
+
+        @numba.njit
+        def table(g, t, u, v, out):
+            for j in range(t.shape[0]):
+                out[j] = g(t[j], u[j], v[j])
+        _TABLE.append(table)
+    return _TABLE[0]
+
+
 def _read_only(x):
     """A read-only copy: an event function that writes into its arguments
     cannot reach the run's arrays."""
@@ -150,12 +173,30 @@ class Events:
         return np.array([self.value(i, t, u, v) for i in range(len(self))])
 
     def table(self, t, u, v) -> np.ndarray:
-        """Every function at every row of ``t`` (k,), ``u``, ``v`` (k, N): (k, m)."""
+        """Every function at every row of ``t`` (k,), ``u``, ``v`` (k, N): (k, m).
+        A function compiled with numba (``@numba.njit``) is evaluated over the
+        rows in one compiled loop; any other, a Python call per row."""
         u, v = _read_only(u), _read_only(v)
+        t = np.ascontiguousarray(t, dtype=float)
         out = np.empty((t.size, len(self)))
         value = self.value
-        for i in range(len(self)):
+        for i, g in enumerate(self.functions):
             column = out[:, i]
+            if _compiled(g):
+                values = np.empty(t.size)
+                try:
+                    _compiled_table()(g, t, u, v, values)
+                except Exception as exc:
+                    raise EventError(f"events[{i}] raised {type(exc).__name__}: {exc} "
+                                     f"(compiled, between t = {t[0]!r} and {t[-1]!r})") \
+                        from exc
+                bad = np.flatnonzero(~np.isfinite(values))
+                if bad.size:
+                    raise EventError(f"events[{i}] returned {values[bad[0]]} at "
+                                     f"t = {t[bad[0]]!r}; an event function must be finite "
+                                     f"wherever the run goes")
+                column[:] = values
+                continue
             for j in range(t.size):
                 column[j] = value(i, float(t[j]), u[j], v[j])
         return out

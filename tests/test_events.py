@@ -239,3 +239,26 @@ def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
     r = hfdi.integrate(ball(), "hfdi", 1.0, rtol=1e-6, events=floor_event(),
                        on_event=bad_reset)
     assert r.status == hfdi.Status.MODEL_ERROR and "on_event must return" in r.message
+
+
+@pytest.mark.slow
+def test_a_compiled_event_function_finds_the_same_events():
+    """An event function compiled with numba is evaluated over the rows in one
+    compiled loop: the same zeros, bit for bit, as the same function in Python."""
+    numba = pytest.importorskip("numba")
+
+    def level(t, u, v):
+        return u[0] - 0.25
+
+    compiled_level = numba.njit(level)
+    runs = [hfdi.integrate(oscillator(), "hfdi", 3.0, rtol=1e-8, events=g)
+            for g in (level, compiled_level)]
+    assert runs[0].t_events[0].size == 3
+    assert np.array_equal(runs[0].t_events[0], runs[1].t_events[0])
+    assert np.array_equal(runs[0].u_events[0], runs[1].u_events[0])
+
+    @numba.njit
+    def fails(t, u, v):
+        return math.nan if t > 0.2 else u[0]
+    r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=fails)
+    assert r.status == hfdi.Status.MODEL_ERROR and "returned nan" in r.message
