@@ -119,6 +119,8 @@ class CompiledSteps:
         """Why a native host may not take the next steps now (``""``: it may)."""
         if self._compiled_call is None:
             return "the steps do not run compiled"
+        if self._events is not None:
+            return "event functions are watched, by the Python side"
         if self.failed:
             return "the run has failed"
         if self._model_version is not None and \

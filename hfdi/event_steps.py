@@ -9,8 +9,8 @@ state — sends the integrator back to the start of the call (its saved state:
 the steps are taken again exactly), forward over the steps before the one
 that holds the zero, and on to the zero's time, landing there as on any stop
 time. There it ends (``Status.TERMINATED``) or restarts from the reset state
-as after a load breakpoint: no step history, the predictor and the first
-step's choice anew, ``f``, ``p`` and ``a`` from the model, and the energy the
+as after a load breakpoint: no step history (the predictor starts anew),
+``f``, ``p`` and ``a`` from the model, and the energy the
 reset added or took counted as work done on the system (Eq. 41), so that the
 energy balance does not report it as numerical dissipation
 (docs/algorithm.md, "Events").
@@ -19,6 +19,8 @@ from __future__ import annotations
 
 
 import numpy as np
+
+import math
 
 from . import run_records
 from .evaluation import ModelError
@@ -61,6 +63,12 @@ class EventSteps:
             self._events = None
             self._on_event = None
             return
+        from .controller import core_kind
+        from .core.state import CUSTOM
+        if core_kind(self.controller) == CUSTOM:
+            raise ValueError(f"events need one of the built-in controllers (error control, "
+                             f"the iteration count or a fixed step); controller "
+                             f"{type(self.controller).__name__} steps on its own")
         self._events = Events(events)
         self._on_event = on_event
         state = self.state
@@ -101,7 +109,7 @@ class EventSteps:
 
     def _event_steps(self, t_stop, max_accepted):
         """:meth:`_steps` with the event functions watched (module docstring)."""
-        from .integrator import ROWS_PER_CALL, STEPS_PER_CALL
+        from .integrator import ROWS_PER_CALL
         if not self._vec.row_t.shape[0]:
             self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
             self._refresh_compiled()
@@ -119,23 +127,31 @@ class EventSteps:
         rows = _joined(blocks)
         if rows is None:
             return
-        try:
-            stop = self._scan(start, rows)
-        except EventError as exc:
-            # the steps of this call are not kept: its start is the last
-            # state whose events are known
-            cpu = self._run_cpu
-            self._restore(saved)
-            self._run_cpu = cpu
-            self._run.status = int(Status.MODEL_ERROR)
-            self._message = f"t = {start.t:.10g}: {exc}"
-            return
+        stop = self._scan(start, rows)
         if stop is None:
             if consumer is not None:
                 consumer(rows)
             return
-        j, crossing, reset = stop
-        # back to the call's start, forward over the steps before the zero's
+        j, crossing, reset, last, error = stop
+        # back to the call's start, forward over the steps before row j
+        self._retake(saved, rows, j, t_stop)
+        if error is not None:
+            # an event function or on_event failed in the step to row j: the
+            # run stops before it, where the events are known
+            self._run.status = int(Status.MODEL_ERROR)
+            self._message = f"t = {self.t:.10g}: {error}"
+            return
+        from .integrator import STEPS_PER_CALL
+        while self.t < crossing.t and not self.failed:
+            self._steps(crossing.t, STEPS_PER_CALL)
+        if self.failed:
+            return
+        self._at_event(crossing, reset, last)
+
+    def _retake(self, saved, rows, j, t_stop):
+        """Back to ``saved`` (the call's start) and forward over the steps before
+        row ``j`` of ``rows`` (the same steps, bit for bit), handing their rows on."""
+        consumer = self._rows
         cpu = self._run_cpu
         self._restore(saved)
         self._run_cpu = cpu
@@ -150,44 +166,54 @@ class EventSteps:
                 raise AssertionError("the steps taken again did not repeat the first ones")
         if consumer is not None and j:
             consumer(_head(rows, j))
-        while self.t < crossing.t and not self.failed:
-            self._steps(crossing.t, STEPS_PER_CALL)
-        if self.failed:
-            return
-        self._at_event(crossing, reset)
 
     def _scan(self, start, rows):
-        """The first zero in ``rows`` that changes the run: ``(row, crossing, reset
-        state or None)``, or ``None``; the zeros before it are recorded, and
-        the events' values moved on. The functions are evaluated at every
-        row; only the steps where one changes sign (or starts or ends at
-        zero) are looked into."""
+        """The first row whose step holds a zero that changes the run, or where an
+        event function or ``on_event`` fails: ``(row, crossing, reset state or
+        None, terminal, error)``; ``None`` when there is none. The zeros
+        before it are recorded and the events' values moved on to the row
+        before it. The functions are evaluated at every row; only the steps
+        where one changes sign (or starts at zero) are looked into."""
         events = self._events
         t, u, v, a = rows["t"], rows["u"], rows["v"], rows["a"]
-        G = events.table(t, u, v)
+        G, failed, error = events.table(t, u, v)
         left = np.vstack([events.g[None], G[:-1]])
         look = events.active(left, G).any(axis=1) | (left == 0).any(axis=1)
         look &= rows["step_size"] > 0                 # a restart row: the same t, u, v
-        moved_to = -1                                 # the row the events' values are at
+        look[failed:] = False
         for j in np.flatnonzero(look):
-            if moved_to != j - 1:
-                events.moved(G[j - 1])
+            if j:
+                events.moved(t[j - 1], G[j - 1])
             if j == 0:
                 t0, u0, v0, a0 = start.t, start.u, start.v, start.a
             else:
                 t0, u0, v0, a0 = t[j - 1], u[j - 1], v[j - 1], a[j - 1]
+            before = events.snapshot()
             counted = []
-            for crossing in events.crossings(t0, u0, v0, a0, t[j], u[j], v[j], a[j], G[j]):
-                last = events.record(crossing)
-                reset = self._answer(crossing)
-                if last or reset is not None:
-                    return j, crossing, reset
-                if crossing.t == t[j]:
-                    counted.append(crossing.index)
-            events.moved(G[j], counted)
-            moved_to = j
-        if moved_to != t.size - 1:
-            events.moved(G[-1])
+            try:
+                found = events.crossings(t0, u0, v0, a0, t[j], u[j], v[j], a[j], G[j])
+                for k, crossing in enumerate(found):
+                    last = events.record(crossing)
+                    reset = self._answer(crossing)
+                    if last or reset is not None:
+                        # zeros of other functions at the same time are recorded
+                        # too (on_event is not asked about them: the state it
+                        # would answer for is gone)
+                        for other in found[k + 1:]:
+                            if other.t == crossing.t:
+                                last = events.record(other) or last
+                        return j, crossing, reset, last, None
+                    if crossing.t == t[j]:
+                        counted.append(crossing.index)
+            except EventError as exc:
+                events.rollback(before)
+                return j, None, None, False, exc
+            events.moved(t[j], G[j], counted)
+        if failed < t.size:
+            if failed:
+                events.moved(t[failed - 1], G[failed - 1])
+            return failed, None, None, False, error
+        events.moved(t[-1], G[-1])
         return None
 
     def _answer(self, crossing):
@@ -205,9 +231,11 @@ class EventSteps:
         n = self.ev.n
         try:
             u, v = answer
+            if np.iscomplexobj(u) or np.iscomplexobj(v):
+                raise TypeError
             u = np.array(u, dtype=float).reshape(n)
             v = np.array(v, dtype=float).reshape(n)
-        except (TypeError, ValueError):
+        except Exception:
             raise EventError(f"on_event must return None or (u, v), two arrays of {n} "
                              f"values, got {answer!r} at the zero of events[{i}] at "
                              f"t = {t!r}") from None
@@ -216,42 +244,45 @@ class EventSteps:
                              f"events[{i}] at t = {t!r}: u = {u}, v = {v}")
         return u, v
 
-    def _at_event(self, crossing, reset):
-        """At the zero's time (landed there): end the run, or reset and restart."""
-        events, run = self._events, self._run
+    def _at_event(self, crossing, reset, last):
+        """At the zero's time (landed there): reset the state if ``on_event`` gave
+        one (restarting from it), and end the run if the zero was a terminal
+        event's last allowed one."""
+        events = self._events
         i, t = crossing.index, crossing.t
-        state = self.state
         try:
-            g = events.values(t, state.u, state.v)
+            g = events.values(t, *self._current_uv())
         except EventError as exc:
-            run.status = int(Status.MODEL_ERROR)
-            self._message = f"t = {t:.10g}: {exc}"
+            self._stop_at_event(f"t = {t:.10g}: {exc}")
             return
-        if reset is None:
-            g[i] = 0.0
-            events.moved(g, [i])
-            run.status = int(Status.TERMINATED)
+        if reset is not None:
+            try:
+                self._reset_state(*reset)
+                g = events.values(t, *self._current_uv())
+            except (ModelError, EventError) as exc:
+                g[i] = 0.0
+                events.moved(t, g, [i])
+                self._stop_at_event(f"t = {t:.10g}: after on_event's reset: {exc}")
+                return
+        # the zeros count once: at the landed (or reset) state the functions
+        # with a zero recorded at t are taken as at zero, and the next step
+        # starts from the side each leaves to
+        here = [k for k in range(len(events)) if events.t_events[k]
+                and events.t_events[k][-1] == t]
+        g[here] = 0.0
+        events.moved(t, g, here)
+        if last:
+            self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
-            return
-        try:
-            self._reset_state(*reset)
-        except ModelError as exc:
-            run.status = int(Status.MODEL_ERROR)
-            self._message = f"t = {t:.10g}: after on_event's reset: {exc}"
-            return
-        after = self.state
-        try:
-            g = events.values(t, after.u, after.v)
-        except EventError as exc:
-            run.status = int(Status.MODEL_ERROR)
-            self._message = f"t = {t:.10g}: after on_event's reset: {exc}"
-            return
-        # the reset is at the zero that made it (to the landing's rounding):
-        # that zero counts once, and the next step starts from the side the
-        # function then leaves to (Events.crossings)
-        g[i] = 0.0
-        events.moved(g, [i])
+
+    def _current_uv(self):
+        return self._vec.u.copy(), self._vec.v.copy()
+
+    def _stop_at_event(self, message):
+        # self._run, not a local name for it: a failed refresh replaces it
+        self._run.status = int(Status.MODEL_ERROR)
+        self._message = message
 
     def _reset_state(self, u, v) -> None:
         """The current state becomes ``(t, u, v)`` with ``f``, ``p`` and ``a``
@@ -260,7 +291,8 @@ class EventSteps:
         fails at the new state; the integrator is then left at the old one)."""
         run, vec, ev = self._run, self._vec, self.ev
         before = self.get_state()
-        energy_before = run.potential + ev.kinetic_energy(vec.v)
+        potential_before = run.potential
+        kinetic_before = ev.kinetic_energy(vec.v)
         vec.u[:], vec.v[:] = u, v
         try:
             potential = float(ev.potential_energy(vec.u))
@@ -274,12 +306,17 @@ class EventSteps:
                              f"{exc}") from None
         finally:
             self._absorb_counts()
-        energy_after = potential + ev.kinetic_energy(vec.v)
+        run = self._run                      # _refresh may have replaced it
+        kinetic_after = ev.kinetic_energy(vec.v)
+        energy_after = potential + kinetic_after
+        jump = kinetic_after - kinetic_before
+        if math.isfinite(potential) and math.isfinite(potential_before):
+            jump += potential - potential_before    # a model without V: the kinetic part
         run.potential = potential
-        run.work += energy_after - energy_before
-        run.energy_scale = max(run.energy_scale, abs(energy_after))
+        run.work += jump
+        run.energy_scale = max(run.energy_scale, abs(energy_after)
+                               if math.isfinite(energy_after) else 0.0)
         run.has_previous = False
-        run.first_step_pending = not self.fixed
         if self._rows is not None:
             n = ev.n
             self._rows({"t": np.array([run.t]), "u": vec.u.copy()[None],

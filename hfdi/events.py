@@ -140,9 +140,11 @@ class Events:
         self.t_events = [[] for _ in range(m)]
         self.u_events = [[] for _ in range(m)]
         self.v_events = [[] for _ in range(m)]
-        #: ``g`` at the current time, and whether a zero there was counted
+        #: ``g`` at the time ``t`` (the current time), and whether a zero there
+        #: was counted
         self.g = np.full(m, math.nan)
         self.counted_zero = np.zeros(m, dtype=bool)
+        self.t = math.nan
 
     def __len__(self):
         return len(self.functions)
@@ -156,10 +158,11 @@ class Events:
             raise EventError(f"events[{i}] raised {type(exc).__name__}: {exc} at t = {t!r}") \
                 from exc
         try:
-            if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+            if isinstance(value, (str, bytes, complex, np.complexfloating)) \
+                    or np.ndim(value) != 0:
                 raise TypeError
             value = float(value)
-        except (TypeError, ValueError):
+        except Exception:
             raise EventError(f"events[{i}] must return a real number, got {value!r} at "
                              f"t = {t!r}") from None
         if not math.isfinite(value):
@@ -172,39 +175,46 @@ class Events:
         u, v = _read_only(u), _read_only(v)
         return np.array([self.value(i, t, u, v) for i in range(len(self))])
 
-    def table(self, t, u, v) -> np.ndarray:
-        """Every function at every row of ``t`` (k,), ``u``, ``v`` (k, N): (k, m).
-        A function compiled with numba (``@numba.njit``) is evaluated over the
-        rows in one compiled loop; any other, a Python call per row."""
+    def table(self, t, u, v):
+        """Every function at every row of ``t`` (k,), ``u``, ``v`` (k, N):
+        ``(G (k, m), row, error)``, ``row`` the first row where a function
+        failed (``k`` when none did; the rows from it on are not valid) and
+        ``error`` its :class:`EventError` (or ``None``). A function compiled
+        with numba (``@numba.njit``) is evaluated over the rows in one
+        compiled loop; any other, a Python call per row."""
         u, v = _read_only(u), _read_only(v)
         t = np.ascontiguousarray(t, dtype=float)
         out = np.empty((t.size, len(self)))
-        value = self.value
+        failed, error = t.size, None
         for i, g in enumerate(self.functions):
             column = out[:, i]
             if _compiled(g):
-                values = np.empty(t.size)
                 try:
-                    _compiled_table()(g, t, u, v, values)
+                    _compiled_table()(g, t, u, v, column)
                 except Exception as exc:
-                    raise EventError(f"events[{i}] raised {type(exc).__name__}: {exc} "
-                                     f"(compiled, between t = {t[0]!r} and {t[-1]!r})") \
-                        from exc
-                bad = np.flatnonzero(~np.isfinite(values))
+                    # which row raised is not known: the first
+                    return out, 0, EventError(
+                        f"events[{i}] raised {type(exc).__name__}: {exc} (compiled, "
+                        f"between t = {t[0]!r} and {t[-1]!r})")
+                bad = np.flatnonzero(~np.isfinite(column[:failed]))
                 if bad.size:
-                    raise EventError(f"events[{i}] returned {values[bad[0]]} at "
-                                     f"t = {t[bad[0]]!r}; an event function must be finite "
-                                     f"wherever the run goes")
-                column[:] = values
+                    failed, error = int(bad[0]), EventError(
+                        f"events[{i}] returned {column[bad[0]]} at t = {t[bad[0]]!r}; an "
+                        f"event function must be finite wherever the run goes")
                 continue
-            for j in range(t.size):
-                column[j] = value(i, float(t[j]), u[j], v[j])
-        return out
+            for j in range(failed):
+                try:
+                    column[j] = self.value(i, float(t[j]), u[j], v[j])
+                except EventError as exc:
+                    failed, error = j, exc
+                    break
+        return out, failed, error
 
     def start(self, t, u, v) -> None:
-        """The values at the initial (or a restarted) state; no zero counted there yet."""
+        """The values at the initial (or a restored) state; no zero counted there yet."""
         self.g = self.values(t, u, v)
         self.counted_zero[:] = False
+        self.t = float(t)
 
     def active(self, left, right):
         """Which functions cross zero between the values ``left`` and ``right``
@@ -225,25 +235,32 @@ class Events:
             u, v = interpolate_state(nodes, *stack, np.array([t]))
             return u[0], v[0]
 
-        # A function at a zero counted at t0 (an event there, or a reset at
-        # it) starts the step on the side it leaves to: its value just after
-        # t0 on the dense output, so that leaving the zero and coming back
-        # within the step (a bounce's whole flight) is a crossing.
+        # A function at zero at t0 starts the step on the side it leaves to:
+        # its value just after t0 on the dense output. A zero counted at t0
+        # (an event there, or a reset at it) is not counted again, but
+        # leaving it and coming back within the step (a bounce's whole
+        # flight) is a crossing; an uncounted zero (at the run's start)
+        # counts at t0 if g leaves it in the event's direction.
         left_t = np.full(len(self), float(t0))
         left_g = self.g.copy()
-        for i in np.flatnonzero((self.g == 0) & self.counted_zero):
-            after = t0 + LEAVING * (t1 - t0)
-            if after < t1:
-                left_t[i], left_g[i] = after, self.value(i, after, *map(_read_only,
-                                                                          state(after)))
+        at_start = []
+        after = t0 + LEAVING * (t1 - t0)
+        for i in np.flatnonzero(self.g == 0):
+            if not after < t1:
+                continue
+            leaving = self.value(i, after, *map(_read_only, state(after)))
+            if not self.counted_zero[i] and leaving != 0 and \
+                    self.direction[i] * leaving >= 0:
+                at_start.append(int(i))
+            left_t[i], left_g[i] = after, leaving
         active = self.active(left_g, g1)
-        # g staying at zero is no crossing, nor a zero already counted
-        active &= ~((left_g == 0) & (g1 == 0)) & ~((left_g == 0) & self.counted_zero)
-        found = []
+        # g staying at zero is no crossing
+        active &= ~((left_g == 0) & (g1 == 0))
+        found = [Crossing(float(t0), i, u0.copy(), v0.copy()) for i in at_start]
         for i in np.flatnonzero(active):
             if left_g[i] == 0:
-                t_root = left_t[i]
-            elif g1[i] == 0:
+                continue           # still at the zero at the probe: not left yet
+            if g1[i] == 0:
                 t_root = t1
             else:
                 t_root = self._root(i, left_t[i], t1, left_g[i], g1[i], state)
@@ -279,13 +296,30 @@ class Events:
         self.v_events[i].append(crossing.v)
         return self.count[i] >= self.limit[i]
 
-    def moved(self, g1, counted=()) -> None:
-        """The step's end is the current time: ``g`` there, and the events whose
-        zero was counted exactly there."""
-        self.g = np.asarray(g1, dtype=float)
-        self.counted_zero[:] = False
+    def moved(self, t, g, counted=()) -> None:
+        """``t`` is the current time: ``g`` there, and the events whose zero was
+        counted exactly there (added to those counted before at the same
+        ``t``: a restart at a load breakpoint keeps ``t``, ``u`` and ``v``)."""
+        if t != self.t:
+            self.counted_zero[:] = False
+        self.g = np.array(g, dtype=float)
         for i in counted:
             self.counted_zero[i] = True
+        self.t = float(t)
+
+    def snapshot(self):
+        """What :meth:`rollback` returns to."""
+        return (self.count.copy(), [len(x) for x in self.t_events], self.g.copy(),
+                self.counted_zero.copy(), self.t)
+
+    def rollback(self, snapshot) -> None:
+        """Forget what was recorded and moved since ``snapshot``."""
+        count, sizes, g, counted, t = snapshot
+        self.count[:] = count
+        for lists in (self.t_events, self.u_events, self.v_events):
+            for i, size in enumerate(sizes):
+                del lists[i][size:]
+        self.g, self.counted_zero, self.t = g.copy(), counted.copy(), t
 
     def arrays(self, n):
         """``t_events``, ``u_events``, ``v_events``: per function an array of

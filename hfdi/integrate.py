@@ -186,16 +186,18 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         return result
     ratio = result.global_error_ratio
     last = float(np.min(asked_rtol)) * factor
+    # where the run ended: t_end, or a terminal event's zero (its message)
+    ended = "reached t_end" if result.status == Status.SUCCESS else result.message
     if not ratio <= 1.0:
         result.status = Status.TOLERANCE_NOT_MET
-        result.message = (f"reached t_end, but the estimated global error is {ratio:.3g} times "
+        result.message = (f"{ended}, but the estimated global error is {ratio:.3g} times "
                           f"the tolerance (the run at rtol {last:.3g}; {why})"
                           if math.isfinite(ratio) else
-                          f"reached t_end, but the global error estimate was lost (the "
+                          f"{ended}, but the global error estimate was lost (the "
                           f"stiffness failed or the propagator's matrix was singular) in the "
                           f"run at rtol {last:.3g}")
     else:
-        result.message = (f"reached t_end; estimated global error {ratio:.3g} of the "
+        result.message = (f"{ended}; estimated global error {ratio:.3g} of the "
                           f"tolerance (the run at rtol {last:.3g}, {runs} run(s))")
     return result
 
@@ -262,8 +264,9 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
         progress(integrator.t, integrator.statistics)
     if not save_steps and rows.size == 1 and integrator.statistics.accepted:
         rows.append(*last)
-    status = integrator.status if not ok else Status.SUCCESS
-    message = integrator.message if not ok else "reached t_end"
+    # a terminal event exactly at t_end ends the run there too (as solve_ivp)
+    status = integrator.status if not ok or integrator.terminated else Status.SUCCESS
+    message = integrator.message if not ok or integrator.terminated else "reached t_end"
     rtol, atol = integrator.tolerances or (None, None)
     if status == Status.TERMINATED and t_eval is not None:
         # as solve_ivp: the output times up to where the run ended

@@ -75,6 +75,11 @@ class StateAccess:
         refresh = now is not None and saved.model_version != now
         self._model_version = now
         self._restore(saved)
+        if getattr(self, "_events", None) is not None:
+            # the event functions' values at the restored state (the events
+            # found so far stay: they are the caller's record)
+            current = self.state
+            self._events.start(current.t, current.u, current.v)
         if refresh:
             try:
                 self.model_changed()

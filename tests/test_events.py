@@ -227,7 +227,8 @@ def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
     r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=g)
     assert r.status == hfdi.Status.MODEL_ERROR and not r.success
     assert "events[0] raised RuntimeError: out of range" in r.message
-    assert r.t[-1] <= 0.3 + 1e-12 or r.t[-1] < 1.0
+    assert 0.2 < r.t[-1] <= 0.3          # the steps before the failing one are kept
+    assert r.t_events[0].size == 0
 
     def nan_after(t, u, v):
         return math.nan if t > 0.3 else u[0]
@@ -239,6 +240,8 @@ def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
     r = hfdi.integrate(ball(), "hfdi", 1.0, rtol=1e-6, events=floor_event(),
                        on_event=bad_reset)
     assert r.status == hfdi.Status.MODEL_ERROR and "on_event must return" in r.message
+    # stopped before the step that holds the zero; the zero not recorded
+    assert r.t[-1] < impact_times(1)[0] and r.t_events[0].size == 0
 
 
 @pytest.mark.slow
@@ -262,3 +265,138 @@ def test_a_compiled_event_function_finds_the_same_events():
         return math.nan if t > 0.2 else u[0]
     r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=fails)
     assert r.status == hfdi.Status.MODEL_ERROR and "returned nan" in r.message
+
+
+# -- the cases a review found wrong once ---------------------------------------------
+
+@pytest.mark.parametrize("compiled", [False, None])
+def test_a_zero_at_a_load_breakpoint_counts_once(compiled):
+    """The load steps at tb (a restart row, the time twice): a zero exactly
+    there is one event, on_event asked once, a terminal count of 2 not met."""
+    tb = 0.5
+    model = hfdi.LinearSystem(mass=[1.0], stiffness=[[W * W]],
+                              load=lambda t: np.array([1.0 if t >= tb else 0.0]),
+                              initial_displacement=[1.0], initial_velocity=[0.0])
+    asked = []
+    g = lambda t, u, v: t - tb       # noqa: E731
+    r = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-6, breakpoints=[tb], events=g,
+                       on_event=lambda t, u, v, which: asked.append(t), compiled=compiled)
+    assert r.t_events[0].tolist() == [tb] and asked == [tb]
+    g.terminal = 2
+    r = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-6, breakpoints=[tb], events=g,
+                       compiled=compiled)
+    assert r.status == hfdi.Status.SUCCESS and r.t_events[0].tolist() == [tb]
+
+
+def test_set_state_takes_the_event_values_of_the_restored_state():
+    g = lambda t, u, v: u[0]         # noqa: E731
+    itg = hfdi.Integrator(oscillator(), "hfdi", rtol=1e-8, t_bound=2.0, events=g)
+    itg.advance(0.3)
+    saved = itg.get_state()
+    itg.advance(1.0)
+    itg.set_state(saved)
+    itg.advance(1.0)
+    # the zero at π/6 found again after going back, none at the restored 0.3
+    np.testing.assert_allclose(itg.t_events[0], [math.pi / 6] * 2, rtol=1e-7)
+
+
+def test_events_with_a_custom_controller_are_refused():
+    from hfdi.controller import Controller, Decision
+
+    class Fixed(Controller):
+        def init(self, trial, h0):
+            return trial(0.01), Decision(True, 0.01)
+
+        def adapt(self, attempt, rejections):
+            return Decision(attempt.converged, 0.01)
+    with pytest.raises(ValueError, match="events need one of the built-in controllers"):
+        hfdi.Integrator(oscillator(), "hfdi", controller=Fixed(), t_bound=1.0,
+                        events=lambda t, u, v: u[0])
+
+
+def test_a_model_that_fails_at_the_reset_state_stops_the_run_there():
+    def force(u):
+        if u[0] > 2.0:
+            raise ValueError("f undefined above 2")
+        return np.zeros(1)
+    model = hfdi.System([1.0], force, lambda u: np.zeros((1, 1)),
+                        lambda u, w: np.zeros((1, 1)), load=lambda t: np.array([-G]),
+                        potential_energy=lambda u: G * u[0], initial_displacement=[H0],
+                        initial_velocity=[0.0])
+    asked = []
+
+    def away(t, u, v, which):
+        asked.append(t)
+        return u + 5.0, v
+    r = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-6, events=floor_event(), on_event=away)
+    assert r.status == hfdi.Status.MODEL_ERROR and "after on_event's reset" in r.message
+    assert len(asked) == 1 and r.t_events[0].size == 1
+    assert r.t[-1] == r.t_events[0][0]
+
+
+def test_a_terminal_event_with_a_reset_ends_at_its_count():
+    g = floor_event()
+    g.terminal = 2
+    r = hfdi.integrate(ball(), "hfdi", 3.0, rtol=1e-6, events=g, on_event=bounce)
+    assert r.status == hfdi.Status.TERMINATED
+    np.testing.assert_allclose(r.t_events[0], impact_times(2), rtol=1e-12)
+    assert r.t[-1] == r.t_events[0][-1] and r.v[-1, 0] > 0      # after the reset
+
+
+def test_a_terminal_zero_at_t_end_and_the_global_mode_keep_terminated():
+    g = lambda t, u, v: t - 1.0      # noqa: E731
+    g.terminal = True
+    r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=g)
+    assert r.status == hfdi.Status.TERMINATED and r.t_events[0].tolist() == [1.0]
+    h = lambda t, u, v: u[0]         # noqa: E731
+    h.terminal = 3
+    r = hfdi.integrate(oscillator(), "hfdi", 10.0, rtol=1e-9, events=h, error="global")
+    assert r.status == hfdi.Status.TERMINATED, r.message
+    assert "events[0] ended the run" in r.message and "global error" in r.message
+    assert abs(r.t[-1] - 2.5 * math.pi / W) < 1e-8
+
+
+def test_max_steps_holds_through_resets():
+    for limit in (5, 8):
+        r = hfdi.integrate(ball(), "hfdi", 3.0, rtol=1e-6, events=floor_event(),
+                           on_event=bounce, max_steps=limit)
+        assert r.stats.accepted <= limit
+
+
+def test_a_ball_thrown_up_from_the_floor_is_not_an_event_at_t0():
+    """u(0) = 0 leaving upwards: not a zero of the falling direction at t0;
+    the landing at 2 v0 / G is, even within one long step."""
+    model = hfdi.LinearSystem(mass=[1.0], stiffness=[[0.0]], load=lambda t: np.array([-G]),
+                              initial_displacement=[0.0], initial_velocity=[3.0])
+    r = hfdi.integrate(model, "newmark", 0.7, step=0.7, events=floor_event())
+    np.testing.assert_allclose(r.t_events[0], [2 * 3.0 / G], rtol=1e-12)
+
+
+def test_the_steps_before_a_terminal_zero_are_those_of_a_run_without_events():
+    """The rewind takes the same steps again (compiled, the zero past the first
+    call of 1,023 steps): the rows up to the zero's step are a run's
+    without events, bit for bit."""
+    def g(t, u, v):
+        return u[2] - u[0]
+    g.terminal = True
+    model = hfdi.models.get("dumbbell")
+    free = hfdi.integrate(model, "hfdi", 0.4, rtol=1e-6, compiled=True)
+    stopped = hfdi.integrate(hfdi.models.get("dumbbell"), "hfdi", 0.4, rtol=1e-6, events=g,
+                             compiled=True)
+    assert stopped.status == hfdi.Status.TERMINATED
+    k = stopped.t.size - 1                   # the last row is the landing at the zero
+    assert k > 1023
+    assert np.array_equal(stopped.t[:k], free.t[:k])
+    assert np.array_equal(stopped.u[:k], free.u[:k])
+    assert free.t[k - 1] < stopped.t[-1] <= free.t[k]
+
+
+def test_a_failing_event_function_keeps_the_steps_before_its_failure():
+    def g(t, u, v):
+        if t > 1.0:
+            raise RuntimeError("boom")
+        return u[0]
+    r = hfdi.integrate(oscillator(), "hfdi", 2.0, rtol=1e-6, events=g)
+    assert r.status == hfdi.Status.MODEL_ERROR and "events[0] raised RuntimeError" in r.message
+    assert 0.9 < r.t[-1] <= 1.0
+    np.testing.assert_allclose(r.t_events[0], [math.pi / 6], rtol=1e-6)
