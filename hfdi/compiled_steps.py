@@ -52,9 +52,9 @@ class CompiledSteps:
             return
         reason, kernels = compiled_path.compiled_reason(self, initial)
         if reason:
-            compiled_path.refused(compiled, reason, "the compiled path cannot run")
             self._not_compiled = str(reason)
-            compiled_path.say_once(reason, FLEXIBLE_PATH)
+            if not compiled_path.refused(compiled, reason, "the compiled path cannot run"):
+                compiled_path.say_once(reason, FLEXIBLE_PATH)
             return
         self._use_compiled(kernels)
 

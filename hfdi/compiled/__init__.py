@@ -408,13 +408,16 @@ def compiled_reason(integrator, initial: InitialValues):
     return "", kernels
 
 
-def refused(compiled, reason, what):
-    """Raise for ``compiled=True``; else say a fault (or a missing numba) once."""
+def refused(compiled, reason, what) -> bool:
+    """Raise for ``compiled=True``; else say a fault (or a missing numba) once:
+    whether it is such a one (said now or before)."""
     if compiled:
         raise CompiledUnavailable(f"compiled=True, but {what}: {reason}")
     if isinstance(reason, _Fault) or (not numba_available()[0]
                                       and reason == numba_available()[1]):
         say_once(reason)
+        return True
+    return False
 
 
 def use_sparse_kernels(ev, compiled, initial):
