@@ -107,7 +107,7 @@ def test_bad_tolerances_are_refused_by_name():
 
 
 def test_a_model_without_compiled_kernels_is_refused():
-    system = hfdi.LinearSystem(mass=np.eye(2), stiffness=np.eye(2),
-                               initial_displacement=[1.0, 0.0])
+    system = hfdi.System(np.eye(2), lambda u: u, lambda u: np.eye(2),
+                         lambda u, w: np.zeros((2, 2)), initial_displacement=[1.0, 0.0])
     with pytest.raises(ValueError, match="compiled kernels"):
         ida_compiled.Problem(system)
