@@ -104,7 +104,36 @@ def _energy_model(energy):
     return EnergyModel([x], energy(x, sympy), mass=[1.0], initial_displacement=[1.0])
 
 
+def _counted(terminal):
+    """An event function of the time with a ``terminal`` attribute."""
+    def g(t, u, v):
+        return t - 0.3
+    g.terminal = terminal
+    return g
+
+
+def _raises_after(t_fail):
+    def g(t, u, v):
+        if t > t_fail:
+            raise RuntimeError("out of its range")
+        return t - 10.0
+    return g
+
+
 INPUT_CASES = [
+    # events (solve_ivp's convention)
+    ("events-not-callable", "integrate", "events not callable",
+     lambda: run(DUMBBELL, events=3), ValueError,
+     ["events must be a callable g(t, u, v) -> float", "got 3"]),
+    ("events-terminal-zero", "integrate", "an event's terminal count of 0",
+     lambda: run(DUMBBELL, events=_counted(0)), ValueError,
+     ["events[0].terminal must be True, False or an integer >= 1"]),
+    ("events-nan-at-t0", "integrate", "an event function that is NaN at t0",
+     lambda: run(DUMBBELL, events=lambda t, u, v: float("nan")), ValueError,
+     ["events[0] returned nan at t = 0.0"]),
+    ("on_event-without-events", "integrate", "on_event without events",
+     lambda: run(DUMBBELL, on_event=lambda t, u, v, which: None), ValueError,
+     ["on_event needs events"]),
     # integrate / Integrator arguments
     ("u0-shape", "integrate", "u0 of the wrong shape",
      lambda: run(DUMBBELL, u0=[1.0, 2.0]), ValueError, ["u0", "shape (4,)", "got shape (2,)"]),
@@ -664,6 +693,13 @@ S = hfdi.Status
 # (id, what happens, call, statuses, fragments of the message after "t = <time>: ",
 #  latest time the run may reach)
 FAULT_CASES = [
+    ("event-raises", "an event function raises during the run",
+     lambda: hfdi.integrate(DUMBBELL, "newmark", 1.0, step=0.01, events=_raises_after(0.5)),
+     {S.MODEL_ERROR}, ["events[0] raised RuntimeError: out of its range"], 0.5),
+    ("on_event-no-state", "on_event returns no state at a zero",
+     lambda: hfdi.integrate(DUMBBELL, "newmark", 1.0, step=0.01, events=_counted(False),
+                            on_event=lambda t, u, v, which: "bounce"),
+     {S.MODEL_ERROR}, ["on_event must return None or (u, v)"], 0.3),
     ("diverge-fixed", "Newton diverges at every step (max_iterations=1, fixed step)",
      lambda: hfdi.integrate(DUMBBELL, "hfdi", 2.0, step=0.01, max_iterations=1),
      {S.NEWTON_FAILED}, ["fixed step 0.01", "to t = 0.01", "no convergence in N_max = 1"], 0.0),
