@@ -181,7 +181,11 @@ def _callbacks(force, stiffness, load, mass_kind, damping_kind):
                     s += A[i * n + j] * x[j]
                 out[i] += s
 
-    mass_size, damping_size = _sizes(mass_kind, damping_kind)
+    @numba.njit(inline="always")
+    def matrix(slots, slot, kind, n):
+        """M or C as stored: (n·n) by rows, (n,) its diagonal, or nothing."""
+        size = n * n if kind == _DENSE else (n if kind == _DIAGONAL else 0)
+        return doubles(slots, slot, size)
 
     signature = types.intc(types.float64, types.voidptr, types.voidptr, types.voidptr,
                            types.voidptr)
@@ -200,8 +204,8 @@ def _callbacks(force, stiffness, load, mass_kind, damping_kind):
             r[i] = rate[i] - y[n + i]
             r[n + i] = f[i] - p[i]
         rv = r[n:]
-        times(mass_kind, doubles(slots, _MASS, mass_size(n)), rate[n:], n, rv)
-        times(damping_kind, doubles(slots, _DAMPING, damping_size(n)), y[n:], n, rv)
+        times(mass_kind, matrix(slots, _MASS, mass_kind, n), rate[n:], n, rv)
+        times(damping_kind, matrix(slots, _DAMPING, damping_kind, n), y[n:], n, rv)
         for i in range(2 * n):
             if not math.isfinite(r[i]):
                 return -1          # unrecoverable: the run stops with IDA_RES_FAIL
@@ -220,8 +224,8 @@ def _callbacks(force, stiffness, load, mass_kind, damping_kind):
         # column-major, (2n)²: entry (row, col) at col·2n + row
         a = carray(matrix_data(J), (m * m,))
         K = stiffness(y[:n], doubles(slots, _PARAMS, slots[_PARAMS_SIZE]))
-        mass = doubles(slots, _MASS, mass_size(n))
-        damping = doubles(slots, _DAMPING, damping_size(n))
+        mass = matrix(slots, _MASS, mass_kind, n)
+        damping = matrix(slots, _DAMPING, damping_kind, n)
         for k in range(m * m):
             a[k] = 0.0
         for i in range(n):
@@ -243,19 +247,6 @@ def _callbacks(force, stiffness, load, mass_kind, damping_kind):
         return 0
 
     return residual, jacobian
-
-
-def _sizes(mass_kind, damping_kind):
-    """The numba functions giving the stored sizes of M and C for ``n``."""
-    import numba
-
-    def sized(kind):
-        if kind == _DENSE:
-            return numba.njit(inline="always")(lambda n: n * n)
-        if kind == _DIAGONAL:
-            return numba.njit(inline="always")(lambda n: n)
-        return numba.njit(inline="always")(lambda n: 0)
-    return sized(mass_kind), sized(damping_kind)
 
 
 @functools.lru_cache(maxsize=None)
@@ -287,11 +278,11 @@ def _loop():
 
 # -- one run ----------------------------------------------------------------------------
 
-def _stored(matrix, n, name):
-    """``(kind, float64 array)`` of M or C: a diagonal as its vector, else dense by rows."""
+def _stored(a):
+    """``(kind, float64 array)`` of M or C as the first-order form holds it
+    (``None``, a diagonal, dense or sparse): a diagonal as its vector, else
+    dense by rows."""
     import scipy.sparse as sp
-    from hfdi.evaluation import normalise_matrix
-    a = normalise_matrix(matrix, n, name)
     if a is None:
         return _NONE, np.zeros(1)
     if sp.issparse(a):
@@ -317,12 +308,13 @@ class Problem:
             raise ValueError(f"the model has no compiled kernels: {why}")
         if kernels.load is None:
             raise ValueError("the model's compiled kernels have no load")
+        from validation.reference import _FirstOrderForm
         n = int(model.n_dof)
         self.model, self.n = model, n
-        self.mass_kind, self.mass = _stored(model.mass, n, "model mass")
-        if self.mass_kind == _NONE:
-            raise ValueError("the model has no mass matrix")
-        self.damping_kind, self.damping = _stored(model.damping, n, "model damping")
+        # the first-order form of the references: its M, C and consistent start
+        self.form = _FirstOrderForm(model, "dense")
+        self.mass_kind, self.mass = _stored(self.form.M)
+        self.damping_kind, self.damping = _stored(self.form.C)
         self.params = np.ascontiguousarray(kernels.params, dtype=float)
         self.load_params = np.ascontiguousarray(
             kernels.params if kernels.load_params is None else kernels.load_params, dtype=float)
@@ -335,25 +327,13 @@ class Problem:
         self.slots[_LOAD_PARAMS_SIZE] = self.load_params.size
         self.slots[_MASS] = self.mass.ctypes.data
         self.slots[_DAMPING] = self.damping.ctypes.data
-        self.kernels = kernels
         _loop()
 
     def initial_state(self):
-        """``y0`` and the consistent ``y'(0)``, in block order ``(u, v)``."""
-        model, n, k = self.model, self.n, self.kernels
-        u0 = np.zeros(n) if model.initial_displacement is None else \
-            np.asarray(model.initial_displacement, dtype=float)
-        v0 = np.zeros(n) if model.initial_velocity is None else \
-            np.asarray(model.initial_velocity, dtype=float)
-        rhs = k.load(0.0, self.load_params) - k.force(np.ascontiguousarray(u0), self.params)
-        if self.damping_kind == _DIAGONAL:
-            rhs -= self.damping * v0
-        elif self.damping_kind == _DENSE:
-            rhs -= self.damping.reshape(n, n) @ v0
-        a0 = rhs / self.mass if self.mass_kind == _DIAGONAL else \
-            np.linalg.solve(self.mass.reshape(n, n), rhs)
-        return np.concatenate([u0, v0]), np.concatenate([v0, a0])
-
+        """``y0`` and the consistent ``y'(0) = (v0, M⁻¹(p − f − C v0))``, in block
+        order ``(u, v)`` (:mod:`validation.reference`'s dense form)."""
+        _, _, y0, rate0 = self.form.initial_state(0.0)
+        return y0, rate0
 
 def solve(problem: Problem, t_end, *, rtol, atol, max_nfev=10 ** 12,
           first_capacity=4096) -> dict:

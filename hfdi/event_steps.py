@@ -18,28 +18,29 @@ energy balance does not report it as numerical dissipation
 from __future__ import annotations
 
 
-import numpy as np
-
 import math
 
+import numpy as np
+
 from . import run_records
-from .evaluation import ModelError
+from .evaluation import ModelError, State
 from .events import EventError, Events
 from .messages import Status
+from .result import Rows
 
 __all__ = ["EventSteps"]
 
-#: The keys of a block of rows (``advance(rows=)``).
-_ROW_KEYS = ("t", "u", "v", "a", "step_size", "iterations", "energy_increment", "total_energy",
-             "external_work", "global_error")
 
-
-def _joined(blocks):
+def _joined(blocks, n):
+    """The blocks of rows of a call as one block (``None`` without rows)."""
     if not blocks:
         return None
     if len(blocks) == 1:
         return blocks[0]
-    return {key: np.concatenate([b[key] for b in blocks]) for key in _ROW_KEYS}
+    rows = Rows(n)
+    for block in blocks:
+        rows.extend(block)
+    return rows.arrays()
 
 
 def _head(rows, j):
@@ -80,25 +81,25 @@ class EventSteps:
         """Whether a terminal event ended the run (``Status.TERMINATED``)."""
         return self._run.status == Status.TERMINATED
 
-    def _event_arrays(self, which):
+    def _event_arrays(self, name):
         if self._events is None:
             return None
-        return self._events.arrays(self.ev.n)[which]
+        return self._events.arrays(name, self.ev.n)
 
     @property
     def t_events(self):
         """Per event function, the times of its zeros so far (``None`` without events)."""
-        return self._event_arrays(0)
+        return self._event_arrays("t")
 
     @property
     def u_events(self):
         """Per event function, ``u`` at its zeros (k, N) (by the dense output)."""
-        return self._event_arrays(1)
+        return self._event_arrays("u")
 
     @property
     def v_events(self):
         """Per event function, ``v`` at its zeros (k, N) (by the dense output)."""
-        return self._event_arrays(2)
+        return self._event_arrays("v")
 
     # -- stepping ------------------------------------------------------------------------
     def _take_steps(self, t_stop: float, max_accepted: int) -> None:
@@ -109,7 +110,7 @@ class EventSteps:
 
     def _event_steps(self, t_stop, max_accepted):
         """:meth:`_steps` with the event functions watched (module docstring)."""
-        from .integrator import ROWS_PER_CALL
+        from .integrator import ROWS_PER_CALL, STEPS_PER_CALL
         if not self._vec.row_t.shape[0]:
             self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
             self._refresh_compiled()
@@ -124,7 +125,7 @@ class EventSteps:
             self._steps(t_stop, min(max_accepted, (ROWS_PER_CALL - 2) // 2))
         finally:
             self._rows = consumer
-        rows = _joined(blocks)
+        rows = _joined(blocks, self.ev.n)
         if rows is None:
             return
         stop = self._scan(start, rows)
@@ -141,7 +142,6 @@ class EventSteps:
             self._run.status = int(Status.MODEL_ERROR)
             self._message = f"t = {self.t:.10g}: {error}"
             return
-        from .integrator import STEPS_PER_CALL
         while self.t < crossing.t and not self.failed:
             self._steps(crossing.t, STEPS_PER_CALL)
         if self.failed:
@@ -251,14 +251,14 @@ class EventSteps:
         events = self._events
         i, t = crossing.index, crossing.t
         try:
-            g = events.values(t, *self._current_uv())
+            g = events.values(t, self._vec.u, self._vec.v)
         except EventError as exc:
             self._stop_at_event(f"t = {t:.10g}: {exc}")
             return
         if reset is not None:
             try:
                 self._reset_state(*reset)
-                g = events.values(t, *self._current_uv())
+                g = events.values(t, self._vec.u, self._vec.v)
             except (ModelError, EventError) as exc:
                 g[i] = 0.0
                 events.moved(t, g, [i])
@@ -275,9 +275,6 @@ class EventSteps:
             self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
-
-    def _current_uv(self):
-        return self._vec.u.copy(), self._vec.v.copy()
 
     def _stop_at_event(self, message):
         # self._run, not a local name for it: a failed refresh replaces it
@@ -318,10 +315,8 @@ class EventSteps:
                                if math.isfinite(energy_after) else 0.0)
         run.has_previous = False
         if self._rows is not None:
-            n = ev.n
-            self._rows({"t": np.array([run.t]), "u": vec.u.copy()[None],
-                        "v": vec.v.copy()[None], "a": vec.a.copy()[None],
-                        "step_size": np.zeros(1), "iterations": np.zeros(1, dtype=int),
-                        "energy_increment": np.zeros(1), "total_energy": np.array([
-                            energy_after]), "external_work": np.array([run.work]),
-                        "global_error": vec.global_error.copy().reshape(1, 2 * n)})
+            # the new state's row, a step of size 0 (as a restart at a breakpoint)
+            row = Rows(ev.n)
+            row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0,
+                       energy_after, run.work, vec.global_error)
+            self._rows(row.arrays())

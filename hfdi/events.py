@@ -321,9 +321,10 @@ class Events:
                 del lists[i][size:]
         self.g, self.counted_zero, self.t = g.copy(), counted.copy(), t
 
-    def arrays(self, n):
-        """``t_events``, ``u_events``, ``v_events``: per function an array of
-        times (k,) and of states (k, N)."""
-        return ([np.array(t, dtype=float) for t in self.t_events],
-                [np.array(u, dtype=float).reshape(-1, n) for u in self.u_events],
-                [np.array(v, dtype=float).reshape(-1, n) for v in self.v_events])
+    def arrays(self, name, n):
+        """Per function, the zeros' times (``name`` ``"t"``: arrays (k,)) or
+        states there (``"u"``, ``"v"``: arrays (k, N))."""
+        if name == "t":
+            return [np.array(t, dtype=float) for t in self.t_events]
+        found = self.u_events if name == "u" else self.v_events
+        return [np.array(x, dtype=float).reshape(-1, n) for x in found]

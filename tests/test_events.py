@@ -219,12 +219,17 @@ def test_bad_events_are_refused_by_name():
         hfdi.integrate(oscillator(), "hfdi", 1.0, events=lambda t, u, v: math.nan)
 
 
-def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
+def zero_of_u_failing_after(t_fail):
+    """``g = u`` that raises RuntimeError("out of range") past ``t_fail``."""
     def g(t, u, v):
-        if t > 0.3:
+        if t > t_fail:
             raise RuntimeError("out of range")
         return u[0]
-    r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=g)
+    return g
+
+
+def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
+    r = hfdi.integrate(oscillator(), "hfdi", 1.0, rtol=1e-6, events=zero_of_u_failing_after(0.3))
     assert r.status == hfdi.Status.MODEL_ERROR and not r.success
     assert "events[0] raised RuntimeError: out of range" in r.message
     assert 0.2 < r.t[-1] <= 0.3          # the steps before the failing one are kept
@@ -392,11 +397,7 @@ def test_the_steps_before_a_terminal_zero_are_those_of_a_run_without_events():
 
 
 def test_a_failing_event_function_keeps_the_steps_before_its_failure():
-    def g(t, u, v):
-        if t > 1.0:
-            raise RuntimeError("boom")
-        return u[0]
-    r = hfdi.integrate(oscillator(), "hfdi", 2.0, rtol=1e-6, events=g)
+    r = hfdi.integrate(oscillator(), "hfdi", 2.0, rtol=1e-6, events=zero_of_u_failing_after(1.0))
     assert r.status == hfdi.Status.MODEL_ERROR and "events[0] raised RuntimeError" in r.message
     assert 0.9 < r.t[-1] <= 1.0
     np.testing.assert_allclose(r.t_events[0], [math.pi / 6], rtol=1e-6)
