@@ -54,6 +54,15 @@ class EventSteps:
         """``events`` and ``on_event`` of the constructor, checked; the event
         functions evaluated at the initial state (a :class:`EventError`, a
         ``ValueError``, names the one that fails there)."""
+        if events is None and getattr(self.system, "events", None) is not None:
+            # the model's own (docs/user-models.md, "Events"), with its resets
+            events = self.system.events
+            if on_event is None:
+                on_event = getattr(self.system, "on_event", None)
+        elif events is not None and not callable(events) and hasattr(events, "__len__") \
+                and len(events) == 0:
+            events = None                    # none, not even the model's
+        self._pause_at_events = False        # advance(until_event=True)
         if on_event is not None and not callable(on_event):
             raise ValueError(f"on_event must be callable as on_event(t, u, v, which) -> "
                              f"(u, v) or None, got {on_event!r}")
@@ -195,7 +204,7 @@ class EventSteps:
                 for k, crossing in enumerate(found):
                     last = events.record(crossing)
                     reset = self._answer(crossing)
-                    if last or reset is not None:
+                    if last or reset is not None or self._pause_at_events:
                         # zeros of other functions at the same time are recorded
                         # too (on_event is not asked about them: the state it
                         # would answer for is gone)

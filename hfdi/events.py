@@ -93,8 +93,6 @@ def _as_list(events):
     except TypeError:
         raise ValueError(f"events must be a callable g(t, u, v) -> float or a list of them, "
                          f"got {events!r}") from None
-    if not items:
-        raise ValueError("events must not be empty (give None for no events)")
     for i, g in enumerate(items):
         if not callable(g):
             raise ValueError(f"events[{i}] must be callable as g(t, u, v) -> float, got {g!r}")

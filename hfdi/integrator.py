@@ -596,7 +596,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         self._take_steps(t_limit, 1)
         return self._run.accepted > accepted and not self.failed
 
-    def advance(self, t_stop: float, callback=None, rows=None) -> bool:
+    def advance(self, t_stop: float, callback=None, rows=None, until_event=False) -> bool:
         """Integrate to ``t_stop`` and land on it exactly.
 
         The step the controller proposes carries over from call to call: a
@@ -616,12 +616,18 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             load breakpoint where the acceleration jumps, the time is there
             twice: the state the step reached, then the one the next starts
             from (a step of size 0).
+        until_event : bool, optional
+            Stop at the first zero of an event function before ``t_stop``
+            (after ``on_event``'s reset there): :attr:`t` is then the zero's
+            time, and the next call goes on from it. A co-simulation unit
+            returns early there (FMI 3.0's ``earlyReturn``).
 
         Returns
         -------
         bool
-            ``True`` when ``t_stop`` was reached; ``False`` when a guard
-            stopped the run (see :attr:`status`, :attr:`message`).
+            ``True`` when ``t_stop`` was reached (or, with ``until_event``, an
+            event before it); ``False`` when a guard stopped the run (see
+            :attr:`status`, :attr:`message`).
         """
         t_stop = time_value("t_stop", t_stop)
         checks.callable_or_none("callback", callback, "callback(integrator)")
@@ -635,8 +641,14 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         if rows is not None and not self._vec.row_t.shape[0]:
             self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
             self._refresh_compiled()
+        if not isinstance(until_event, (bool, np.bool_)):
+            raise ValueError(f"until_event must be True or False, got {until_event!r}")
+        events = self._events if until_event else None
+        found = None if events is None else int(events.count.sum())
         self._rows = rows
         try:
+            if events is not None:
+                self._pause_at_events = True
             while self.t < t_stop:
                 if self.failed or self.terminated:
                     return False
@@ -647,8 +659,11 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                 if callback is not None and self._run.accepted > accepted and (
                         not self.failed or self._run.status == Status.ENERGY_GROWTH):
                     callback(self)
+                if found is not None and int(events.count.sum()) > found:
+                    break
         finally:
             self._rows = None
+            self._pause_at_events = False
         return not self.failed
 
     def _steps(self, t_stop: float, max_accepted: int) -> None:

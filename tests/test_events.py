@@ -401,3 +401,58 @@ def test_a_failing_event_function_keeps_the_steps_before_its_failure():
     assert r.status == hfdi.Status.MODEL_ERROR and "events[0] raised RuntimeError" in r.message
     assert 0.9 < r.t[-1] <= 1.0
     np.testing.assert_allclose(r.t_events[0], [math.pi / 6], rtol=1e-6)
+
+
+# -- events a model declares ------------------------------------------------------------
+@pytest.mark.parametrize("scheme", ["hfdi", "bathe"])
+def test_the_impact_oscillator_declares_its_events_and_reset(scheme):
+    """A model's ``events`` and ``on_event`` are used unless told otherwise: its
+    impacts and highest points against the closed form of the piecewise
+    harmonic motion (both depend on the integrated motion, so the bound is the
+    run's accuracy)."""
+    from hfdi.models.impact_oscillator import exact_events
+    model = hfdi.models.impact_oscillator()
+    impacts, tops = exact_events(model, 3.0)
+    assert len(impacts) == 4 and len(tops) == 4
+    rtol = 1e-9 if scheme == "hfdi" else 1e-8
+    result = hfdi.integrate(model, scheme, 3.0, rtol=rtol)
+    assert result.status == hfdi.Status.SUCCESS
+    found_impacts, found_tops = result.t_events
+    np.testing.assert_allclose(found_impacts, impacts, rtol=0, atol=2e-8)
+    np.testing.assert_allclose(found_tops, tops, rtol=0, atol=2e-8)
+    # at an impact the mass is on the stop; the rebound is in the next rows
+    np.testing.assert_allclose(result.u_events[0][:, 0], -model.gap, atol=1e-12)
+    # the energy lost at each impact is counted as work done, not numerical dissipation
+    balance = result.total_energy[-1] - result.total_energy[0] - result.external_work[-1]
+    assert abs(balance) < 1e-6 * result.total_energy[0]
+    assert result.external_work[-1] < -0.5 * result.total_energy[0]
+
+
+def test_events_none_takes_the_models_and_an_empty_list_none():
+    model = hfdi.models.impact_oscillator()
+    assert hfdi.integrate(model, "hfdi", 1.0, rtol=1e-6, events=()).t_events is None
+    own = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-6, events=[model.impact])
+    # the model's reset is not taken for events of the caller's: the mass goes through
+    assert len(own.t_events) == 1 and len(own.t_events[0]) == 1
+    assert own.u[:, 0].min() < -1.5 * model.gap
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_advance_until_event_stops_at_each_zero(compiled):
+    """advance(until_event=True) returns at every zero, on its time, and the
+    run goes on from there to the same events as without stopping."""
+    model = hfdi.models.impact_oscillator()
+    whole = hfdi.Integrator(model, "hfdi", rtol=1e-8, compiled=compiled)
+    assert whole.advance(3.0)
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-8, compiled=compiled)
+    stops = []
+    while itg.t < 3.0:
+        assert itg.advance(3.0, until_event=True)
+        stops.append(itg.t)
+    expected = np.sort(np.concatenate(whole.t_events))
+    assert len(stops) == len(expected) + 1 and stops[-1] == 3.0
+    np.testing.assert_allclose(stops[:-1], expected, rtol=0, atol=1e-9)
+    for mine, theirs in zip(itg.t_events, whole.t_events):
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="until_event"):
+        itg.advance(3.5, until_event=1)

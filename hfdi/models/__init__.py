@@ -1,16 +1,17 @@
-"""The paper's benchmark models and a registry to get them by name."""
+"""The paper's benchmark models, a model with events, and a registry to get them by name."""
 from __future__ import annotations
 
 import inspect
 
 from .articulated import Articulated, articulated
 from .dumbbell import Dumbbell, dumbbell
+from .impact_oscillator import ImpactOscillator, impact_oscillator
 from .loads import hat
 from .tetrahedra import Tetrahedra, tetrahedra
 from .toss_rule import TossRule, toss_rule
 
 __all__ = ["Dumbbell", "dumbbell", "Tetrahedra", "tetrahedra", "Articulated", "articulated",
-           "TossRule", "toss_rule", "EnergyModel", "elastic_pendulum", "spring_chain",
+           "TossRule", "toss_rule", "ImpactOscillator", "impact_oscillator", "EnergyModel", "elastic_pendulum", "spring_chain",
            "hat", "get", "available", "describe", "register"]
 
 _REGISTRY: dict = {}
@@ -72,3 +73,4 @@ register("dumbbell", Dumbbell)
 register("tetrahedra", Tetrahedra)
 register("articulated", Articulated)
 register("toss_rule", TossRule)
+register("impact_oscillator", ImpactOscillator)
