@@ -1,4 +1,4 @@
-"""Build FMI 2.0 co-simulation FMUs of hfdi's models with pythonfmu.
+"""Build FMI 2.0 and FMI 3.0 co-simulation FMUs of hfdi's models with pythonfmu.
 
 One FMU per model of ``hfdi.models``. :func:`build` stages, in a temporary
 directory,
@@ -17,8 +17,11 @@ process, and let FMUs built from the same sources (of different models, too)
 share the modules they have in common.
 
 The binary is the project's own native layer, not pythonfmu's:
-``fmu/native/hfdi_fmi2.c``, compiled here with the system's C compiler
-(``$CC``, default ``cc``) against the FMI 2.0 headers that ship with fmpy.
+``fmu/native/hfdi_fmi2.c`` or ``hfdi_fmi3.c`` (both on ``hfdi_fmu_core.h``),
+compiled here with the system's C compiler (``$CC``, default ``cc``) against
+the FMI headers that ship with fmpy. An FMI 3.0 FMU has the same slave,
+variables and value references as the FMI 2.0 one; its model description is
+the FMI 2.0 one written in 3.0 form (:func:`fmi3_description`).
 It resolves the Python C API at run time, so it links no libpython and loads
 in any host; beside it go ``hfdi_fmu_python.txt`` (the Python library, home
 and entry module for hosts without Python), the entry module
@@ -49,7 +52,12 @@ from hfdi.files import atomic_output
 from . import metadata
 from .entry import package_digest
 
-__all__ = ["BuildError", "problems", "build", "build_all"]
+__all__ = ["BuildError", "problems", "build", "build_all", "fmi3_description", "FMI_VERSIONS"]
+
+#: The FMI versions an FMU can be built for.
+FMI_VERSIONS = (2, 3)
+#: Where each version keeps the Linux x86-64 binary.
+_BINARIES = {2: "binaries/linux64", 3: "binaries/x86_64-linux"}
 
 _SCRIPT = '''"""FMI 2.0 co-simulation slave of the hfdi model {problem!r}.
 
@@ -79,7 +87,7 @@ def problems() -> list:
     return hfdi.models.available()
 
 
-def build(problem: str, out_dir=".") -> Path:
+def build(problem: str, out_dir=".", fmi_version: int = 2) -> Path:
     """Build the FMU of one registered model.
 
     Parameters
@@ -87,7 +95,10 @@ def build(problem: str, out_dir=".") -> Path:
     problem : str
         A name of ``hfdi.models.available()``.
     out_dir : path-like
-        Where to write ``hfdi_<problem>.fmu`` (created if missing).
+        Where to write ``hfdi_<problem>.fmu`` (FMI 2.0) or
+        ``hfdi_<problem>_fmi3.fmu`` (FMI 3.0), created if missing.
+    fmi_version : int
+        2 (default) or 3.
 
     Returns
     -------
@@ -104,6 +115,9 @@ def build(problem: str, out_dir=".") -> Path:
     import hfdi.models
     from pythonfmu import FmuBuilder
 
+    if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
+        raise BuildError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, "
+                         f"got {fmi_version!r}")
     names = hfdi.models.available()
     if problem not in names:
         raise BuildError(f"unknown problem {problem!r}; available: {', '.join(names)} "
@@ -137,7 +151,7 @@ def build(problem: str, out_dir=".") -> Path:
         cls = "Hfdi" + "".join(part.capitalize() for part in problem.split("_") if part)
         script.write_text(_SCRIPT.format(problem=problem, core=core, alias=alias, cls=cls,
                                          meta=meta_text), encoding="utf-8")
-        library = compile_native(stage / "native")
+        library = compile_native(stage / "native", fmi_version)
         entry_source = Path(__file__).with_name("entry.py").read_text(encoding="utf-8")
         entry = f"hfdi_fmu_entry_{package_digest(None, entry_source)}"
         (stage / f"{entry}.py").write_text(entry_source, encoding="utf-8")
@@ -167,8 +181,9 @@ def build(problem: str, out_dir=".") -> Path:
                 sys.modules.pop(name, None)
             sys.modules.update(set_aside)
         config = {"module": module, "class": cls, "core": core, "bundle": alias,
-                  "path": _packages_path(stage)}
-        return _assemble(Path(draft), library, entry, config, out_dir / Path(draft).name)
+                  "path": _packages_path(stage), "fmi_version": fmi_version}
+        name = Path(draft).name if fmi_version == 2 else f"{Path(draft).stem}_fmi3.fmu"
+        return _assemble(Path(draft), library, entry, config, out_dir / name, fmi_version)
 
 
 def _packages_path(stage: Path) -> list:
@@ -187,8 +202,8 @@ def _python_library() -> str:
     return ""
 
 
-def compile_native(out_dir: Path) -> Path:
-    """Compile ``fmu/native/hfdi_fmi2.c`` into ``out_dir``; the library's path.
+def compile_native(out_dir: Path, fmi_version: int = 2) -> Path:
+    """Compile ``fmu/native/hfdi_fmi<version>.c`` into ``out_dir``; the library's path.
 
     Raises
     ------
@@ -198,12 +213,12 @@ def compile_native(out_dir: Path) -> Path:
     try:
         import fmpy
     except ImportError:
-        raise BuildError("building an FMU needs fmpy (for the FMI 2.0 headers): "
+        raise BuildError("building an FMU needs fmpy (for the FMI headers): "
                          "pip install fmpy") from None
     headers = Path(fmpy.__file__).parent / "c-code"
-    source = Path(__file__).parent / "native" / "hfdi_fmi2.c"
+    source = Path(__file__).parent / "native" / f"hfdi_fmi{fmi_version}.c"
     out_dir.mkdir(parents=True, exist_ok=True)
-    library = out_dir / "hfdi_fmi2.so"
+    library = out_dir / f"hfdi_fmi{fmi_version}.so"
     compiler = os.environ.get("CC", "cc")
     command = [compiler, "-shared", "-fPIC", "-O2", "-std=c99", "-pthread", "-o", str(library),
                str(source), f"-I{headers}", "-ldl", "-lm"]
@@ -219,26 +234,101 @@ def compile_native(out_dir: Path) -> Path:
     return library
 
 
-def _assemble(draft: Path, library: Path, entry: str, config: dict, target: Path) -> Path:
+def _assemble(draft: Path, library: Path, entry: str, config: dict, target: Path,
+              fmi_version: int = 2) -> Path:
     """The FMU from pythonfmu's ``draft``: its binaries replaced by ``library``,
-    the native layer's resources added; written atomically to ``target``."""
+    the native layer's resources added, the model description in the form of
+    ``fmi_version``; written atomically to ``target``."""
     with zipfile.ZipFile(draft) as old:
         description = old.read("modelDescription.xml")
         root = ElementTree.fromstring(description)
         identifier = root.find("CoSimulation").get("modelIdentifier")
         config = dict(config, guid=root.get("guid"))
+        if fmi_version == 3:
+            description = fmi3_description(description)
         python = f"{_python_library()}\n{sys.base_prefix}\n{entry}\n"
         with atomic_output(target) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as new:
             for item in old.infolist():
-                if not item.filename.startswith("binaries/"):
+                if item.filename == "modelDescription.xml":
+                    new.writestr(item, description)
+                elif not item.filename.startswith("binaries/"):
                     new.writestr(item, old.read(item.filename))
-            new.write(library, f"binaries/linux64/{identifier}.so")
+            new.write(library, f"{_BINARIES[fmi_version]}/{identifier}.so")
             new.writestr("resources/hfdi_fmu_python.txt", python)
             new.writestr("resources/hfdi_fmu.json", json.dumps(config, indent=1))
     return target
 
 
-def build_all(out_dir=".") -> dict:
+#: FMI 2.0's types by their FMI 3.0 names.
+_TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
+#: Attributes of fmiModelDescription that FMI 3.0 keeps.
+_ROOT_KEPT = ("modelName", "description", "author", "version", "copyright", "license",
+              "generationTool", "generationDateAndTime", "variableNamingConvention")
+
+
+def fmi3_description(fmi2_xml: bytes) -> bytes:
+    """The FMI 2.0 co-simulation model description ``fmi2_xml`` in FMI 3.0 form.
+
+    The same variables (names, value references, causalities, variabilities,
+    starts, units and descriptions) as ``<Float64>``, ``<Int32>``,
+    ``<Boolean>`` and ``<String>`` (its start a ``<Start>`` element), the
+    GUID as the instantiation token, the structure by value reference, and a
+    co-simulation that may return early from ``fmi3DoStep`` (at the zeros of
+    the model's event functions) and has no event mode.
+    """
+    old = ElementTree.fromstring(fmi2_xml)
+    root = ElementTree.Element("fmiModelDescription", {"fmiVersion": "3.0"})
+    for key in _ROOT_KEPT:
+        if old.get(key) is not None:
+            root.set(key, old.get(key))
+    root.set("instantiationToken", old.get("guid"))
+    cs = old.find("CoSimulation")
+    ElementTree.SubElement(root, "CoSimulation", {
+        "modelIdentifier": cs.get("modelIdentifier"),
+        "canHandleVariableCommunicationStepSize": "true",
+        "canGetAndSetFMUState": cs.get("canGetAndSetFMUstate", "false"),
+        "canSerializeFMUState": cs.get("canSerializeFMUstate", "false"),
+        "mightReturnEarlyFromDoStep": "true",
+        "canReturnEarlyAfterIntermediateUpdate": "false",
+        "hasEventMode": "false", "providesIntermediateUpdate": "false"})
+    for tag in ("UnitDefinitions", "LogCategories", "DefaultExperiment"):
+        node = old.find(tag)
+        if node is not None:
+            root.append(node)
+    for node in root.iter():
+        # the FMI 2.0 names in descriptions (the slave's log says the same in fmu/entry.py)
+        if "fmi2" in node.get("description", ""):
+            node.set("description", node.get("description")
+                     .replace("fmi2SetupExperiment", "fmi3EnterInitializationMode")
+                     .replace("fmi2", "fmi3"))
+    variables = ElementTree.SubElement(root, "ModelVariables")
+    references = []                 # FMI 2.0's index (1-based) -> value reference
+    for scalar in old.find("ModelVariables"):
+        typed = next(child for child in scalar if child.tag in _TYPES)
+        attributes = {k: v for k, v in scalar.attrib.items()}
+        start = typed.get("start")
+        attributes.update({k: v for k, v in typed.attrib.items() if k != "start"})
+        node = ElementTree.SubElement(variables, _TYPES[typed.tag], attributes)
+        if start is not None:
+            if typed.tag == "String":
+                ElementTree.SubElement(node, "Start", {"value": start})
+            else:
+                node.set("start", start)
+        references.append(scalar.get("valueReference"))
+    structure = ElementTree.SubElement(root, "ModelStructure")
+    old_structure = old.find("ModelStructure")
+    for group, tag in (("Outputs", "Output"), ("InitialUnknowns", "InitialUnknown")):
+        for unknown in old_structure.findall(f"{group}/Unknown"):
+            attributes = {"valueReference": references[int(unknown.get("index")) - 1]}
+            if unknown.get("dependencies") is not None:
+                attributes["dependencies"] = " ".join(
+                    references[int(i) - 1] for i in unknown.get("dependencies").split())
+            ElementTree.SubElement(structure, tag, attributes)
+    ElementTree.indent(root)
+    return ElementTree.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+def build_all(out_dir=".", fmi_version: int = 2) -> dict:
     """Build the FMU of every registered model.
 
     Returns
@@ -250,7 +340,7 @@ def build_all(out_dir=".") -> dict:
     results = {}
     for name in problems():
         try:
-            results[name] = build(name, out_dir)
+            results[name] = build(name, out_dir, fmi_version)
         except BuildError as exc:
             results[name] = exc
     return results

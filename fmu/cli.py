@@ -1,6 +1,6 @@
 """``hfdi-fmu``: build the FMUs and run the example master from the command line.
 
-``python -m fmu build PROBLEM [--out DIR]``, ``python -m fmu build all``,
+``python -m fmu build PROBLEM [--out DIR] [--fmi-version 2|3]``, ``python -m fmu build all``,
 ``python -m fmu list``, ``python -m fmu demo [PROBLEM]`` and ``python -m fmu master [FMU]``.
 """
 from __future__ import annotations
@@ -88,12 +88,15 @@ def _non_negative(text):
 
 def build_parser():
     parser = _Parser(
-        prog="hfdi-fmu", description="FMI 2.0 co-simulation FMUs of hfdi's models.")
+        prog="hfdi-fmu", description="FMI 2.0 and 3.0 co-simulation FMUs of hfdi's models.")
     sub = parser.add_subparsers(dest="command", required=True)
     build = sub.add_parser("build", help="build the FMU of a problem, or of all of them")
     build.add_argument("problem", help="a registered model (see 'list') or 'all'")
     build.add_argument("--out", default=".", metavar="DIR",
-                       help="directory for hfdi_<problem>.fmu (default: the current one)")
+                       help="directory for hfdi_<problem>.fmu (FMI 3.0: "
+                            "hfdi_<problem>_fmi3.fmu; default: the current one)")
+    build.add_argument("--fmi-version", type=int, choices=(2, 3), default=2,
+                       help="FMI version of the FMU (default 2)")
     sub.add_parser("list", help="the problems an FMU can be built for")
     master = sub.add_parser("master", help="co-simulate two dumbbell FMUs coupled by a "
                                            "spring-damper (fmpy's low-level API)")
@@ -136,7 +139,7 @@ def main(argv=None) -> int:
             print("\n".join(problems()))
         elif args.command == "build" and args.problem == "all":
             failed = 0
-            for name, result in build_all(_out_dir(args.out)).items():
+            for name, result in build_all(_out_dir(args.out), args.fmi_version).items():
                 if isinstance(result, BuildError):
                     failed += 1
                     print(f"hfdi-fmu: error: {result}", file=sys.stderr)
@@ -145,7 +148,7 @@ def main(argv=None) -> int:
             return 1 if failed else 0
         elif args.command == "build":
             check_problem(args.problem, " (or 'all')")
-            print(build(args.problem, _out_dir(args.out)))
+            print(build(args.problem, _out_dir(args.out), args.fmi_version))
         elif args.command == "demo":
             check_problem(args.problem)
             from .demo import run_demo

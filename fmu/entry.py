@@ -1,4 +1,4 @@
-"""The Python side of the FMU's native layer (``fmu/native/hfdi_fmi2.c``).
+"""The Python side of the FMU's native layer (``fmu/native/hfdi_fmi2.c`` and ``hfdi_fmi3.c``).
 
 :mod:`fmu.build` copies this file into the FMU's resources as
 ``hfdi_fmu_entry_<digest of the file>.py`` and writes ``hfdi_fmu.json``
@@ -59,7 +59,7 @@ __all__ = ["instantiate", "Adapter", "Importer", "CONFIG", "GATE_FIELDS", "packa
 CONFIG = "hfdi_fmu.json"
 
 #: The entries of the native path's gate, in the order of the native layer's
-#: ``GATE_*`` (``fmu/native/hfdi_fmi2.c``, which describes the protocol): armed,
+#: ``GATE_*`` (``fmu/native/hfdi_fmu_core.h``, which describes the protocol): armed,
 #: dirty (native steps not yet taken over by the slave), the C function and its
 #: context (:class:`hfdi.compiled.NativeAdvance`), the addresses of the time,
 #: of the state arrays and of the inputs, the value-reference table and its
@@ -379,15 +379,47 @@ def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
         for entry in extra_path:
             if entry not in sys.path:
                 sys.path.append(entry)
-    return Adapter(load_slave(resources, config), resources, instance_name, visible)
+    version = config.get("fmi_version", 2)
+    if version not in (2, 3):
+        raise ValueError(f"the FMU's resources are damaged: {path} names FMI version "
+                         f"{version!r}")
+    return Adapter(load_slave(resources, config), resources, instance_name, visible, version)
+
+
+#: The FMI 2.0 functions the slave's messages name, by their FMI 3.0 names.
+_FMI3_NAMES = {
+    "fmi2SetupExperiment": "fmi3EnterInitializationMode",
+    "fmi2EnterInitializationMode": "fmi3EnterInitializationMode",
+    "fmi2ExitInitializationMode": "fmi3ExitInitializationMode",
+    "fmi2Instantiate": "fmi3InstantiateCoSimulation", "fmi2Terminate": "fmi3Terminate",
+    "fmi2Reset": "fmi3Reset", "fmi2DoStep": "fmi3DoStep",
+    "fmi2GetReal": "fmi3GetFloat64", "fmi2SetReal": "fmi3SetFloat64",
+    "fmi2GetInteger": "fmi3GetInt32", "fmi2SetInteger": "fmi3SetInt32",
+    "fmi2GetBoolean": "fmi3GetBoolean", "fmi2SetBoolean": "fmi3SetBoolean",
+    "fmi2GetString": "fmi3GetString", "fmi2SetString": "fmi3SetString",
+    "fmi2GetFMUstate": "fmi3GetFMUState", "fmi2SetFMUstate": "fmi3SetFMUState",
+    "fmi2SerializeFMUstate": "fmi3SerializeFMUState",
+    "fmi2DeSerializeFMUstate": "fmi3DeserializeFMUState",
+    "fmi2LastSuccessfulTime": "lastSuccessfulTime",
+}
+
+
+def _fmi3_text(text: str) -> str:
+    """A slave's message with the FMI 3.0 names of the functions it names."""
+    if "fmi2" not in text:
+        return text
+    for old, new in _FMI3_NAMES.items():
+        text = text.replace(old, new)
+    return text
 
 
 class Adapter:
     """One FMU instance: the slave and the calls of the native layer."""
 
-    def __init__(self, slave_class, resources, instance_name, visible):
+    def __init__(self, slave_class, resources, instance_name, visible, fmi_version=2):
         self._make = lambda: slave_class(instance_name=instance_name, resources=resources,
                                          visible=visible)
+        self.fmi_version = fmi_version
         self._pending = []
         # the native path's gate: lives as long as this adapter, across resets
         self.gate = (ctypes.c_int64 * GATE_SIZE)()
@@ -418,6 +450,9 @@ class Adapter:
         queue = self._pending + list(self.slave.log_queue)
         self._pending = []
         del self.slave.log_queue[:]
+        if self.fmi_version == 3:
+            return [(int(m.status), str(m.category or ""), _fmi3_text(str(m.msg)))
+                    for m in queue]
         return [(int(m.status), str(m.category or ""), str(m.msg)) for m in queue]
 
     # -- life cycle ---------------------------------------------------------------
@@ -441,8 +476,21 @@ class Adapter:
         self._pending += list(self.slave.log_queue)
         self.slave = fresh
 
+    def enter_initialization(self, start_time, stop_time, tolerance):
+        """``fmi3EnterInitializationMode``: the experiment and the mode in one call
+        (refused as a whole: the slave is as before when either part is)."""
+        if self.slave._phase != "instantiated":
+            self.slave.enter_initialization_mode()      # refuses, naming the phase
+        self.slave.setup_experiment(start_time, stop_time, tolerance)
+        self.slave.enter_initialization_mode()
+
     def do_step(self, current_time, step_size) -> bool:
         return bool(self.slave.do_step(current_time, step_size))
+
+    def do_step_early(self, current_time, step_size, early_return_allowed):
+        """``fmi3DoStep``: ``(taken, returned early, the FMU's time)``."""
+        taken = bool(self.slave.do_step(current_time, step_size, bool(early_return_allowed)))
+        return taken, bool(taken and self.slave.early_return), float(self.slave.time())
 
     def time(self) -> float:
         return self.slave.time()

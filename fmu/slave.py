@@ -34,7 +34,7 @@ that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
   largest entries of the estimated global error of ``u`` and ``v``), and the
   Integer outputs ``internal_steps`` and ``newton_iterations``.
 
-How the FMU's native layer (``fmu/native/hfdi_fmi2.c``, through
+How the FMU's native layer (``fmu/native/hfdi_fmi2.c``, ``hfdi_fmi3.c``, through
 :mod:`fmu.entry`) maps this slave's behaviour onto FMI 2.0 statuses:
 
 * ``do_step`` returning ``False`` gives ``fmi2Discard``;
@@ -81,10 +81,10 @@ Fmi2Status = importlib.import_module(_pythonfmu.__name__ + ".enums").Fmi2Status
 __all__ = ["HfdiSlave", "FmuError", "load_bundle"]
 
 #: Serialized FMU states start with this line; a version bump makes old ones unreadable.
-_MAGIC = b"hfdi-fmu-state/3\n"
+_MAGIC = b"hfdi-fmu-state/4\n"
 #: The FMU's own fields of a serialized state (beside its arrays and the integrator's key).
 _STATE_HEADER = ("model", "bundle", "phase", "params", "mparams", "start_time", "stop_time",
-                 "scales")
+                 "scales", "events")
 
 _SOLVER_DEFAULTS = {"scheme": "hfdi", "target_iterations": 3.0, "rtol": 0.0, "tolerance": 0.0,
                     "initial_step": 0.0, "max_step": 0.0, "max_internal_steps": 100_000,
@@ -199,6 +199,26 @@ class _Real(Real):
         return node
 
 
+class _Time(_Real):
+    """The independent variable (pythonfmu 0.7 has no such causality: written here)."""
+
+    def to_xml(self):
+        node = super().to_xml()
+        node.set("causality", "independent")
+        node.attrib.pop("initial", None)
+        return node
+
+
+def _event_label(k, g) -> str:
+    """How the FMU's descriptions name the event function ``g``: its name and the
+    first line of its docstring."""
+    name = getattr(g, "__name__", "") or f"events[{k}]"
+    doc = (getattr(g, "__doc__", "") or "").strip().splitlines()
+    direction = {-1: "falling zeros", 1: "rising zeros"}.get(
+        int(getattr(g, "direction", 0) or 0), "zeros")
+    return f"{name} ({direction}{': ' + doc[0].rstrip('.') if doc else ''})"
+
+
 def _finite_number(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) \
         and math.isfinite(float(value))
@@ -268,9 +288,23 @@ class HfdiSlave(Fmi2Slave):
         self._dof_labels = [dof_pattern[i % len(dof_pattern)][1].format(
             k=i // len(dof_pattern) + 1, k0=i // len(dof_pattern)) for i in range(n)]
         self._layout_quantities(model, meta.get("quantities") or {})
+        # the event functions the model declares (docs/user-models.md, "Events"):
+        # per function, the count of its zeros and the time of the last one
+        self._event_names = [_event_label(k, g) for k, g in
+                             enumerate(getattr(model, "events", None) or ())]
+        self._event_count = [0] * len(self._event_names)
+        self._event_time = [0.0] * len(self._event_names)
+        self._early_return = False           # whether the last doStep returned early
         self._register_parameters(meta.get("parameters") or {})
         self._register_inputs()
         self._register_outputs()
+        self._register_events()
+        # the independent variable, last: the references above stay those of
+        # FMUs built before it
+        self.register_variable(_Time("time", unit="s", description="simulation time",
+                                     causality=Fmi2Causality.local,
+                                     variability=Fmi2Variability.continuous,
+                                     getter=self.time, setter=self._time_setter))
 
     # -- variables --------------------------------------------------------------
     def _layout_quantities(self, model, qmeta):
@@ -455,6 +489,25 @@ class HfdiSlave(Fmi2Slave):
                                              "attempts included",
             getter=lambda: self._outputs()["iterations"], **discrete))
 
+    def _register_events(self):
+        discrete = dict(causality=Fmi2Causality.output, initial=Fmi2Initial.calculated,
+                        variability=Fmi2Variability.discrete, setter=self._output_setter)
+        for k, label in enumerate(self._event_names):
+            self.register_variable(Integer(
+                f"event_count[{k + 1}]", description=f"zeros of the model's event function "
+                f"{k + 1}, {label}, since the start (counted where they happen, inside the "
+                f"communication steps)", getter=(lambda k=k: self._event_count[k]),
+                **discrete))
+            self.register_variable(_Real(
+                f"event_time[{k + 1}]", unit="s", description=f"time of the last zero of "
+                f"the model's event function {k + 1}, {label}; the start time while "
+                f"event_count[{k + 1}] is 0", getter=(lambda k=k: self._event_time[k]),
+                **discrete))
+
+    def _time_setter(self, value):
+        self._reject(f"time is the independent variable: it changes in doStep only (value "
+                     f"{value!r} refused)")
+
     def _output_setter(self, value):
         self.log(f"outputs cannot be set (value {value!r} ignored)", Fmi2Status.warning)
 
@@ -541,6 +594,8 @@ class HfdiSlave(Fmi2Slave):
         self._itg = itg
         self._itg_key = (dict(self._params), dict(self._mparams), self._start_time,
                          self._stop_time)
+        self._event_count = [0] * len(self._event_names)
+        self._event_time = [float(self._start_time)] * len(self._event_names)
         self._scales = self._scales_with(itg, (0.0, 0.0))
         self._phase = "stepping"
         self._cache = None
@@ -675,15 +730,20 @@ class HfdiSlave(Fmi2Slave):
         return self._F_applied
 
     # -- stepping -------------------------------------------------------------------
-    def do_step(self, current_time, step_size):
+    def do_step(self, current_time, step_size, early_return=False):
         """Advance to ``current_time + step_size`` exactly.
 
         Returns ``False`` (``fmi2Discard``) when the step cannot be taken; the
         FMU is then back at ``current_time`` (the time the native layer reports
         as ``fmi2LastSuccessfulTime``), with its outputs there, and the log says
         why. Never raises.
+
+        ``early_return`` (FMI 3.0's ``earlyReturnAllowed``): stop at the first
+        zero of a model's event function inside the step, after its reset;
+        :attr:`early_return` then says so and :meth:`time` is the zero's time.
         """
         snapshot = None
+        self._early_return = False
         try:
             itg = self._itg
             t, h = float(current_time), float(step_size)
@@ -718,16 +778,21 @@ class HfdiSlave(Fmi2Slave):
                 return self._discard(f"doStep({t}, {h}): the end time overflows")
             budget = int(self._itg_key[0]["max_internal_steps"])
             # the rollback of a failed step: never leaves this object, never written
-            snapshot = (itg.get_state(copy_arrays=False), self._F_applied.copy())
+            snapshot = (itg.get_state(copy_arrays=False), self._F_applied.copy(),
+                        list(self._event_count), list(self._event_time))
             if inputs_changed:
                 self._apply_inputs()
             # the budget of this doStep as the integrator's step limit: it holds
             # in the compiled driver as in the Python one
             itg.max_steps = itg.statistics.steps + budget
+            counted = itg.event_count
             try:
-                ok = itg.advance(t_end)
+                ok = itg.advance(t_end, until_event=bool(early_return and counted is not None))
             finally:
                 itg.max_steps = _UNLIMITED_STEPS
+            if counted is not None:
+                self._count_events(itg, counted)
+                self._early_return = ok and itg.t < t_end
             reason = ""
             if not ok:
                 reason = f"{itg.status.name}: {itg.message}"
@@ -760,7 +825,7 @@ class HfdiSlave(Fmi2Slave):
                          Fmi2Status.error)
             return self._discard(f"doStep({current_time}, {step_size}) failed: {exc!r}")
 
-    # -- the native path (fmu/native/hfdi_fmi2.c: the gate and its protocol) -----------
+    # -- the native path (fmu/native/hfdi_fmu_core.h: the gate and its protocol) ------
     def attach_native_gate(self, gate, fields):
         """Take the native layer's gate (a ctypes int64 array whose entries are
         named by ``fields``): from now on a doStep of this slave opens it
@@ -903,10 +968,25 @@ class HfdiSlave(Fmi2Slave):
                 f"times the tolerance at t = {itg.t!r}; rerun the experiment with rtol <= "
                 f"{0.5 * float(rtol.min()) / ratio:.3g}")
 
+    def _count_events(self, itg, before):
+        """The zeros found since the counts were ``before`` into the event outputs."""
+        after = itg.event_count
+        last = itg.last_event_times
+        for k in np.flatnonzero(after > before):
+            self._event_count[k] = min(self._event_count[k] + int(after[k] - before[k]),
+                                       _INT32_MAX)
+            self._event_time[k] = float(last[k])
+
+    @property
+    def early_return(self) -> bool:
+        """Whether the last doStep stopped early, at an event."""
+        return self._early_return
+
     def _rollback(self, snapshot):
-        saved, applied = snapshot
+        saved, applied, count, times = snapshot
         self._itg.set_state(saved)
         self._F_applied = applied
+        self._event_count, self._event_time = count, times
         self._cache = None
 
     def _discard(self, message):
@@ -1076,7 +1156,9 @@ class HfdiSlave(Fmi2Slave):
             return {"model": self.model_name, "bundle": self.bundle, "phase": self._phase,
                     "params": dict(self._params), "mparams": dict(self._mparams),
                     "start_time": self._start_time, "stop_time": self._stop_time,
-                    "scales": list(self._scales), "inputs": self._F_input.copy(), "applied": self._F_applied.copy(),
+                    "scales": list(self._scales),
+                    "events": [list(self._event_count), list(self._event_time)],
+                    "inputs": self._F_input.copy(), "applied": self._F_applied.copy(),
                     "integrator": None if self._itg is None else self._itg.get_state(),
                     "built": None if self._itg_key is None else
                     (dict(self._itg_key[0]), dict(self._itg_key[1]), self._itg_key[2],
@@ -1099,6 +1181,14 @@ class HfdiSlave(Fmi2Slave):
             if not (isinstance(scales, (list, tuple)) and len(scales) == 2 and all(
                     isinstance(x, float) and math.isfinite(x) and x >= 0 for x in scales)):
                 raise FmuError("the state is malformed")
+            events = state["events"]
+            m = len(self._event_names)
+            if not (isinstance(events, (list, tuple)) and len(events) == 2
+                    and all(isinstance(x, (list, tuple)) and len(x) == m for x in events)
+                    and all(isinstance(c, int) and not isinstance(c, bool)
+                            and 0 <= c <= _INT32_MAX for c in events[0])
+                    and all(isinstance(x, float) and math.isfinite(x) for x in events[1])):
+                raise FmuError("the state is malformed (its event outputs)")
             inputs = np.array(state["inputs"], dtype=float)
             applied = np.array(state["applied"], dtype=float)
             phase = state["phase"]
@@ -1143,6 +1233,7 @@ class HfdiSlave(Fmi2Slave):
             self._params, self._mparams = params, mparams
             self._start_time, self._stop_time = start_time, stop_time
             self._scales = (scales[0], scales[1])
+            self._event_count, self._event_time = list(events[0]), list(events[1])
             self._F_input, self._F_applied = inputs, applied
             self._phase = phase
             self._cache = None

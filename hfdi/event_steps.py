@@ -96,6 +96,20 @@ class EventSteps:
         return self._events.arrays(name, self.ev.n)
 
     @property
+    def event_count(self):
+        """Per event function, the count of its zeros so far (an int array, a
+        copy; ``None`` without events)."""
+        return None if self._events is None else self._events.count.copy()
+
+    @property
+    def last_event_times(self):
+        """Per event function, the time of its last zero (NaN before the first;
+        ``None`` without events)."""
+        if self._events is None:
+            return None
+        return np.array([x[-1] if x else math.nan for x in self._events.t_events])
+
+    @property
     def t_events(self):
         """Per event function, the times of its zeros so far (``None`` without events)."""
         return self._event_arrays("t")

@@ -270,7 +270,7 @@ def _gate(instance_name):
 def test_the_gate_fields_are_the_native_layers():
     """fmu.entry.GATE_FIELDS names the entries of the native layer's enum, in its order."""
     from fmu.entry import GATE_FIELDS, GATE_SIZE
-    source = (Path(fmu.__file__).parent / "native" / "hfdi_fmi2.c").read_text()
+    source = (Path(fmu.__file__).parent / "native" / "hfdi_fmu_core.h").read_text()
     enum = re.search(r"enum \{ (GATE_ARMED[^}]*)\}", source).group(1)
     names = [n.strip() for n in enum.split(",")]
     assert names[-1] == f"GATE_SIZE = {GATE_SIZE}"

@@ -475,7 +475,7 @@ INPUT_CASES = [
     # the models
     ("model-name", "models.get", "unknown model name",
      lambda: hfdi.models.get("pendulum"), ValueError,
-     ["unknown model 'pendulum'", "articulated, dumbbell, tetrahedra, toss_rule"]),
+     ["unknown model 'pendulum'", "articulated, dumbbell, impact_oscillator, tetrahedra, toss_rule"]),
     ("dumbbell-A", "dumbbell", "negative bond strength A",
      lambda: hfdi.models.get("dumbbell", A=-1e6), ValueError,
      ["dumbbell A", "> 0", "-1000000.0"]),

@@ -2,17 +2,14 @@
  * The native layer of hfdi's FMI 2.0 co-simulation FMUs.
  *
  * Every fmi2 function of the co-simulation interface, written against the
- * FMI 2.0 headers, calling the FMU's Python slave through the CPython C API.
- * The API is resolved at run time (dlsym), never linked: in a Python host
- * (fmpy, a Python master) the interpreter already in the process is used;
- * in any other host the library named in resources/hfdi_fmu_python.txt is
- * loaded and initialized once, under a lock (the first fmi2Instantiate may
- * come from several threads at once). The FMU's Python modules are imported
+ * FMI 2.0 headers, calling the FMU's Python slave through the CPython C API
+ * (hfdi_fmu_core.h, shared with the FMI 3.0 layer hfdi_fmi3.c). The API is
+ * resolved at run time (dlsym), never linked: in a Python host (fmpy, a
+ * Python master) the interpreter already in the process is used; in any
+ * other host the library named in resources/hfdi_fmu_python.txt is loaded
+ * and initialized once, under a lock (the first fmi2Instantiate may come
+ * from several threads at once). The FMU's Python modules are imported
  * under private names without touching the host's sys.path (fmu/entry.py).
- * Nothing here raises or aborts: every failure becomes a status and one log
- * message, and no Python exception is left pending when a call returns.
- * Sizes given by the master are checked before an array is read or a Python
- * object of that size is made.
  *
  * Statuses, as FMI 2.0 defines them:
  *   fmi2Error    a refused call (bad argument, value reference, state, an
@@ -26,243 +23,15 @@
  * Every message reaches the logger as a printf format that prints the text
  * itself: each '%' doubled.
  */
-#define _GNU_SOURCE
-#include <dlfcn.h>
-#include <math.h>
-#include <pthread.h>
-#include <stdarg.h>
-#include <stdint.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-#include <time.h>
+#include "hfdi_fmu_core.h"
 
 #include "fmi2Functions.h"
 
-/* ---------------------------------------------------------------------------
- * The CPython C API, by name. Only functions (no macros, no struct layouts)
- * so that no header of a particular Python version is needed.
- * ------------------------------------------------------------------------- */
-typedef void PyObject;
-typedef long Py_ssize_t_;
-typedef int PyGILState;
-
-#define API(ret, name, args) static ret(*p_##name) args;
-#define API_LIST                                                                   \
-    API(int, Py_IsInitialized, (void))                                             \
-    API(void, Py_InitializeEx, (int))                                              \
-    API(void, Py_SetPythonHome, (const wchar_t*))                                  \
-    API(wchar_t*, Py_DecodeLocale, (const char*, size_t*))                         \
-    API(void*, PyEval_SaveThread, (void))                                          \
-    API(PyGILState, PyGILState_Ensure, (void))                                     \
-    API(void, PyGILState_Release, (PyGILState))                                    \
-    API(void, Py_IncRef, (PyObject*))                                              \
-    API(void, Py_DecRef, (PyObject*))                                              \
-    API(PyObject*, PyImport_ImportModule, (const char*))                           \
-    API(PyObject*, PyObject_GetAttrString, (PyObject*, const char*))               \
-    API(PyObject*, PyObject_CallObject, (PyObject*, PyObject*))                    \
-    API(PyObject*, PyObject_Str, (PyObject*))                                      \
-    API(int, PyObject_IsTrue, (PyObject*))                                         \
-    API(PyObject*, PyTuple_New, (Py_ssize_t_))                                     \
-    API(int, PyTuple_SetItem, (PyObject*, Py_ssize_t_, PyObject*))                 \
-    API(PyObject*, PyTuple_GetItem, (PyObject*, Py_ssize_t_))                      \
-    API(PyObject*, PyList_New, (Py_ssize_t_))                                      \
-    API(int, PyList_SetItem, (PyObject*, Py_ssize_t_, PyObject*))                  \
-    API(PyObject*, PyList_GetItem, (PyObject*, Py_ssize_t_))                       \
-    API(Py_ssize_t_, PyList_Size, (PyObject*))                                     \
-    API(PyObject*, PyUnicode_DecodeFSDefault, (const char*))                       \
-    API(PyObject*, PyUnicode_DecodeUTF8, (const char*, Py_ssize_t_, const char*))  \
-    API(const char*, PyUnicode_AsUTF8AndSize, (PyObject*, Py_ssize_t_*))           \
-    API(PyObject*, PyLong_FromLong, (long))                                        \
-    API(PyObject*, PyLong_FromUnsignedLong, (unsigned long))                       \
-    API(long, PyLong_AsLong, (PyObject*))                                          \
-    API(PyObject*, PyFloat_FromDouble, (double))                                   \
-    API(double, PyFloat_AsDouble, (PyObject*))                                     \
-    API(PyObject*, PyBool_FromLong, (long))                                        \
-    API(PyObject*, PyBytes_FromStringAndSize, (const char*, Py_ssize_t_))          \
-    API(int, PyBytes_AsStringAndSize, (PyObject*, char**, Py_ssize_t_*))           \
-    API(PyObject*, PyErr_Occurred, (void))                                         \
-    API(void, PyErr_Fetch, (PyObject**, PyObject**, PyObject**))                   \
-    API(void, PyErr_Clear, (void))                                                 \
-    API(PyObject*, PyDict_New, (void))                                             \
-    API(PyObject*, PyDict_GetItemString, (PyObject*, const char*))
-API_LIST
-#undef API
-
-static PyObject* py_none;      /* None */
-static int api_ready = 0;       /* the table is filled and Python initialized */
-static int api_started = 0;     /* and this library started the interpreter */
-static char api_problem[8400];   /* why not, when it is not (under api_lock) */
-/* Held while the API is resolved and Python started: the first
- * fmi2Instantiate of a process may come from several threads at once. */
-static pthread_mutex_t api_lock = PTHREAD_MUTEX_INITIALIZER;
-
-static int resolve(void* handle)
-{
-#define API(ret, name, args)                                                       \
-    p_##name = (ret(*) args)dlsym(handle, #name);                                  \
-    if (!p_##name && strcmp(#name, "Py_SetPythonHome") != 0) {                     \
-        snprintf(api_problem, sizeof api_problem, "the Python C API has no %s", #name); \
-        return 0;                                                                  \
-    }
-    API_LIST
-#undef API
-    py_none = (PyObject*)dlsym(handle, "_Py_NoneStruct");
-    if (!py_none) {
-        snprintf(api_problem, sizeof api_problem, "the Python C API has no _Py_NoneStruct");
-        return 0;
-    }
-    return 1;
-}
-
-/* A new reference to None. */
-static PyObject* none(void)
-{
-    p_Py_IncRef(py_none);
-    return py_none;
-}
-
-/* The next line of `f` into `out`, without its newline; 0 at the end of the file. */
-static int read_line(FILE* f, char* out, size_t size)
-{
-    if (!fgets(out, (int)size, f)) return 0;
-    size_t n = strlen(out);
-    while (n && (out[n - 1] == '\n' || out[n - 1] == '\r')) out[--n] = '\0';
-    return 1;
-}
-
-/* resources/hfdi_fmu_python.txt: the Python library (empty when the build's
- * Python has none, a static one), its home, the entry module; 0 with the
- * reason in `problem` when the file is missing or malformed. */
-typedef struct { char library[4096], home[4096], entry[256]; } Description;
-
-static int read_description(const char* resources, Description* d, char* problem,
-                            size_t size)
-{
-    char path[4200];
-    snprintf(path, sizeof path, "%s/hfdi_fmu_python.txt", resources);
-    FILE* f = fopen(path, "r");
-    int ok = f && read_line(f, d->library, sizeof d->library)
-             && read_line(f, d->home, sizeof d->home) && read_line(f, d->entry, sizeof d->entry)
-             && d->entry[0];
-    if (f) fclose(f);
-    if (!ok) snprintf(problem, size, "the FMU's resources are damaged: %s is missing or "
-                      "malformed", path);
-    return ok;
-}
-
-/* Make the C API usable: the host's interpreter if it has one, else the
- * library the FMU was built with (its path and home in resources). With
- * api_lock held. */
-static int start_python(const char* resources)
-{
-    if (api_ready) return 1;
-    void* self = dlopen(NULL, RTLD_LAZY);
-    int (*is_initialized)(void) = self ? (int (*)(void))dlsym(self, "Py_IsInitialized") : NULL;
-    if (is_initialized && is_initialized()) {
-        if (!resolve(self)) return 0;
-        api_ready = 1;
-        return 1;
-    }
-    Description d;
-    if (!read_description(resources, &d, api_problem, sizeof api_problem)) return 0;
-    if (!d.library[0]) {
-        snprintf(api_problem, sizeof api_problem, "no Python in the host, and the FMU was built "
-                 "with a Python that has no shared library to load");
-        return 0;
-    }
-    const char* library = d.library;
-    const char* home = d.home;
-    void* lib = dlopen(library, RTLD_NOW | RTLD_GLOBAL);
-    if (!lib) {
-        snprintf(api_problem, sizeof api_problem, "cannot load the Python library %s: %s",
-                 library, dlerror());
-        return 0;
-    }
-    if (!resolve(lib)) return 0;
-    if (!p_Py_IsInitialized()) {
-        if (p_Py_SetPythonHome) {
-            /* Py_SetPythonHome keeps the pointer: it lives as long as Python */
-            wchar_t* whome = p_Py_DecodeLocale(home, NULL);
-            if (whome) p_Py_SetPythonHome(whome);
-        } else if (home[0]) {
-            setenv("PYTHONHOME", home, 0);   /* Pythons without Py_SetPythonHome (3.13) */
-        }
-        p_Py_InitializeEx(0);
-        if (!p_Py_IsInitialized()) {
-            snprintf(api_problem, sizeof api_problem, "Python failed to initialize");
-            return 0;
-        }
-        p_PyEval_SaveThread();   /* every call below takes the GIL itself */
-        api_started = 1;
-    }
-    api_ready = 1;
-    return 1;
-}
-
-/* start_python once per process, whatever the number of threads calling it
- * at once; 0 with the reason in `problem` when Python cannot be used. */
-static int python_ready(const char* resources, char* problem, size_t size)
-{
-    pthread_mutex_lock(&api_lock);
-    int ok = api_ready || start_python(resources);
-    if (!ok) snprintf(problem, size, "%s", api_problem);
-    pthread_mutex_unlock(&api_lock);
-    return ok;
-}
-
-/* ---------------------------------------------------------------------------
- * The instance
- * ------------------------------------------------------------------------- */
-/* ---------------------------------------------------------------------------
- * The native path: a doStep (and a read of the states) without Python.
- *
- * The Adapter owns the gate, an int64 array the slave fills when its
- * integrator runs in the compiled driver (entry.py, GATE_*): the address of
- * hfdi.compiled.NativeAdvance's C function and context, of the state's time
- * and of its arrays u, v, a, and a table from value references to entries
- * of those arrays and of the inputs F[i] (an entry -2 - i). While the gate
- * is armed (the arrays are the slave's state), fmi2DoStep calls the function
- * directly, fmi2GetReal of states reads the arrays and fmi2SetReal of inputs
- * writes the slave's inputs (the function holds them from the next step on,
- * as the slave does): none of them enters Python or takes the GIL. A call that
- * does enter Python first has the slave take over what the native steps did
- * (sync_native, when the gate is dirty) and, unless it only reads, disarms
- * the gate; the slave arms it again after a doStep of its own. A step the
- * function does not take (a breakpoint, a stop, the budget of internal
- * steps) changes nothing and is taken by the slave, so that every status and
- * message has one source. On the Python path (or while the gate cannot be
- * armed) the slave still opens it for reading: after its doStep it copies
- * u, v, a where the gate's state address points (readable, not armed).
- * ------------------------------------------------------------------------- */
-enum { GATE_ARMED, GATE_DIRTY, GATE_FUNCTION, GATE_CONTEXT, GATE_TIME, GATE_STATE,
-       GATE_INPUTS, GATE_TABLE, GATE_TABLE_LENGTH, GATE_CPU_NS, GATE_STEPS, GATE_READS,
-       GATE_WRITES, GATE_READABLE, GATE_SIZE = 16 };
-typedef int64_t (*NativeAdvance)(int64_t* context, double t_stop);
-
-typedef struct {
-    char* name;
-    fmi2CallbackFunctions callbacks;
-    int logging_on;
-    PyObject* adapter;             /* the entry module's Adapter */
-    int64_t* gate;                 /* the Adapter's gate (see above), or NULL */
-    char** strings;                /* what fmi2GetString returned last */
-    size_t n_strings;
-} Instance;
-
-static char* copy_text(const char* text)
-{
-    size_t n = strlen(text ? text : "");
-    char* out = (char*)malloc(n + 1);
-    if (out) memcpy(out, text ? text : "", n + 1);
-    return out;
-}
-
 /* The message as a printf format printing it: every '%' doubled. */
-static void log_text(const fmi2CallbackFunctions* callbacks, const char* name,
-                     fmi2Status status, const char* category, const char* text)
+static void emit2(const Instance* inst, int status, const char* category, const char* text)
 {
-    if (!callbacks || !callbacks->logger) return;
+    fmi2CallbackLogger logger = (fmi2CallbackLogger)inst->logger;
+    if (!logger) return;
     size_t n = strlen(text), extra = 0;
     for (size_t i = 0; i < n; i++) extra += text[i] == '%';
     char* safe = (char*)malloc(n + extra + 1);
@@ -273,251 +42,11 @@ static void log_text(const fmi2CallbackFunctions* callbacks, const char* name,
         if (text[i] == '%') *o++ = '%';
     }
     *o = '\0';
-    callbacks->logger(callbacks->componentEnvironment, name ? name : "", status,
-                      category ? category : "", safe);
+    logger((fmi2ComponentEnvironment)inst->environment, inst->name ? inst->name : "",
+           (fmi2Status)status, category ? category : "", safe);
     free(safe);
 }
 
-static void logf_(Instance* inst, fmi2Status status, const char* format, ...)
-{
-    va_list ap, again;
-    va_start(ap, format);
-    va_copy(again, ap);
-    int n = vsnprintf(NULL, 0, format, ap);
-    va_end(ap);
-    char* text = n >= 0 ? (char*)malloc((size_t)n + 1) : NULL;
-    if (!text) {
-        va_end(again);
-        return;
-    }
-    vsnprintf(text, (size_t)n + 1, format, again);
-    va_end(again);
-    const char* category = status == fmi2OK ? "logAll" :
-                           status == fmi2Warning ? "logStatusWarning" :
-                           status == fmi2Discard ? "logStatusDiscard" :
-                           status == fmi2Error ? "logStatusError" : "logStatusFatal";
-    log_text(&inst->callbacks, inst->name, status, category, text);
-    free(text);
-}
-
-/* Text of an object, UTF-8; "" when it has none. Borrowed storage inside `holder`. */
-static const char* text_of(PyObject* obj, PyObject** holder)
-{
-    *holder = obj ? p_PyObject_Str(obj) : NULL;
-    const char* s = *holder ? p_PyUnicode_AsUTF8AndSize(*holder, NULL) : NULL;
-    if (!s) {
-        p_PyErr_Clear();
-        return "";
-    }
-    return s;
-}
-
-/* The pending exception as one log message; fmi2Error. */
-static fmi2Status report_exception(Instance* inst, const char* function)
-{
-    PyObject *type = NULL, *value = NULL, *trace = NULL, *holder = NULL;
-    p_PyErr_Fetch(&type, &value, &trace);
-    const char* text = text_of(value ? value : type, &holder);
-    /* the slave's refusals name the FMI function and the culprit themselves */
-    if (*text) logf_(inst, fmi2Error, "%s", text);
-    else logf_(inst, fmi2Error, "%s failed", function);
-    if (holder) p_Py_DecRef(holder);
-    if (type) p_Py_DecRef(type);
-    if (value) p_Py_DecRef(value);
-    if (trace) p_Py_DecRef(trace);
-    return fmi2Error;
-}
-
-/* A new tuple of the `n` new references `items` (stolen, also on failure);
- * NULL with an exception set when an item is NULL (it could not be made) or
- * the tuple cannot be made. */
-static PyObject* pack(int n, PyObject** items)
-{
-    int complete = 1;
-    for (int i = 0; i < n; i++) complete = complete && items[i];
-    PyObject* tuple = complete ? p_PyTuple_New(n) : NULL;
-    for (int i = 0; i < n; i++) {
-        if (tuple) p_PyTuple_SetItem(tuple, i, items[i]);
-        else if (items[i]) p_Py_DecRef(items[i]);
-    }
-    return tuple;
-}
-
-/* Release the GIL taken for `function`, leaving no exception behind: one
- * still pending makes the call's status fmi2Error, with its log message. */
-static fmi2Status release(Instance* inst, PyGILState gil, const char* function,
-                          fmi2Status status)
-{
-    if (p_PyErr_Occurred()) status = report_exception(inst, function);
-    p_PyGILState_Release(gil);
-    return status;
-}
-
-/* Pass on the slave's queued log messages (Adapter.take_log). */
-static void drain_log(Instance* inst)
-{
-    if (!inst->adapter) return;
-    PyObject* take = p_PyObject_GetAttrString(inst->adapter, "take_log");
-    PyObject* items = take ? p_PyObject_CallObject(take, NULL) : NULL;
-    if (take) p_Py_DecRef(take);
-    if (!items) {
-        p_PyErr_Clear();
-        return;
-    }
-    Py_ssize_t_ n = p_PyList_Size(items);
-    if (n < 0) p_PyErr_Clear();
-    for (Py_ssize_t_ i = 0; i < n; i++) {
-        PyObject* item = p_PyList_GetItem(items, i);
-        long status = p_PyLong_AsLong(p_PyTuple_GetItem(item, 0));
-        const char* category = p_PyUnicode_AsUTF8AndSize(p_PyTuple_GetItem(item, 1), NULL);
-        const char* message = p_PyUnicode_AsUTF8AndSize(p_PyTuple_GetItem(item, 2), NULL);
-        if (!category || !message || status < 0 || status > fmi2Pending) {
-            p_PyErr_Clear();
-            continue;
-        }
-        if (status == fmi2OK && !inst->logging_on) continue;
-        log_text(&inst->callbacks, inst->name, (fmi2Status)status, category, message);
-    }
-    p_Py_DecRef(items);
-}
-
-/* The calls of the slave that only read its state: the gate stays armed. */
-static int reads_only(const char* method)
-{
-    static const char* readers[] = {"get_real", "get_integer", "get_boolean", "get_string",
-                                    "get_state", "serialize", "time", NULL};
-    for (int i = 0; readers[i]; i++)
-        if (strcmp(method, readers[i]) == 0) return 1;
-    return 0;
-}
-
-/* adapter.<method>(*args): the result (new reference) or NULL with the
- * exception reported. `args` is a new reference to a tuple (or NULL), consumed.
- * With the GIL held. */
-static PyObject* invoke(Instance* inst, const char* method, PyObject* args, fmi2Status* status)
-{
-    int64_t* gate = inst->gate;
-    int64_t armed = 0, readable = 0;
-    if (gate) {
-        if (gate[GATE_DIRTY]) {
-            /* the slave takes over the native steps before anything else */
-            PyObject* synced = p_PyObject_GetAttrString(inst->adapter, "sync_native");
-            PyObject* done = synced ? p_PyObject_CallObject(synced, NULL) : NULL;
-            if (synced) p_Py_DecRef(synced);
-            if (done) p_Py_DecRef(done);
-            else {
-                gate[GATE_ARMED] = gate[GATE_DIRTY] = 0;
-                *status = report_exception(inst, "sync_native");
-                drain_log(inst);
-                if (args) p_Py_DecRef(args);
-                return NULL;
-            }
-        }
-        armed = gate[GATE_ARMED];
-        readable = gate[GATE_READABLE];
-        gate[GATE_ARMED] = gate[GATE_READABLE] = 0;
-    }
-    PyObject* bound = p_PyObject_GetAttrString(inst->adapter, method);
-    PyObject* result = bound ? p_PyObject_CallObject(bound, args) : NULL;
-    if (bound) p_Py_DecRef(bound);
-    if (args) p_Py_DecRef(args);
-    if (gate && result && reads_only(method)) {
-        gate[GATE_ARMED] = armed;
-        gate[GATE_READABLE] = readable;
-    }
-    if (!result) *status = report_exception(inst, method);
-    drain_log(inst);
-    return result;
-}
-
-static int64_t cpu_ns(void)
-{
-    struct timespec now;
-    if (clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &now) != 0) return 0;
-    return (int64_t)now.tv_sec * 1000000000 + now.tv_nsec;
-}
-
-/* doStep(t, h) on the native path: 1 when taken, 0 when the slave must take it
- * (the gate is not armed, t is not the FMU's time, or the function did not
- * take the step: then nothing changed). The tests of t and h are the slave's,
- * which also says why when it refuses. */
-static int native_step(Instance* inst, double t, double h)
-{
-    int64_t* gate = inst->gate;
-    if (!gate || !gate[GATE_ARMED]) return 0;
-    double here = *(const double*)(intptr_t)gate[GATE_TIME];
-    if (!(isfinite(t) && isfinite(h) && h > 0.0)) return 0;
-    double larger = fabs(t) > fabs(here) ? fabs(t) : fabs(here);
-    double ulp = nextafter(larger, INFINITY) - larger;
-    double tolerance = 64.0 * ulp > 1e-10 * h ? 64.0 * ulp : 1e-10 * h;
-    if (!(fabs(t - here) <= tolerance)) return 0;
-    double t_end = t + h;
-    if (!(t_end > here && isfinite(t_end))) return 0;
-    NativeAdvance advance = (NativeAdvance)(intptr_t)gate[GATE_FUNCTION];
-    int64_t started = cpu_ns();
-    int64_t taken = advance((int64_t*)(intptr_t)gate[GATE_CONTEXT], t_end);
-    gate[GATE_CPU_NS] += cpu_ns() - started;
-    if (taken != 1) return 0;
-    gate[GATE_DIRTY] = 1;
-    gate[GATE_STEPS] += 1;
-    return 1;
-}
-
-/* fmi2SetReal of inputs on the native path: 1 when every reference is an
- * input (values written into the slave's inputs), else 0. */
-static int native_write(Instance* inst, const fmi2ValueReference vr[], size_t nvr,
-                        const fmi2Real in[])
-{
-    int64_t* gate = inst->gate;
-    if (!gate || !gate[GATE_ARMED] || !gate[GATE_INPUTS]) return 0;
-    const int64_t* table = (const int64_t*)(intptr_t)gate[GATE_TABLE];
-    int64_t length = gate[GATE_TABLE_LENGTH];
-    for (size_t i = 0; i < nvr; i++)
-        if ((int64_t)vr[i] >= length || table[vr[i]] > -2) return 0;
-    double* inputs = (double*)(intptr_t)gate[GATE_INPUTS];
-    for (size_t i = 0; i < nvr; i++) inputs[-2 - table[vr[i]]] = in[i];
-    gate[GATE_WRITES] += 1;
-    return 1;
-}
-
-/* fmi2GetReal of states on the native path: 1 when every reference is a
- * state entry the gate's table knows (values written), else 0. */
-static int native_read(Instance* inst, const fmi2ValueReference vr[], size_t nvr,
-                       fmi2Real out[])
-{
-    int64_t* gate = inst->gate;
-    if (!gate || !gate[GATE_READABLE]) return 0;
-    const int64_t* table = (const int64_t*)(intptr_t)gate[GATE_TABLE];
-    int64_t length = gate[GATE_TABLE_LENGTH];
-    for (size_t i = 0; i < nvr; i++)
-        if ((int64_t)vr[i] >= length || table[vr[i]] < 0) return 0;
-    const double* state = (const double*)(intptr_t)gate[GATE_STATE];
-    for (size_t i = 0; i < nvr; i++) out[i] = state[table[vr[i]]];
-    gate[GATE_READS] += 1;
-    return 1;
-}
-
-#define INSTANCE_OR_ERROR(c)                                                       \
-    Instance* inst = (Instance*)(c);                                               \
-    if (!inst || !api_ready || !inst->adapter) return fmi2Error;
-
-/* A call with no result but its success. */
-static fmi2Status simple(fmi2Component c, const char* method, PyObject* (*make_args)(void*),
-                         void* data)
-{
-    INSTANCE_OR_ERROR(c)
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    PyObject* args = make_args ? make_args(data) : NULL;
-    if (make_args && !args) return release(inst, gil, method, fmi2Error);
-    PyObject* result = invoke(inst, method, args, &status);
-    if (result) p_Py_DecRef(result);
-    return release(inst, gil, method, status);
-}
-
-/* ---------------------------------------------------------------------------
- * Instantiation
- * ------------------------------------------------------------------------- */
 /* The folder of a file URI (RFC 8089): "file:///a%20b/", "file:/a/",
  * "file://localhost/a/" give "/a b" etc.; NULL for anything else. */
 static char* folder_of_uri(const char* uri)
@@ -548,83 +77,6 @@ static char* folder_of_uri(const char* uri)
     return out;
 }
 
-static void free_strings(Instance* inst)
-{
-    for (size_t i = 0; i < inst->n_strings; i++) free(inst->strings[i]);
-    free(inst->strings);
-    inst->strings = NULL;
-    inst->n_strings = 0;
-}
-
-static void free_instance(Instance* inst)
-{
-    if (!inst) return;
-    free_strings(inst);
-    free(inst->name);
-    free(inst);
-}
-
-/* The entry module (resources/<name>.py) is run as module <name> once per
- * process, by this function of Python, after a check that its bytes give
- * the digest its name ends with. Not imported through sys.path: the host's
- * import path stays as it is, and the entry imports the FMU's other modules
- * under private names (fmu/entry.py). Two threads may run the file at once;
- * sys.modules keeps the first module finished, which every instance uses. */
-static const char ENTRY_LOADER[] =
-    "def load(name, path):\n"
-    "    import hashlib, sys, types\n"
-    "    module = sys.modules.get(name)\n"
-    "    if module is not None:\n"
-    "        return module\n"
-    "    with open(path, 'rb') as f:\n"
-    "        source = f.read()\n"
-    "    if hashlib.sha256(source + bytes(1)).hexdigest()[:12] != name.rpartition('_')[2]:\n"
-    "        raise ImportError(f\"the FMU's resources are damaged: {path} is not the file \"\n"
-    "                          \"its name says\")\n"
-    "    module = types.ModuleType(name)\n"
-    "    module.__file__ = path\n"
-    "    exec(compile(source, path, 'exec', dont_inherit=True), module.__dict__)\n"
-    "    return sys.modules.setdefault(name, module)\n";
-static PyObject* entry_loader = NULL;   /* load, made once (with the GIL held) */
-
-/* The entry module (a new reference), or NULL with an exception set. With the GIL held. */
-static PyObject* load_entry(const char* resources, const char* name)
-{
-    if (!entry_loader) {
-        PyObject* builtins = p_PyImport_ImportModule("builtins");
-        PyObject* run = builtins ? p_PyObject_GetAttrString(builtins, "exec") : NULL;
-        PyObject* globals = p_PyDict_New();
-        if (globals) p_Py_IncRef(globals);
-        PyObject* items[2] = {p_PyUnicode_DecodeUTF8(ENTRY_LOADER,
-                                                     (Py_ssize_t_)strlen(ENTRY_LOADER), "strict"),
-                              globals};
-        PyObject* args = pack(2, items);
-        PyObject* done = run && args ? p_PyObject_CallObject(run, args) : NULL;
-        PyObject* load = done ? p_PyDict_GetItemString(globals, "load") : NULL;   /* borrowed */
-        if (load && !entry_loader) {     /* another thread may have made it meanwhile */
-            p_Py_IncRef(load);
-            entry_loader = load;
-        }
-        if (done) p_Py_DecRef(done);
-        if (args) p_Py_DecRef(args);
-        if (globals) p_Py_DecRef(globals);
-        if (run) p_Py_DecRef(run);
-        if (builtins) p_Py_DecRef(builtins);
-        if (!entry_loader) return NULL;
-    }
-    size_t n = strlen(resources) + strlen(name) + 5;
-    char* path = (char*)malloc(n);
-    if (!path) return NULL;
-    snprintf(path, n, "%s/%s.py", resources, name);
-    PyObject* items[2] = {p_PyUnicode_DecodeUTF8(name, (Py_ssize_t_)strlen(name), "strict"),
-                          p_PyUnicode_DecodeFSDefault(path)};
-    free(path);
-    PyObject* args = pack(2, items);
-    PyObject* module = args ? p_PyObject_CallObject(entry_loader, args) : NULL;
-    if (args) p_Py_DecRef(args);
-    return module;
-}
-
 FMI2_Export const char* fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 FMI2_Export const char* fmi2GetVersion(void) { return fmi2Version; }
 
@@ -633,89 +85,39 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
                                           const fmi2CallbackFunctions* functions,
                                           fmi2Boolean visible, fmi2Boolean loggingOn)
 {
-    Instance* inst = (Instance*)calloc(1, sizeof(Instance));
+    Instance* inst = new_instance(instanceName, emit2,
+                                  functions ? functions->componentEnvironment : NULL,
+                                  functions ? (void (*)(void))functions->logger : NULL,
+                                  loggingOn != fmi2False);
     if (!inst) return NULL;
-    inst->name = copy_text(instanceName);
-    if (functions) inst->callbacks = *functions;
-    inst->logging_on = loggingOn != fmi2False;
     if (!inst->name || !instanceName || !*instanceName) {
-        logf_(inst, fmi2Error, "fmi2Instantiate: the instance name is empty");
+        logf_(inst, ST_ERROR, "fmi2Instantiate: the instance name is empty");
         free_instance(inst);
         return NULL;
     }
     if (fmuType != fmi2CoSimulation) {
-        logf_(inst, fmi2Error, "fmi2Instantiate: this FMU is for co-simulation only");
+        logf_(inst, ST_ERROR, "fmi2Instantiate: this FMU is for co-simulation only");
         free_instance(inst);
         return NULL;
     }
     char* resources = folder_of_uri(fmuResourceLocation);
     if (!resources) {
-        logf_(inst, fmi2Error, "fmi2Instantiate: the resource location %s is not a local "
+        logf_(inst, ST_ERROR, "fmi2Instantiate: the resource location %s is not a local "
               "file URI", fmuResourceLocation ? fmuResourceLocation : "(null)");
         free_instance(inst);
         return NULL;
     }
-    char problem[8400];
-    Description d;
-    if (!python_ready(resources, problem, sizeof problem)
-        || !read_description(resources, &d, problem, sizeof problem)) {
-        logf_(inst, fmi2Error, "fmi2Instantiate: %s", problem);
-        free(resources);
-        free_instance(inst);
-        return NULL;
-    }
-    PyGILState gil = p_PyGILState_Ensure();
-    PyObject *entry = load_entry(resources, d.entry), *make = NULL, *args = NULL;
-    if (entry) make = p_PyObject_GetAttrString(entry, "instantiate");
-    if (make) {
-        const char* guid = fmuGUID ? fmuGUID : "";
-        PyObject* items[6] = {
-            p_PyUnicode_DecodeFSDefault(resources),
-            p_PyUnicode_DecodeUTF8(instanceName, (Py_ssize_t_)strlen(instanceName), "replace"),
-            p_PyUnicode_DecodeUTF8(guid, (Py_ssize_t_)strlen(guid), "replace"),
-            p_PyBool_FromLong(visible != fmi2False), p_PyBool_FromLong(loggingOn != fmi2False),
-            p_PyBool_FromLong(api_started)};
-        args = pack(6, items);
-        if (args) inst->adapter = p_PyObject_CallObject(make, args);
-    }
-    if (!inst->adapter) report_exception(inst, "fmi2Instantiate");
-    else {
-        /* the gate of the native path (0: none; no gate is no error) */
-        PyObject* bound = p_PyObject_GetAttrString(inst->adapter, "native_gate");
-        PyObject* address = bound ? p_PyObject_CallObject(bound, NULL) : NULL;
-        if (bound) p_Py_DecRef(bound);
-        if (address) {
-            long value = p_PyLong_AsLong(address);
-            if (value > 0 && !p_PyErr_Occurred()) inst->gate = (int64_t*)(intptr_t)value;
-            p_Py_DecRef(address);
-        }
-        p_PyErr_Clear();
-    }
-    if (args) p_Py_DecRef(args);
-    if (make) p_Py_DecRef(make);
-    if (entry) p_Py_DecRef(entry);
-    if (inst->adapter) drain_log(inst);
-    p_PyErr_Clear();
-    p_PyGILState_Release(gil);
+    int made = instantiate_slave(inst, "fmi2Instantiate", resources, fmuGUID,
+                                 visible != fmi2False, loggingOn != fmi2False);
     free(resources);
-    if (!inst->adapter) {
+    if (!made) {
         free_instance(inst);
         return NULL;
     }
     return inst;
 }
 
-FMI2_Export void fmi2FreeInstance(fmi2Component c)
-{
-    Instance* inst = (Instance*)c;
-    if (!inst) return;
-    if (api_ready && inst->adapter) {
-        PyGILState gil = p_PyGILState_Ensure();
-        p_Py_DecRef(inst->adapter);
-        p_PyGILState_Release(gil);
-    }
-    free_instance(inst);
-}
+FMI2_Export void fmi2FreeInstance(fmi2Component c) { release_instance((Instance*)c); }
 
 FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn,
                                            size_t nCategories, const fmi2String categories[])
@@ -731,431 +133,97 @@ FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingO
 /* ---------------------------------------------------------------------------
  * Initialization, termination
  * ------------------------------------------------------------------------- */
-typedef struct { fmi2Boolean tol_defined; double tol; double start; fmi2Boolean stop_defined; double stop; } Setup;
-
-static PyObject* setup_args(void* data)
-{
-    Setup* s = (Setup*)data;
-    PyObject* items[3] = {p_PyFloat_FromDouble(s->start),
-                          s->stop_defined ? p_PyFloat_FromDouble(s->stop) : none(),
-                          s->tol_defined ? p_PyFloat_FromDouble(s->tol) : none()};
-    return pack(3, items);
-}
-
 FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
                                            fmi2Real tolerance, fmi2Real startTime,
                                            fmi2Boolean stopTimeDefined, fmi2Real stopTime)
 {
-    Setup s = {toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime};
-    return simple(c, "setup_experiment", setup_args, &s);
+    Setup s = {toleranceDefined != fmi2False, tolerance, startTime,
+               stopTimeDefined != fmi2False, stopTime};
+    return (fmi2Status)simple(c, "setup_experiment", setup_args, &s);
 }
 
 FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component c)
 {
-    return simple(c, "enter_initialization_mode", NULL, NULL);
+    return (fmi2Status)simple(c, "enter_initialization_mode", NULL, NULL);
 }
 
 FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
-    return simple(c, "exit_initialization_mode", NULL, NULL);
+    return (fmi2Status)simple(c, "exit_initialization_mode", NULL, NULL);
 }
 
 FMI2_Export fmi2Status fmi2Terminate(fmi2Component c)
 {
-    return simple(c, "terminate", NULL, NULL);
+    return (fmi2Status)simple(c, "terminate", NULL, NULL);
 }
 
 FMI2_Export fmi2Status fmi2Reset(fmi2Component c)
 {
-    return simple(c, "reset", NULL, NULL);
+    return (fmi2Status)simple(c, "reset", NULL, NULL);
 }
 
 /* ---------------------------------------------------------------------------
  * Values
  * ------------------------------------------------------------------------- */
-/* The references as a new list, or NULL with an exception set. */
-static PyObject* references(const fmi2ValueReference vr[], size_t nvr)
-{
-    PyObject* list = p_PyList_New((Py_ssize_t_)nvr);
-    for (size_t i = 0; list && i < nvr; i++) {
-        PyObject* item = p_PyLong_FromUnsignedLong(vr[i]);
-        if (!item) {
-            p_Py_DecRef(list);
-            return NULL;
-        }
-        p_PyList_SetItem(list, (Py_ssize_t_)i, item);
-    }
-    return list;
-}
-
-typedef enum { REAL, INTEGER, BOOLEAN, STRING } Kind;
-static const char* GETTERS[] = {"get_real", "get_integer", "get_boolean", "get_string"};
-static const char* SETTERS[] = {"set_real", "set_integer", "set_boolean", "set_string"};
-static const char* FMI_GET[] = {"fmi2GetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2GetString"};
-static const char* FMI_SET[] = {"fmi2SetReal", "fmi2SetInteger", "fmi2SetBoolean", "fmi2SetString"};
-
-/* The most values one get or set may name (2^24, a tenth of a gigabyte of
- * Reals): a larger nvr is a master's mistake (a negative count turned into
- * size_t, say) and is refused before either array is read. */
-#define MAX_VALUES ((size_t)1 << 24)
-
-/* 1 when the arrays of a get or set may be read, else 0 after a log message. */
-static int arrays_ok(Instance* inst, const char* function, const fmi2ValueReference vr[],
-                     size_t nvr, const void* values)
-{
-    if (!vr || !values) {
-        logf_(inst, fmi2Error, "%s: NULL array", function);
-        return 0;
-    }
-    if (nvr > MAX_VALUES) {
-        logf_(inst, fmi2Error, "%s: nvr = %zu values in one call, more than the %zu a call "
-              "may name", function, nvr, MAX_VALUES);
-        return 0;
-    }
-    return 1;
-}
-
-static fmi2Status get_values(fmi2Component c, Kind kind, const fmi2ValueReference vr[],
-                             size_t nvr, void* out)
-{
-    INSTANCE_OR_ERROR(c)
-    if (nvr == 0) return fmi2OK;
-    if (!arrays_ok(inst, FMI_GET[kind], vr, nvr, out)) return fmi2Error;
-    if (kind == REAL && native_read(inst, vr, nvr, (fmi2Real*)out)) return fmi2OK;
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    PyObject* items[1] = {references(vr, nvr)};
-    PyObject* args = pack(1, items);
-    if (!args) return release(inst, gil, FMI_GET[kind], fmi2Error);
-    PyObject* values = invoke(inst, GETTERS[kind], args, &status);
-    if (values) {
-        if (kind == STRING) free_strings(inst);
-        if (p_PyList_Size(values) != (Py_ssize_t_)nvr) {
-            p_PyErr_Clear();
-            logf_(inst, fmi2Error, "%s: wrong number of values", FMI_GET[kind]);
-            status = fmi2Error;
-        } else if (kind == STRING) {
-            inst->strings = (char**)calloc(nvr, sizeof(char*));
-            inst->n_strings = inst->strings ? nvr : 0;
-        }
-        for (size_t i = 0; status == fmi2OK && i < nvr; i++) {
-            PyObject* item = p_PyList_GetItem(values, (Py_ssize_t_)i);
-            switch (kind) {
-            case REAL: ((fmi2Real*)out)[i] = p_PyFloat_AsDouble(item); break;
-            case INTEGER: ((fmi2Integer*)out)[i] = (fmi2Integer)p_PyLong_AsLong(item); break;
-            case BOOLEAN: ((fmi2Boolean*)out)[i] = p_PyObject_IsTrue(item) == 1; break;
-            case STRING: {
-                const char* s = p_PyUnicode_AsUTF8AndSize(item, NULL);
-                if (s && inst->strings) inst->strings[i] = copy_text(s);
-                ((fmi2String*)out)[i] = inst->strings && inst->strings[i] ? inst->strings[i] : "";
-                break;
-            }
-            }
-            if (p_PyErr_Occurred()) status = report_exception(inst, FMI_GET[kind]);
-        }
-        p_Py_DecRef(values);
-    }
-    return release(inst, gil, FMI_GET[kind], status);
-}
-
-static fmi2Status set_values(fmi2Component c, Kind kind, const fmi2ValueReference vr[],
-                             size_t nvr, const void* in)
-{
-    INSTANCE_OR_ERROR(c)
-    if (nvr == 0) return fmi2OK;
-    if (!arrays_ok(inst, FMI_SET[kind], vr, nvr, in)) return fmi2Error;
-    if (kind == REAL && native_write(inst, vr, nvr, (const fmi2Real*)in)) return fmi2OK;
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    PyObject* values = p_PyList_New((Py_ssize_t_)nvr);
-    for (size_t i = 0; values && i < nvr; i++) {
-        PyObject* item = NULL;
-        switch (kind) {
-        case REAL: item = p_PyFloat_FromDouble(((const fmi2Real*)in)[i]); break;
-        case INTEGER: item = p_PyLong_FromLong(((const fmi2Integer*)in)[i]); break;
-        case BOOLEAN: item = p_PyBool_FromLong(((const fmi2Boolean*)in)[i] != fmi2False); break;
-        case STRING: {
-            const char* s = ((const fmi2String*)in)[i];
-            item = s ? p_PyUnicode_DecodeUTF8(s, (Py_ssize_t_)strlen(s), "strict") : NULL;
-            if (!item) {
-                p_PyErr_Clear();
-                logf_(inst, fmi2Error, "fmi2SetString: value %zu (reference %u) is %s; no value "
-                      "was set", i + 1, (unsigned)vr[i], s ? "not UTF-8 text" : "NULL");
-                status = fmi2Error;
-            }
-            break;
-        }
-        }
-        if (!item) {
-            p_Py_DecRef(values);
-            values = NULL;
-            break;
-        }
-        p_PyList_SetItem(values, (Py_ssize_t_)i, item);
-    }
-    if (status == fmi2OK) {
-        /* values NULL: the list or an item could not be made (the exception
-           is reported by release, nothing was set) */
-        PyObject* items[2] = {values ? references(vr, nvr) : NULL, values};
-        PyObject* args = values ? pack(2, items) : NULL;
-        if (args) {
-            PyObject* result = invoke(inst, SETTERS[kind], args, &status);
-            if (result) p_Py_DecRef(result);
-        } else {
-            status = report_exception(inst, FMI_SET[kind]);
-        }
-    } else if (values) {
-        p_Py_DecRef(values);
-    }
-    return release(inst, gil, FMI_SET[kind], status);
-}
-
-FMI2_Export fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) { return get_values(c, REAL, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) { return get_values(c, INTEGER, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) { return get_values(c, BOOLEAN, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) { return get_values(c, STRING, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) { return set_values(c, REAL, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) { return set_values(c, INTEGER, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) { return set_values(c, BOOLEAN, vr, nvr, value); }
-FMI2_Export fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) { return set_values(c, STRING, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) { return (fmi2Status)get_values(c, "fmi2GetReal", REAL, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) { return (fmi2Status)get_values(c, "fmi2GetInteger", INTEGER, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) { return (fmi2Status)get_values(c, "fmi2GetBoolean", BOOLEAN_INT, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) { return (fmi2Status)get_values(c, "fmi2GetString", STRING, vr, nvr, (void*)value); }
+FMI2_Export fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) { return (fmi2Status)set_values(c, "fmi2SetReal", REAL, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) { return (fmi2Status)set_values(c, "fmi2SetInteger", INTEGER, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) { return (fmi2Status)set_values(c, "fmi2SetBoolean", BOOLEAN_INT, vr, nvr, value); }
+FMI2_Export fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) { return (fmi2Status)set_values(c, "fmi2SetString", STRING, vr, nvr, value); }
 
 /* ---------------------------------------------------------------------------
- * FMU states: a new reference to the Python object the slave returns.
- *
- * Every state handed out is recorded (process-wide: a state may be restored
- * into another instance of this FMU) until fmi2FreeFMUstate; a pointer that
- * is not a live state -- freed, or never one -- is refused before it is
- * touched, so a master's use of a freed state gets fmi2Error, not the
- * host's crash. The list is only read or changed with the GIL held.
+ * FMU states (hfdi_fmu_core.h: every state handed out is tracked until freed)
  * ------------------------------------------------------------------------- */
-static void** live_states = NULL;
-static size_t n_live = 0, live_capacity = 0;
-
-static int state_is_live(const void* state)
-{
-    for (size_t i = 0; i < n_live; i++)
-        if (live_states[i] == state) return 1;
-    return 0;
-}
-
-static int track_state(void* state)
-{
-    if (n_live == live_capacity) {
-        size_t capacity = live_capacity ? 2 * live_capacity : 16;
-        void** grown = (void**)realloc(live_states, capacity * sizeof(void*));
-        if (!grown) return 0;
-        live_states = grown;
-        live_capacity = capacity;
-    }
-    live_states[n_live++] = state;
-    return 1;
-}
-
-static int untrack_state(const void* state)
-{
-    for (size_t i = 0; i < n_live; i++)
-        if (live_states[i] == state) {
-            live_states[i] = live_states[--n_live];
-            return 1;
-        }
-    return 0;
-}
-
-/* Hand `fresh` (a new reference) to the master in *state, replacing a live
- * state given there (FMI 2.0: an existing state is overwritten). */
-static fmi2Status give_state(Instance* inst, const char* function, PyObject* fresh,
-                             fmi2FMUstate* state)
-{
-    if (!track_state(fresh)) {
-        p_Py_DecRef(fresh);
-        logf_(inst, fmi2Error, "%s: out of memory", function);
-        return fmi2Error;
-    }
-    if (*state && untrack_state(*state)) p_Py_DecRef((PyObject*)*state);
-    *state = fresh;
-    return fmi2OK;
-}
-
-static int live_or_log(Instance* inst, const char* function, fmi2FMUstate state)
-{
-    if (state && state_is_live(state)) return 1;
-    logf_(inst, fmi2Error, "%s: the state is %s", function,
-          state ? "not a live FMU state (freed, or never made by fmi2GetFMUstate or "
-                  "fmi2DeSerializeFMUstate)" : "NULL");
-    return 0;
-}
-
-/* A NULL pointer argument of `function`: fmi2Error after a log message. */
-static fmi2Status null_argument(Instance* inst, const char* function, const char* what)
-{
-    logf_(inst, fmi2Error, "%s: %s is NULL", function, what);
-    return fmi2Error;
-}
-
-/* A new tuple of one new reference to `state`, or NULL with an exception set. */
-static PyObject* state_args(fmi2FMUstate state)
-{
-    p_Py_IncRef((PyObject*)state);
-    PyObject* items[1] = {(PyObject*)state};
-    return pack(1, items);
-}
-
 FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* state)
 {
-    INSTANCE_OR_ERROR(c)
-    if (!state) return null_argument(inst, "fmi2GetFMUstate", "the FMUstate pointer");
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    PyObject* saved = invoke(inst, "get_state", NULL, &status);
-    if (saved) status = give_state(inst, "fmi2GetFMUstate", saved, state);
-    return release(inst, gil, "fmi2GetFMUstate", status);
+    return (fmi2Status)state_get(c, "fmi2GetFMUstate", state);
 }
 
 FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
 {
-    INSTANCE_OR_ERROR(c)
-    PyGILState gil = p_PyGILState_Ensure();
-    if (!live_or_log(inst, "fmi2SetFMUstate", state))
-        return release(inst, gil, "fmi2SetFMUstate", fmi2Error);
-    fmi2Status status = fmi2OK;
-    PyObject* args = state_args(state);
-    PyObject* result = args ? invoke(inst, "set_state", args, &status) : NULL;
-    if (result) p_Py_DecRef(result);
-    return release(inst, gil, "fmi2SetFMUstate", args ? status : fmi2Error);
+    return (fmi2Status)state_set(c, "fmi2SetFMUstate", state);
 }
 
 FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* state)
 {
-    INSTANCE_OR_ERROR(c)
-    if (!state || !*state) return fmi2OK;
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    if (untrack_state(*state)) p_Py_DecRef((PyObject*)*state);
-    else {
-        logf_(inst, fmi2Error, "fmi2FreeFMUstate: the state is not a live FMU state (freed "
-              "already, or never made by fmi2GetFMUstate or fmi2DeSerializeFMUstate)");
-        status = fmi2Error;
-    }
-    *state = NULL;
-    return release(inst, gil, "fmi2FreeFMUstate", status);
-}
-
-/* The serialized state (new reference to bytes), or NULL with the status set. */
-static PyObject* serialized(Instance* inst, const char* function, fmi2FMUstate state,
-                            fmi2Status* status)
-{
-    PyObject* args = state_args(state);
-    if (!args) {
-        *status = report_exception(inst, function);
-        return NULL;
-    }
-    return invoke(inst, "serialize", args, status);
+    return (fmi2Status)state_free(c, "fmi2FreeFMUstate", state);
 }
 
 FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t* size)
 {
-    INSTANCE_OR_ERROR(c)
-    if (!size) return null_argument(inst, "fmi2SerializedFMUstateSize", "the size pointer");
-    PyGILState gil = p_PyGILState_Ensure();
-    if (!live_or_log(inst, "fmi2SerializedFMUstateSize", state))
-        return release(inst, gil, "fmi2SerializedFMUstateSize", fmi2Error);
-    fmi2Status status = fmi2OK;
-    PyObject* bytes = serialized(inst, "fmi2SerializedFMUstateSize", state, &status);
-    char* data;
-    Py_ssize_t_ n;
-    if (bytes && p_PyBytes_AsStringAndSize(bytes, &data, &n) == 0) *size = (size_t)n;
-    else if (bytes) status = report_exception(inst, "fmi2SerializedFMUstateSize");
-    if (bytes) p_Py_DecRef(bytes);
-    return release(inst, gil, "fmi2SerializedFMUstateSize", status);
+    return (fmi2Status)state_size(c, "fmi2SerializedFMUstateSize", state, size);
 }
 
 FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte out[], size_t size)
 {
-    INSTANCE_OR_ERROR(c)
-    if (!out) return null_argument(inst, "fmi2SerializeFMUstate", "the buffer");
-    PyGILState gil = p_PyGILState_Ensure();
-    if (!live_or_log(inst, "fmi2SerializeFMUstate", state))
-        return release(inst, gil, "fmi2SerializeFMUstate", fmi2Error);
-    fmi2Status status = fmi2OK;
-    PyObject* bytes = serialized(inst, "fmi2SerializeFMUstate", state, &status);
-    char* data;
-    Py_ssize_t_ n;
-    if (bytes && p_PyBytes_AsStringAndSize(bytes, &data, &n) == 0) {
-        if ((size_t)n != size) {
-            logf_(inst, fmi2Error, "fmi2SerializeFMUstate: the buffer has %zu bytes, the state "
-                  "%zu", size, (size_t)n);
-            status = fmi2Error;
-        } else {
-            memcpy(out, data, size);
-        }
-    } else if (bytes) {
-        status = report_exception(inst, "fmi2SerializeFMUstate");
-    }
-    if (bytes) p_Py_DecRef(bytes);
-    return release(inst, gil, "fmi2SerializeFMUstate", status);
+    return (fmi2Status)state_serialize(c, "fmi2SerializeFMUstate", state, out, size);
 }
-
-/* The largest size a Python bytes object can have (PY_SSIZE_T_MAX). */
-#define MAX_BYTES ((size_t)(SIZE_MAX >> 1))
 
 FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte data[], size_t size,
                                                fmi2FMUstate* state)
 {
-    INSTANCE_OR_ERROR(c)
-    if (!state) return null_argument(inst, "fmi2DeSerializeFMUstate", "the FMUstate pointer");
-    if (!data && size) return null_argument(inst, "fmi2DeSerializeFMUstate", "the data");
-    if (size > MAX_BYTES) {
-        logf_(inst, fmi2Error, "fmi2DeSerializeFMUstate: size = %zu bytes is more than any "
-              "serialized state has", size);
-        return fmi2Error;
-    }
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    PyObject* items[1] = {p_PyBytes_FromStringAndSize(data ? data : "", (Py_ssize_t_)size)};
-    PyObject* args = pack(1, items);
-    if (!args) return release(inst, gil, "fmi2DeSerializeFMUstate", fmi2Error);
-    PyObject* restored = invoke(inst, "deserialize", args, &status);
-    if (restored) status = give_state(inst, "fmi2DeSerializeFMUstate", restored, state);
-    return release(inst, gil, "fmi2DeSerializeFMUstate", status);
+    return (fmi2Status)state_deserialize(c, "fmi2DeSerializeFMUstate", data, size, state);
 }
 
 /* ---------------------------------------------------------------------------
  * Stepping and status
  * ------------------------------------------------------------------------- */
-typedef struct { double t, h; } Step;
-
-static PyObject* step_args(void* data)
-{
-    Step* s = (Step*)data;
-    PyObject* items[2] = {p_PyFloat_FromDouble(s->t), p_PyFloat_FromDouble(s->h)};
-    return pack(2, items);
-}
-
 FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
                                   fmi2Real communicationStepSize,
                                   fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     (void)noSetFMUStatePriorToCurrentPoint;
-    INSTANCE_OR_ERROR(c)
-    if (native_step(inst, currentCommunicationPoint, communicationStepSize)) return fmi2OK;
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    Step s = {currentCommunicationPoint, communicationStepSize};
-    PyObject* args = step_args(&s);
-    if (!args) return release(inst, gil, "fmi2DoStep", fmi2Error);
-    PyObject* taken = invoke(inst, "do_step", args, &status);
-    if (taken) {
-        int ok = p_PyObject_IsTrue(taken);
-        p_Py_DecRef(taken);
-        if (ok != 1) status = ok == 0 ? fmi2Discard : report_exception(inst, "do_step");
-    }
-    return release(inst, gil, "fmi2DoStep", status);
+    return (fmi2Status)do_step(c, "fmi2DoStep", currentCommunicationPoint,
+                               communicationStepSize, 0, NULL, NULL);
 }
 
 FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c)
 {
     Instance* inst = (Instance*)c;
-    if (inst) logf_(inst, fmi2Error, "fmi2CancelStep: doStep always returns when done");
+    if (inst) logf_(inst, ST_ERROR, "fmi2CancelStep: doStep always returns when done");
     return fmi2Error;
 }
 
@@ -1164,7 +232,7 @@ static fmi2Status no_status(fmi2Component c, const char* function)
 {
     Instance* inst = (Instance*)c;
     if (!inst) return fmi2Error;
-    logf_(inst, fmi2Discard, "%s: this status is not provided (doStep returns when done)",
+    logf_(inst, ST_DISCARD, "%s: this status is not provided (doStep returns when done)",
           function);
     return fmi2Discard;
 }
@@ -1178,21 +246,15 @@ FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fm
 
 FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real* value)
 {
-    INSTANCE_OR_ERROR(c)
-    if (!value) return null_argument(inst, "fmi2GetRealStatus", "the value pointer");
+    Instance* inst = (Instance*)c;
+    if (!inst || !api_ready || !inst->adapter) return fmi2Error;
+    if (!value) return (fmi2Status)null_argument(inst, "fmi2GetRealStatus", "the value pointer");
     if (s != fmi2LastSuccessfulTime) return no_status(c, "fmi2GetRealStatus");
     /* the time of the FMU's last good state, asked of the slave (not kept
        here): after a discarded doStep it is where the FMU stayed, which need
        not be the master's communication point (a doStep from a time the FMU
        is not at), and the start time before the first step */
-    PyGILState gil = p_PyGILState_Ensure();
-    fmi2Status status = fmi2OK;
-    PyObject* t = invoke(inst, "time", NULL, &status);
-    if (t) {
-        *value = p_PyFloat_AsDouble(t);
-        p_Py_DecRef(t);
-    }
-    return release(inst, gil, "fmi2GetRealStatus", status);
+    return (fmi2Status)fmu_time(c, "fmi2GetRealStatus", value);
 }
 
 FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer* value)
@@ -1204,9 +266,10 @@ FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKin
 
 FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean* value)
 {
-    INSTANCE_OR_ERROR(c)
+    Instance* inst = (Instance*)c;
+    if (!inst || !api_ready || !inst->adapter) return fmi2Error;
     if (s != fmi2Terminated) return no_status(c, "fmi2GetBooleanStatus");
-    if (!value) return null_argument(inst, "fmi2GetBooleanStatus", "the value pointer");
+    if (!value) return (fmi2Status)null_argument(inst, "fmi2GetBooleanStatus", "the value pointer");
     *value = fmi2False;
     return fmi2OK;
 }
@@ -1224,25 +287,19 @@ FMI2_Export fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2V
                                                     const fmi2Real du[], fmi2Real dz[])
 {
     (void)u; (void)nu; (void)z; (void)nz; (void)du; (void)dz;
-    Instance* inst = (Instance*)c;
-    if (inst) logf_(inst, fmi2Error, "fmi2GetDirectionalDerivative is not provided");
-    return fmi2Error;
+    return (fmi2Status)not_provided(c, "fmi2GetDirectionalDerivative", NULL);
 }
 
 FMI2_Export fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                                    const fmi2Integer order[], const fmi2Real value[])
 {
     (void)vr; (void)nvr; (void)order; (void)value;
-    Instance* inst = (Instance*)c;
-    if (inst) logf_(inst, fmi2Error, "fmi2SetRealInputDerivatives is not provided");
-    return fmi2Error;
+    return (fmi2Status)not_provided(c, "fmi2SetRealInputDerivatives", NULL);
 }
 
 FMI2_Export fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                                     const fmi2Integer order[], fmi2Real value[])
 {
     (void)vr; (void)nvr; (void)order; (void)value;
-    Instance* inst = (Instance*)c;
-    if (inst) logf_(inst, fmi2Error, "fmi2GetRealOutputDerivatives is not provided");
-    return fmi2Error;
+    return (fmi2Status)not_provided(c, "fmi2GetRealOutputDerivatives", NULL);
 }
