@@ -564,6 +564,7 @@ class HfdiSlave(Fmi2Slave):
                 rtol = clipped
         self._start_time, self._stop_time = start, stop
         self._params["master_rtol"] = rtol
+        self._event_time = [start] * len(self._event_names)
 
     def enter_initialization_mode(self):
         if self._phase != "instantiated":

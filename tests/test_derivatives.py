@@ -125,7 +125,7 @@ def test_a_load_rate_of_zero_at_an_extremum_of_the_load_is_judged_right():
     assert hfdi.check_derivatives(wrong, samples=1, times=[0.0]).load_rate > 1e-2
     for t_end in (3.0, 1e-3, 100.0):
         itg = hfdi.Integrator(right, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=t_end)
-        assert itg.advance(t_end)
+        assert itg.advance(min(t_end, 0.1))      # refused at construction if at all
     with pytest.raises(hfdi.ModelError, match="load_rate does not match"):
         hfdi.Integrator(wrong, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=3.0)
     # the scale of a zero rate is the finest variation the load resolves, not

@@ -442,17 +442,17 @@ def test_advance_until_event_stops_at_each_zero(compiled):
     """advance(until_event=True) returns at every zero, on its time, and the
     run goes on from there to the same events as without stopping."""
     model = hfdi.models.impact_oscillator()
-    whole = hfdi.Integrator(model, "hfdi", rtol=1e-8, compiled=compiled)
-    assert whole.advance(3.0)
-    itg = hfdi.Integrator(model, "hfdi", rtol=1e-8, compiled=compiled)
+    whole = hfdi.Integrator(model, "hfdi", rtol=1e-7, compiled=compiled)
+    assert whole.advance(1.5)
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-7, compiled=compiled)
     stops = []
-    while itg.t < 3.0:
-        assert itg.advance(3.0, until_event=True)
+    while itg.t < 1.5:
+        assert itg.advance(1.5, until_event=True)
         stops.append(itg.t)
     expected = np.sort(np.concatenate(whole.t_events))
-    assert len(stops) == len(expected) + 1 and stops[-1] == 3.0
-    np.testing.assert_allclose(stops[:-1], expected, rtol=0, atol=1e-9)
+    assert len(stops) == len(expected) + 1 and stops[-1] == 1.5
+    np.testing.assert_allclose(stops[:-1], expected, rtol=0, atol=1e-8)
     for mine, theirs in zip(itg.t_events, whole.t_events):
-        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-8)
     with pytest.raises(ValueError, match="until_event"):
-        itg.advance(3.5, until_event=1)
+        itg.advance(2.0, until_event=1)

@@ -102,7 +102,7 @@ def test_communication_points_breakpoints_and_short_steps_alike(scheme):
     """advance() to points a master sums (short steps past the articulated
     system's load breakpoint among them), then a changed model: the two
     speeds stay equal at every point."""
-    itg = [hfdi.Integrator(hfdi.models.articulated(), scheme, rtol=1e-6, compiled=c)
+    itg = [hfdi.Integrator(hfdi.models.articulated(), scheme, rtol=1e-4, compiled=c)
            for c in (True, False)]
     t = 0.0
     for k in range(60):
@@ -121,10 +121,10 @@ def test_communication_points_breakpoints_and_short_steps_alike(scheme):
 def test_a_saved_state_continues_alike_at_the_other_speed(scheme):
     """A state saved by one speed and restored into the other continues as the
     first would have."""
-    first = hfdi.Integrator(hfdi.models.dumbbell(), scheme, rtol=1e-6, compiled=True)
+    first = hfdi.Integrator(hfdi.models.dumbbell(), scheme, rtol=1e-4, compiled=True)
     assert first.advance(0.05)
     saved = first.get_state()
-    other = hfdi.Integrator(hfdi.models.dumbbell(), scheme, rtol=1e-6, compiled=False)
+    other = hfdi.Integrator(hfdi.models.dumbbell(), scheme, rtol=1e-4, compiled=False)
     other.set_state(saved)
     assert first.advance(0.1) and other.advance(0.1)
     assert_same_state(first, other)
