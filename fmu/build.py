@@ -291,16 +291,12 @@ def fmi3_description(fmi2_xml: bytes) -> bytes:
         "mightReturnEarlyFromDoStep": "true",
         "canReturnEarlyAfterIntermediateUpdate": "false",
         "hasEventMode": "false", "providesIntermediateUpdate": "false"})
+    if cs.get("needsExecutionTool") is not None:
+        root.find("CoSimulation").set("needsExecutionTool", cs.get("needsExecutionTool"))
     for tag in ("UnitDefinitions", "LogCategories", "DefaultExperiment"):
         node = old.find(tag)
         if node is not None:
             root.append(node)
-    for node in root.iter():
-        # the FMI 2.0 names in descriptions (the slave's log says the same in fmu/entry.py)
-        if "fmi2" in node.get("description", ""):
-            node.set("description", node.get("description")
-                     .replace("fmi2SetupExperiment", "fmi3EnterInitializationMode")
-                     .replace("fmi2", "fmi3"))
     variables = ElementTree.SubElement(root, "ModelVariables")
     references = []                 # FMI 2.0's index (1-based) -> value reference
     for scalar in old.find("ModelVariables"):
@@ -324,6 +320,12 @@ def fmi3_description(fmi2_xml: bytes) -> bytes:
                 attributes["dependencies"] = " ".join(
                     references[int(i) - 1] for i in unknown.get("dependencies").split())
             ElementTree.SubElement(structure, tag, attributes)
+    for node in root.iter():
+        # the FMI 2.0 names in descriptions (the slave's log says the same in fmu/entry.py)
+        if "fmi2" in node.get("description", ""):
+            node.set("description", node.get("description")
+                     .replace("fmi2SetupExperiment", "fmi3EnterInitializationMode")
+                     .replace("fmi2", "fmi3"))
     ElementTree.indent(root)
     return ElementTree.tostring(root, encoding="UTF-8", xml_declaration=True)
 

@@ -404,6 +404,24 @@ _FMI3_NAMES = {
 }
 
 
+class Fmi3Refusal(Exception):
+    """A refusal of the slave, its message naming the FMI 3.0 functions."""
+
+
+def _fmi3_names(method):
+    """``method`` of :class:`Adapter` whose exceptions name the FMI 3.0 functions
+    in an FMI 3.0 FMU (the slave's messages name FMI 2.0's)."""
+    def call(self, *args):
+        try:
+            return method(self, *args)
+        except Exception as exc:
+            if self.fmi_version != 3:
+                raise
+            raise Fmi3Refusal(_fmi3_text(str(exc))) from None
+    call.__name__, call.__doc__ = method.__name__, method.__doc__
+    return call
+
+
 def _fmi3_text(text: str) -> str:
     """A slave's message with the FMI 3.0 names of the functions it names."""
     if "fmi2" not in text:
@@ -438,6 +456,7 @@ class Adapter:
             return 0
         return ctypes.addressof(self.gate)
 
+    @_fmi3_names
     def sync_native(self):
         """The slave takes over the steps the native layer took."""
         self.slave.sync_native()
@@ -456,18 +475,23 @@ class Adapter:
         return [(int(m.status), str(m.category or ""), str(m.msg)) for m in queue]
 
     # -- life cycle ---------------------------------------------------------------
+    @_fmi3_names
     def setup_experiment(self, start_time, stop_time, tolerance):
         self.slave.setup_experiment(start_time, stop_time, tolerance)
 
+    @_fmi3_names
     def enter_initialization_mode(self):
         self.slave.enter_initialization_mode()
 
+    @_fmi3_names
     def exit_initialization_mode(self):
         self.slave.exit_initialization_mode()
 
+    @_fmi3_names
     def terminate(self):
         self.slave.terminate()
 
+    @_fmi3_names
     def reset(self):
         """``fmi2Reset``: a new slave, as after ``fmi2Instantiate``."""
         for i in range(GATE_SIZE):
@@ -476,6 +500,7 @@ class Adapter:
         self._pending += list(self.slave.log_queue)
         self.slave = fresh
 
+    @_fmi3_names
     def enter_initialization(self, start_time, stop_time, tolerance):
         """``fmi3EnterInitializationMode``: the experiment and the mode in one call
         (refused as a whole: the slave is as before when either part is)."""
@@ -484,52 +509,67 @@ class Adapter:
         self.slave.setup_experiment(start_time, stop_time, tolerance)
         self.slave.enter_initialization_mode()
 
+    @_fmi3_names
     def do_step(self, current_time, step_size) -> bool:
         return bool(self.slave.do_step(current_time, step_size))
 
+    @_fmi3_names
     def do_step_early(self, current_time, step_size, early_return_allowed):
         """``fmi3DoStep``: ``(taken, returned early, the FMU's time)``."""
         taken = bool(self.slave.do_step(current_time, step_size, bool(early_return_allowed)))
         return taken, bool(taken and self.slave.early_return), float(self.slave.time())
 
+    @_fmi3_names
     def time(self) -> float:
         return self.slave.time()
 
     # -- values -------------------------------------------------------------------
+    @_fmi3_names
     def get_real(self, refs):
         return list(map(float, self.slave.get_real(refs)))
 
+    @_fmi3_names
     def get_integer(self, refs):
         return [int(x) for x in self.slave.get_integer(refs)]
 
+    @_fmi3_names
     def get_boolean(self, refs):
         return [bool(x) for x in self.slave.get_boolean(refs)]
 
+    @_fmi3_names
     def get_string(self, refs):
         return [str(x) for x in self.slave.get_string(refs)]
 
+    @_fmi3_names
     def set_real(self, refs, values):
         self.slave.set_real(refs, values)
 
+    @_fmi3_names
     def set_integer(self, refs, values):
         self.slave.set_integer(refs, values)
 
+    @_fmi3_names
     def set_boolean(self, refs, values):
         self.slave.set_boolean(refs, values)
 
+    @_fmi3_names
     def set_string(self, refs, values):
         self.slave.set_string(refs, values)
 
     # -- FMU states ---------------------------------------------------------------
+    @_fmi3_names
     def get_state(self):
         return self.slave._get_fmu_state()
 
+    @_fmi3_names
     def set_state(self, state):
         self.slave._set_fmu_state(state)
 
+    @_fmi3_names
     def serialize(self, state) -> bytes:
         return bytes(self.slave.serialize_state(state))
 
+    @_fmi3_names
     def deserialize(self, data: bytes):
         return self.slave.deserialize_state(data)
 

@@ -290,8 +290,13 @@ class HfdiSlave(Fmi2Slave):
         self._layout_quantities(model, meta.get("quantities") or {})
         # the event functions the model declares (docs/user-models.md, "Events"):
         # per function, the count of its zeros and the time of the last one
-        self._event_names = [_event_label(k, g) for k, g in
-                             enumerate(getattr(model, "events", None) or ())]
+        declared = list(getattr(model, "events", None) or ())
+        terminal = [k for k, g in enumerate(declared) if getattr(g, "terminal", False)]
+        if terminal:
+            raise FmuError(f"model {name!r} declares terminal event functions ({terminal}): "
+                           "an FMU of it would have to stop the co-simulation, which this "
+                           "FMU does not do")
+        self._event_names = [_event_label(k, g) for k, g in enumerate(declared)]
         self._event_count = [0] * len(self._event_names)
         self._event_time = [0.0] * len(self._event_names)
         self._early_return = False           # whether the last doStep returned early
@@ -787,8 +792,14 @@ class HfdiSlave(Fmi2Slave):
             # in the compiled driver as in the Python one
             itg.max_steps = itg.statistics.steps + budget
             counted = itg.event_count
+            until_event = bool(early_return and counted is not None)
             try:
-                ok = itg.advance(t_end, until_event=bool(early_return and counted is not None))
+                ok = itg.advance(t_end, until_event=until_event)
+                for _ in range(len(counted) if until_event else 0):
+                    if not (ok and itg.t == t):
+                        break
+                    # a zero at the step's start (at t0): counted, not a return
+                    ok = itg.advance(t_end, until_event=True)
             finally:
                 itg.max_steps = _UNLIMITED_STEPS
             if counted is not None:

@@ -54,7 +54,7 @@ class EventSteps:
         """``events`` and ``on_event`` of the constructor, checked; the event
         functions evaluated at the initial state (a :class:`EventError`, a
         ``ValueError``, names the one that fails there)."""
-        if events is None and getattr(self.system, "events", None) is not None:
+        if events is None and getattr(self.system, "events", None):
             # the model's own (docs/user-models.md, "Events"), with its resets
             events = self.system.events
             if on_event is None:

@@ -214,6 +214,13 @@ class Events:
         self.counted_zero[:] = False
         self.t = float(t)
 
+    def resume(self, t, g, counted) -> None:
+        """At a restored state: the values ``g`` the run held at ``t`` and the
+        zeros ``counted`` (nonzero entries) there."""
+        self.g = np.array(g, dtype=float)
+        self.counted_zero = np.asarray(counted) != 0
+        self.t = float(t)
+
     def active(self, left, right):
         """Which functions cross zero between the values ``left`` and ``right``
         (arrays (..., m)) in their direction (``solve_ivp``'s rule)."""

@@ -67,6 +67,12 @@ class IntegratorState:
     #: The global error estimate of ``(u, v)`` at ``current.t`` (2N; NaN:
     #: lost, see :attr:`Integrator.global_error`); ``None`` is zero.
     global_error: np.ndarray | None = None
+    #: The event functions' values at ``current.t`` as the run holds them (a
+    #: zero counted there is held at 0), and which zeros were counted exactly
+    #: there (1.0) — so that a restored run does not count them again
+    #: (``None``: no events, or none known at ``current.t``).
+    event_values: np.ndarray | None = None
+    event_counted: np.ndarray | None = None
 
     def copy(self, copy_arrays: bool = True) -> IntegratorState:
         """A deep copy, field by field: a co-simulation step saves one before
@@ -79,6 +85,9 @@ class IntegratorState:
             new.current = self.current.copy()
             new.previous = None if self.previous is None else self.previous.copy()
             new.global_error = None if self.global_error is None else self.global_error.copy()
+            for name in ("event_values", "event_counted"):
+                value = getattr(self, name)
+                setattr(new, name, None if value is None else value.copy())
         new.statistics = _clone(self.statistics)
         return new
 
@@ -97,6 +106,9 @@ class IntegratorState:
 
         if self.global_error is not None:
             arrays["global_error"] = np.asarray(self.global_error, dtype=np.float64)
+        if self.event_values is not None:
+            arrays["event_values"] = np.asarray(self.event_values, dtype=np.float64)
+            arrays["event_counted"] = np.asarray(self.event_counted, dtype=np.float64)
         header = {name: kind(getattr(self, name)) for name, kind in _STATE_SCALARS.items()}
         header.update(format=STATE_FORMAT, current=one("current", self.current),
                       previous=one("previous", self.previous),
@@ -148,6 +160,15 @@ class IntegratorState:
                                              and global_error.shape == (2 * n,)):
             raise ValueError(f"serialized state: global_error must be a float64 array of "
                              f"shape ({2 * n},)")
+        event_values = arrays.pop("event_values", None)
+        event_counted = arrays.pop("event_counted", None)
+        if (event_values is None) != (event_counted is None) or event_values is not None and not (
+                event_values.dtype == event_counted.dtype == np.float64
+                and event_values.ndim == 1 and event_values.shape == event_counted.shape
+                and np.isfinite(event_values).all()
+                and np.isin(event_counted, (0.0, 1.0)).all()):
+            raise ValueError("serialized state: event_values and event_counted must be two "
+                             "float64 arrays of one length, finite, the second of 0 and 1")
         if arrays:
             raise ValueError(f"serialized state: unexpected entries {sorted(arrays)}")
         counts = header.get("statistics")
@@ -157,11 +178,12 @@ class IntegratorState:
                                    for k in _STATISTICS_FIELDS})
         scalars = {k: _field(header, k, kind) for k, kind in _STATE_SCALARS.items()}
         return cls(current=current, previous=previous, statistics=statistics,
-                   global_error=global_error, **scalars)
+                   global_error=global_error, event_values=event_values,
+                   event_counted=event_counted, **scalars)
 
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
-STATE_FORMAT = "hfdi-integrator-state/4"
+STATE_FORMAT = "hfdi-integrator-state/5"
 _STATE_ARRAYS = ("u", "v", "a", "f", "p")
 #: The fields of plain types, by name (the annotations are strings here).
 _STATE_SCALARS = {f.name: {"float": float, "bool": bool, "int": int, "str": str}[f.type]

@@ -42,7 +42,15 @@ class StateAccess:
             newton_guard=run.newton_guard, controller=repr(self.controller), n_dof=self.ev.n,
             scheme=repr(self.scheme),
             model_version=-1 if self._model_version is None else int(self._model_version),
-            global_error=vec.global_error.copy())
+            global_error=vec.global_error.copy(), **self._event_memory(run.t))
+
+    def _event_memory(self, t) -> dict:
+        """The events' values and counted zeros at ``t`` (IntegratorState's fields)."""
+        events = getattr(self, "_events", None)
+        if events is None or events.t != t:
+            return {}
+        return {"event_values": events.g.copy(),
+                "event_counted": events.counted_zero.astype(np.float64)}
 
     def set_state(self, saved: IntegratorState) -> None:
         """Restore a state from :meth:`get_state`; the run then continues
@@ -77,9 +85,14 @@ class StateAccess:
         self._restore(saved)
         if getattr(self, "_events", None) is not None:
             # the event functions' values at the restored state (the events
-            # found so far stay: they are the caller's record)
+            # found so far stay: they are the caller's record), and the zeros
+            # counted there as they were: a zero the state was stopped at is
+            # not found again (its g may round to the side before it)
             current = self.state
             self._events.start(current.t, current.u, current.v)
+            if saved.event_values is not None \
+                    and saved.event_values.shape == self._events.g.shape:
+                self._events.resume(current.t, saved.event_values, saved.event_counted)
         if refresh:
             try:
                 self.model_changed()

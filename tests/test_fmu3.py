@@ -97,6 +97,9 @@ def test_the_fmi3_fmus_validate_and_describe_the_fmi2_variables(built):
         assert outputs3 == sorted(u.variable.valueReference for u in md2.outputs)
         with zipfile.ZipFile(path3) as z:
             assert f"binaries/x86_64-linux/hfdi_{name}.so" in z.namelist()
+            text = z.read("modelDescription.xml").decode()
+        assert "fmi2" not in text and "fmi3EnterInitializationMode" in text
+        assert md3.coSimulation.needsExecutionTool == md2.coSimulation.needsExecutionTool
 
 
 def test_every_function_of_fmi3_functions_h_is_exported(built):
@@ -182,6 +185,29 @@ def test_an_early_return_lands_on_each_event(built):
     assert len(returns) == len(expected)
     np.testing.assert_allclose(returns, expected, rtol=0, atol=2e-8)
     early.close()
+    # a master that saves and restores the state at every early return (as
+    # one that may retry does): the same returns, each zero counted once
+    again = Slave3(path, early_return=True, parameters={"rtol": 1e-9})
+    t, repeated = 0.0, []
+    while t < STOP - 1e-12 and len(repeated) <= len(expected):
+        step = min(h, STOP - t)
+        returned, last = again.fmu.doStep(t, step)[2:]
+        if returned:
+            repeated.append(last)
+            state = again.fmu.getFMUState()
+            again.fmu.setFMUState(again.fmu.deserializeFMUState(
+                again.fmu.serializeFMUState(state)))
+            again.fmu.freeFMUState(state)
+        t = last if returned else t + step
+    assert repeated == returns
+    assert list(again.get(["event_count[1]", "event_count[2]"])) == [len(impacts), len(tops)]
+    again.close()
+    # a zero at the start time (a highest point at t0) is counted, not returned at
+    start = Slave3(path, early_return=True, parameters={"u0": 0.05, "v0": 0.0})
+    returned, last = start.fmu.doStep(0.0, 0.25)[2:]
+    assert not returned and last == 0.25
+    assert list(start.get(["event_count[2]", "event_time[2]"])) == [1.0, 0.0]
+    start.close()
     # without early returns: the same events, counted inside the steps
     plain = Slave3(path, early_return=False, parameters={"rtol": 1e-9})
     t = 0.0
@@ -259,6 +285,11 @@ def test_functions_that_do_not_apply_refuse_with_a_log_line(built):
     with pytest.raises(FMICallException):
         fmu.doStep(0.5, 0.1)
     assert "FMU is at t = 0.0" in messages[-1][1] and "fmi2" not in messages[-1][1]
+    # the slave's refusals name the FMI 3.0 functions too
+    with pytest.raises(FMICallException):
+        fmu.enterInitializationMode(startTime=0.0)
+    assert messages[-1][1].startswith("fmi3EnterInitializationMode: the FMU is initialized")
+    assert "fmi2" not in messages[-1][1]
     fmu.terminate()
     fmu.freeInstance()
 

@@ -227,6 +227,22 @@ FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c)
     return fmi2Error;
 }
 
+/* The FMU's time (the slave's): after a discarded doStep it is where the FMU
+ * stayed, and the start time before the first step. */
+static int fmu_time(void* c, const char* function, double* value)
+{
+    INSTANCE_OR_ERROR(c)
+    if (!value) return null_argument(inst, function, "the value pointer");
+    PyGILState gil = p_PyGILState_Ensure();
+    int status = ST_OK;
+    PyObject* t = invoke(inst, "time", NULL, &status);
+    if (t) {
+        *value = p_PyFloat_AsDouble(t);
+        p_Py_DecRef(t);
+    }
+    return release(inst, gil, function, status);
+}
+
 /* The statuses of an asynchronous doStep: there is none, doStep returns when done. */
 static fmi2Status no_status(fmi2Component c, const char* function)
 {

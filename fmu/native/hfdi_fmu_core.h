@@ -678,7 +678,8 @@ static int set_values(void* c, const char* function, Kind kind, const ValueRefer
         case REAL: item = p_PyFloat_FromDouble(((const double*)in)[i]); break;
         case INTEGER: item = p_PyLong_FromLong(((const int*)in)[i]); break;
         case BOOLEAN_INT: item = p_PyBool_FromLong(((const int*)in)[i] != 0); break;
-        case BOOLEAN_BYTE: item = p_PyBool_FromLong(((const bool*)in)[i]); break;
+        /* as bytes: a host's value other than 0 and 1 is true, not undefined */
+        case BOOLEAN_BYTE: item = p_PyBool_FromLong(((const unsigned char*)in)[i] != 0); break;
         case STRING: {
             const char* s = ((const char* const*)in)[i];
             item = s ? p_PyUnicode_DecodeUTF8(s, (Py_ssize_t_)strlen(s), "strict") : NULL;
@@ -1036,22 +1037,6 @@ static int do_step(void* c, const char* function, double t, double h, int early_
         int ok = p_PyObject_IsTrue(taken);
         p_Py_DecRef(taken);
         if (ok != 1) status = ok == 0 ? ST_DISCARD : report_exception(inst, function);
-    }
-    return release(inst, gil, function, status);
-}
-
-/* The FMU's time (the slave's): after a discarded doStep it is where the FMU
- * stayed, and the start time before the first step. */
-static int fmu_time(void* c, const char* function, double* value)
-{
-    INSTANCE_OR_ERROR(c)
-    if (!value) return null_argument(inst, function, "the value pointer");
-    PyGILState gil = p_PyGILState_Ensure();
-    int status = ST_OK;
-    PyObject* t = invoke(inst, "time", NULL, &status);
-    if (t) {
-        *value = p_PyFloat_AsDouble(t);
-        p_Py_DecRef(t);
     }
     return release(inst, gil, function, status);
 }
