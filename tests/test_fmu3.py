@@ -356,3 +356,43 @@ def test_a_c_host_returns_early_from_threads(built, tmp_path, threads):
     assert sorted(values) == list(range(threads)) and len(early) >= 4
     assert all(v == expected for v in values.values()), (values, expected)
     assert all(r == early for r in returns.values()), (returns, early)
+
+
+def test_a_second_master_ecos_runs_the_fmi3_fmu(built, tmp_path):
+    """Ecos (``ecospy``, a C++ co-simulation engine with its own FMI 3.0
+    import) runs the FMI 3.0 FMU: the values fmpy's FMI 3.0 API gives at the
+    same communication points, bit for bit, and the events counted. In a
+    subprocess, so that a crash of the host would show as such."""
+    import subprocess
+    import sys
+    import textwrap
+    try:
+        import ecospy  # noqa: F401
+    except (ImportError, OSError) as exc:   # ecospy, or Debian's libtbb12, missing
+        pytest.skip(f"Ecos is not available here: {exc}")
+    path = built[("impact_oscillator", 3)]
+    script = textwrap.dedent(f"""
+        from ecospy import EcosSimulation, EcosSimulationStructure
+        structure = EcosSimulationStructure()
+        structure.add_model("a", {str(path)!r})
+        sim = EcosSimulation(structure=structure, step_size=0.01)
+        sim.init()
+        sim.step_until(1.0)
+        print(repr(sim.get_time()), repr(sim.get_real("a::u[1]")),
+              repr(sim.get_real("a::v[1]")), repr(sim.get_integer("a::event_count[1]")))
+        sim.terminate()
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=600, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    t, u1, v1, impacts = map(float, done.stdout.split()[-4:])
+    steps = round(t / 0.01)
+    assert 95 <= steps <= 100
+    unit = Slave3(path)
+    t = 0.0
+    for _ in range(steps):
+        assert not unit.fmu.doStep(t, 0.01)[2]
+        t += 0.01
+    assert list(unit.get(["u[1]", "v[1]", "event_count[1]"])) == [u1, v1, impacts]
+    assert impacts == 1.0                              # the first impact at t = 0.584
+    unit.close()
