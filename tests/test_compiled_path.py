@@ -889,13 +889,13 @@ def test_a_kernel_value_of_a_wrong_shape_stops_the_run_with_model_error(scheme):
     end (a wrong run reported as a success); it is now MODEL_ERROR at the last
     good state, as a wrong shape of the model's method is on the Python path."""
     Faulty = _faulty_kernels()
-    r = hfdi.integrate(Faulty(limit=0.27), scheme, 6.0, rtol=1e-6, compiled=True)
+    r = hfdi.integrate(Faulty(limit=0.27), scheme, 6.0, rtol=1e-4, compiled=True)
     assert r.status == hfdi.Status.MODEL_ERROR, (r.status, r.message)
     assert "internal_force returned shape (1,), expected (2,)" in r.message
     assert 0.5 < r.t[-1] < 6.0 and np.abs(r.u[:, 0]).max() <= 0.27
     # below the limit the same kernels run to the end, as the Python path does
-    good = hfdi.integrate(Faulty(limit=0.5), scheme, 6.0, rtol=1e-6, compiled=True)
-    plain = hfdi.integrate(Faulty(), scheme, 6.0, rtol=1e-6, compiled=False)
+    good = hfdi.integrate(Faulty(limit=0.5), scheme, 6.0, rtol=1e-4, compiled=True)
+    plain = hfdi.integrate(Faulty(), scheme, 6.0, rtol=1e-4, compiled=False)
     assert good.success and good.stats.steps == plain.stats.steps
 
 
