@@ -701,6 +701,7 @@ def test_hat_load_kernel_is_the_models_load():
                                           model.load(float(t)))
 
 
+@pytest.mark.slow
 def test_a_held_load_is_driven_as_the_python_driver_adds_it():
     """A co-simulation input (hfdi.HeldLoad) held over each advance and changed
     between them (load_changed): bit for bit, on the driver and on Python."""

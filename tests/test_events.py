@@ -404,7 +404,7 @@ def test_a_failing_event_function_keeps_the_steps_before_its_failure():
 
 
 # -- events a model declares ------------------------------------------------------------
-@pytest.mark.parametrize("scheme", ["hfdi", "bathe"])
+@pytest.mark.parametrize("scheme", ["hfdi", pytest.param("bathe", marks=pytest.mark.slow)])
 def test_the_impact_oscillator_declares_its_events_and_reset(scheme):
     """A model's ``events`` and ``on_event`` are used unless told otherwise: its
     impacts and highest points against the closed form of the piecewise

@@ -147,6 +147,7 @@ def test_a_stop_is_advances_own_after_native_calls():
     assert host.taken >= 2
 
 
+@pytest.mark.slow
 def test_held_load_changed_between_arms():
     """A held load (a co-simulation input) changed between communication points:
     advance after load_changed, armed again, then native calls."""

@@ -1054,6 +1054,7 @@ def test_an_energy_models_derived_load_rate_is_the_right_limit():
             assert hfdi.Integrator(m, "hfdi", rtol=1e-6, compiled=compiled).advance(0.5)
 
 
+@pytest.mark.slow
 def test_set_state_follows_the_parameters_of_an_energy_model():
     """A state saved under other parameters is refreshed on every scheme
     (Newmark and Bathe keep no force to tell by: the version tells); a state
