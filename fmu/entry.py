@@ -469,10 +469,8 @@ class Adapter:
         queue = self._pending + list(self.slave.log_queue)
         self._pending = []
         del self.slave.log_queue[:]
-        if self.fmi_version == 3:
-            return [(int(m.status), str(m.category or ""), _fmi3_text(str(m.msg)))
-                    for m in queue]
-        return [(int(m.status), str(m.category or ""), str(m.msg)) for m in queue]
+        text = _fmi3_text if self.fmi_version == 3 else str
+        return [(int(m.status), str(m.category or ""), text(str(m.msg))) for m in queue]
 
     # -- life cycle ---------------------------------------------------------------
     @_fmi3_names
@@ -515,9 +513,12 @@ class Adapter:
 
     @_fmi3_names
     def do_step_early(self, current_time, step_size, early_return_allowed):
-        """``fmi3DoStep``: ``(taken, returned early, the FMU's time)``."""
+        """``fmi3DoStep``: ``(taken, returned early, the FMU's time)``; a step
+        taken returned early when it ended before ``current_time + step_size``
+        (the slave's own end time), at a zero of an event function."""
         taken = bool(self.slave.do_step(current_time, step_size, bool(early_return_allowed)))
-        return taken, bool(taken and self.slave.early_return), float(self.slave.time())
+        time = float(self.slave.time())
+        return taken, taken and time < float(current_time) + float(step_size), time
 
     @_fmi3_names
     def time(self) -> float:

@@ -299,7 +299,6 @@ class HfdiSlave(Fmi2Slave):
         self._event_names = [_event_label(k, g) for k, g in enumerate(declared)]
         self._event_count = [0] * len(self._event_names)
         self._event_time = [0.0] * len(self._event_names)
-        self._early_return = False           # whether the last doStep returned early
         self._register_parameters(meta.get("parameters") or {})
         self._register_inputs()
         self._register_outputs()
@@ -745,11 +744,10 @@ class HfdiSlave(Fmi2Slave):
         why. Never raises.
 
         ``early_return`` (FMI 3.0's ``earlyReturnAllowed``): stop at the first
-        zero of a model's event function inside the step, after its reset;
-        :attr:`early_return` then says so and :meth:`time` is the zero's time.
+        zero of a model's event function after the step's start, after its
+        reset; :meth:`time` is then the zero's time, before the step's end.
         """
         snapshot = None
-        self._early_return = False
         try:
             itg = self._itg
             t, h = float(current_time), float(step_size)
@@ -792,19 +790,12 @@ class HfdiSlave(Fmi2Slave):
             # in the compiled driver as in the Python one
             itg.max_steps = itg.statistics.steps + budget
             counted = itg.event_count
-            until_event = bool(early_return and counted is not None)
             try:
-                ok = itg.advance(t_end, until_event=until_event)
-                for _ in range(len(counted) if until_event else 0):
-                    if not (ok and itg.t == t):
-                        break
-                    # a zero at the step's start (at t0): counted, not a return
-                    ok = itg.advance(t_end, until_event=True)
+                ok = itg.advance(t_end, until_event=bool(early_return and counted is not None))
             finally:
                 itg.max_steps = _UNLIMITED_STEPS
             if counted is not None:
                 self._count_events(itg, counted)
-                self._early_return = ok and itg.t < t_end
             reason = ""
             if not ok:
                 reason = f"{itg.status.name}: {itg.message}"
@@ -988,11 +979,6 @@ class HfdiSlave(Fmi2Slave):
             self._event_count[k] = min(self._event_count[k] + int(after[k] - before[k]),
                                        _INT32_MAX)
             self._event_time[k] = float(last[k])
-
-    @property
-    def early_return(self) -> bool:
-        """Whether the last doStep stopped early, at an event."""
-        return self._early_return
 
     def _rollback(self, snapshot):
         saved, applied, count, times = snapshot

@@ -619,8 +619,10 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         until_event : bool, optional
             Stop at the first zero of an event function before ``t_stop``
             (after ``on_event``'s reset there): :attr:`t` is then the zero's
-            time, and the next call goes on from it. A co-simulation unit
-            returns early there (FMI 3.0's ``earlyReturn``).
+            time, and the next call goes on from it. A zero at the call's
+            start time (``t0``'s, say) is counted, not stopped at: every stop
+            moves the run on. A co-simulation unit returns early there (FMI
+            3.0's ``earlyReturn``).
 
         Returns
         -------
@@ -645,6 +647,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             raise ValueError(f"until_event must be True or False, got {until_event!r}")
         events = self._events if until_event else None
         found = None if events is None else int(events.count.sum())
+        start = self.t
         self._rows = rows
         try:
             if events is not None:
@@ -660,7 +663,9 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                         not self.failed or self._run.status == Status.ENERGY_GROWTH):
                     callback(self)
                 if found is not None and int(events.count.sum()) > found:
-                    break
+                    if self.t > start:
+                        break
+                    found = int(events.count.sum())    # a zero at the start: go on
         finally:
             self._rows = None
             self._pause_at_events = False

@@ -481,3 +481,15 @@ def test_a_state_restored_at_a_zero_does_not_count_it_again(serialized):
     assert list(itg.event_count) == list(plain.event_count) == [4, 4]
     for mine, theirs in zip(itg.t_events, plain.t_events):
         np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-8)
+
+
+@pytest.mark.slow
+def test_advance_until_event_counts_a_zero_at_its_start_and_goes_on():
+    """A highest point at t0 (v0 = 0): counted by the first call, which goes
+    on to the next zero instead of returning at t0 without moving."""
+    model = hfdi.models.impact_oscillator(u0=0.05, v0=0.0)      # below the stop's reach
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-8)
+    assert itg.advance(2.5, until_event=True)
+    assert list(itg.event_count) == [0, 2]
+    assert itg.t_events[1][0] == 0.0 and itg.t == itg.t_events[1][1]
+    assert itg.t == pytest.approx(1.0, abs=1e-7)                  # one period later
