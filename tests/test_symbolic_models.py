@@ -108,6 +108,7 @@ def test_parameters_change_the_result_without_rederivation(monkeypatch):
     u = np.array([0.3, -0.2, 0.5, 1.1])
     w = np.array([1.0, 0.5, -0.4, 0.2])
     before = model.internal_force(u)
+    fresh.internal_force(u)                            # its functions made (on first use)
 
     def forbidden(*args, **kwargs):
         raise AssertionError("sympy was called: the model was re-derived")
@@ -543,3 +544,82 @@ def test_real_expressions_with_complex_looking_parts_are_taken():
     model = EnergyModel([x], sympy.exp(sympy.I * sympy.pi) * -x ** 2 / 2
                         + sympy.Abs(sympy.I * x), mass=[1.0])
     assert model.potential_energy([2.0]) == pytest.approx(4.0)
+
+
+# -- the two derivation engines ----------------------------------------------------------
+
+def _every_elementary_function():
+    """An energy of three DOFs using every function symengine derives, a float,
+    a rational, π and e, with states inside every function's domain."""
+    x, y, z, c = sympy.symbols("x y z c")
+    energy = (sympy.sin(x) * sympy.cos(y) + sympy.tan(z / 3) + sympy.exp(x * y / 4)
+              + sympy.log(2 + x ** 2) + sympy.asin(y / 3) + sympy.acos(z / 4)
+              + sympy.atan(x * z) + sympy.sinh(y / 2) * sympy.cosh(z / 5)
+              + sympy.tanh(x - y) + sympy.asinh(z) + sympy.acosh(3 + y ** 2)
+              + sympy.atanh(x / 4) + sympy.Float(0.1) * c * sympy.sqrt(1 + x ** 2 + z ** 2)
+              + sympy.Rational(3, 7) * sympy.pi * (x - z) ** 4 + sympy.E ** (z / 7))
+    return [x, y, z], energy, {c: 1.7}
+
+
+def test_symengine_and_sympy_derive_the_same_model(monkeypatch):
+    """An elementary energy is derived by symengine; sympy's derivation of it
+    (the route of any other energy) gives the same f, K, T and V to rounding,
+    on the Python path and in the compiled kernels."""
+    from hfdi.models import derivation
+    dofs, energy, parameters = _every_elementary_function()
+    assert derivation.elementary(energy)
+    fast = EnergyModel(dofs, energy, np.ones(3), parameters=parameters)
+    assert fast._derivation.engine == "symengine"
+    kernels = fast.compiled_kernels()
+    fast.internal_force(np.zeros(3))            # its functions made before symengine goes
+    monkeypatch.setattr(derivation, "_symengine", lambda: None)
+    slow = EnergyModel(dofs, energy, np.ones(3), parameters=parameters)
+    assert slow._derivation.engine == "sympy"
+    assert fast.stiffness_pattern[0].tolist() == slow.stiffness_pattern[0].tolist()
+    rng = np.random.default_rng(3)
+    params = fast.compiled_params()
+    for _ in range(5):
+        u, w = rng.uniform(-0.5, 0.5, 3), rng.standard_normal(3)
+        assert rel(fast.internal_force(u), slow.internal_force(u)) < 1e-14
+        assert rel(fast.stiffness(u), slow.stiffness(u)) < 1e-14
+        assert rel(fast.stiffness_derivative(u, w), slow.stiffness_derivative(u, w)) < 1e-14
+        assert fast.potential_energy(u) == pytest.approx(slow.potential_energy(u), rel=1e-14)
+        assert rel(kernels.force(u, params), slow.internal_force(u)) < 1e-14
+        assert rel(kernels.stiffness(u, params), slow.stiffness(u)) < 1e-14
+        assert rel(kernels.stiffness_derivative(u, w, params),
+                   slow.stiffness_derivative(u, w)) < 1e-14
+    assert hfdi.check_derivatives(fast, rng.uniform(-0.5, 0.5, (3, 3))).ok(1e-6)
+    # the public expressions, in the user's symbols (acosh's derivative is
+    # written differently by the two: compared by value)
+    point = {**dict(zip(dofs, (0.2, -0.3, 0.4))), **parameters}
+    assert fast.hessian.free_symbols <= set(dofs) | set(parameters)
+    for a, b in [*zip(fast.gradient, slow.gradient), *zip(fast.hessian, slow.hessian)]:
+        assert float(a.subs(point)) == pytest.approx(float(b.subs(point)), rel=1e-13, abs=1e-15)
+
+
+@pytest.mark.parametrize("make", [lambda x, y: sympy.Abs(x) * y ** 2,
+                                  lambda x, y: sympy.Max(0, x - 1) ** 2 + y ** 2,
+                                  lambda x, y: sympy.Piecewise((x ** 2, x > 0), (0, True)) + y,
+                                  lambda x, y: sympy.Float("0.1", 30) * x ** 2 + y,
+                                  lambda x, y: sympy.besselj(0, x) + y ** 2])
+def test_an_energy_beyond_the_elementary_functions_is_derived_by_sympy(make):
+    from hfdi.models import derivation
+    x, y = sympy.symbols("x y", real=True)
+    energy = make(x, y)
+    assert not derivation.elementary(energy)
+    model = EnergyModel([x, y], energy, np.ones(2))
+    assert model._derivation.engine == "sympy"
+    assert model.gradient[1] == energy.diff(y)
+
+
+def test_a_copy_and_a_pickle_compute_in_the_same_order():
+    """symengine may order the terms of the same expressions otherwise after a
+    round trip; the reduced text travels with the model, so copies agree bit
+    for bit."""
+    dofs, energy, parameters = _every_elementary_function()
+    model = EnergyModel(dofs, energy, np.ones(3), parameters=parameters)
+    u, w = np.array([0.1, -0.2, 0.3]), np.array([0.5, 0.1, -1.0])
+    for clone in (pickle.loads(pickle.dumps(model)), model.with_parameters(c=1.7)):
+        np.testing.assert_array_equal(clone.internal_force(u), model.internal_force(u))
+        np.testing.assert_array_equal(clone.stiffness_derivative(u, w),
+                                      model.stiffness_derivative(u, w))

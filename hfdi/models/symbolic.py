@@ -1,8 +1,9 @@
 """Models defined by a potential energy written in sympy.
 
 :class:`EnergyModel` derives ``f = ∂V/∂u``, ``K`` (the Hessian) and ``T(u)[w]``
-once, at construction, and compiles each with :func:`sympy.lambdify`; the
-parameters stay symbols, set at every evaluation. Two ready-made models:
+once, at construction (:mod:`hfdi.models.derivation`: symengine for an
+elementary energy, sympy otherwise); its Python functions are made on first
+use; the parameters stay symbols, set at every evaluation. Two ready-made models:
 :func:`elastic_pendulum` and :func:`spring_chain` (docs/user-models.md,
 "A model from its potential energy").
 """
@@ -17,6 +18,7 @@ import sympy
 from .. import checks
 from ..system import SecondOrderSystem
 from . import sympy_input as _in
+from .derivation import UnprintableError, derive, python_functions
 
 __all__ = ["EnergyModel", "elastic_pendulum", "spring_chain"]
 
@@ -26,9 +28,12 @@ class EnergyModel(SecondOrderSystem):
 
     The gradient ``f``, the Hessian ``K`` and the third-derivative contraction
     ``T(u)[w]_ij = Σ_k ∂³V/∂u_i ∂u_j ∂u_k w_k`` are derived once, at
-    construction, and compiled with :func:`sympy.lambdify` (numpy, common
-    subexpression elimination). They are exact, so the HFDI corrector gets
-    the tangent it needs (paper, Eq. 21).
+    construction, by symengine where the energy is elementary (sums,
+    products, powers and the functions of
+    :data:`hfdi.models.derivation.ELEMENTARY`) and by sympy otherwise. The
+    Python path's functions (numpy) and the compiled kernels are printed
+    from the same common-subexpression elimination, on first use. They are
+    exact, so the HFDI corrector gets the tangent it needs (paper, Eq. 21).
 
     Parameters
     ----------
@@ -202,11 +207,9 @@ class EnergyModel(SecondOrderSystem):
         self._quantity_names, self._quantity_sizes, quantity_exprs = self._parse_quantities(
             quantities, set(dofs) | set(param_symbols) | set(velocity_symbols) | set(time_symbols))
 
-        k_exprs, t_exprs, w_user = self._derive()
-
-        # The compiled code uses internal symbols: the user's names may be
-        # Python keywords, invalid identifiers, or clash with the names that
-        # common-subexpression elimination generates.
+        # The derivatives and the compiled code use internal symbols: the
+        # user's names may be Python keywords, invalid identifiers, or clash
+        # with the names that common-subexpression elimination generates.
         self._u = sympy.symbols(f"_u0:{n}")
         self._w = sympy.symbols(f"_w0:{n}")
         self._v = sympy.symbols(f"_v0:{n}")
@@ -216,30 +219,30 @@ class EnergyModel(SecondOrderSystem):
         rename.update(zip(param_symbols, self._p))
         rename.update(zip(velocity_symbols, self._v))
         rename.update(zip(time_symbols, (self._t,)))
-        w_rename = dict(zip(w_user, self._w))
-        w_rename.update(rename)
+        self._user_symbol = {internal: user for user, internal in rename.items()}
+        self._derivation, self._gradient = derive(energy, dofs, rename, self._w)
+        self._k_layout = _in.SymmetricLayout(n, self._derivation.k_rows, self._derivation.k_cols)
+        self._t_layout = _in.SymmetricLayout(n, self._derivation.t_rows, self._derivation.t_cols)
         rates = [] if load_exprs is None else [
             _in.right_rate(e.diff(time)) if time is not None else sympy.Integer(0)
             for e in load_exprs]
         leftover = [e for e in rates if e.has(sympy.Derivative)]
         if leftover:
-            # as for the energy's derivatives (_derive)
+            # as for the energy's derivatives (derivation.derive)
             raise ValueError(
                 f"the model's load rate could not be derived in closed form (sympy left "
                 f"{next(iter(leftover[0].atoms(sympy.Derivative)))}); declare the symbols that "
                 f"Abs, sign, re or im act on real (sympy.Symbol(name, real=True))")
-        self._exprs = {
+        # the expressions that need no derivative; f, K and T: _exprs
+        self._plain_exprs = {
             "V": _in.without_impulses(energy).xreplace(rename),
-            "f": [g.xreplace(rename) for g in self.gradient],
-            "K": [e.xreplace(rename) for e in k_exprs],
-            "T": [e.xreplace(w_rename) for e in t_exprs],
             "q": [_in.without_impulses(e).xreplace(rename) for e in quantity_exprs],
             "p": [] if load_exprs is None else [_in.without_impulses(e).xreplace(rename)
                                                  for e in load_exprs],
             "dp": [e.xreplace(rename) for e in rates],
         }
+        self._python_functions = None
         self.load_expressions = load_exprs
-        self._build_functions()
 
     # -- construction helpers ------------------------------------------------
     @staticmethod
@@ -276,90 +279,64 @@ class EnergyModel(SecondOrderSystem):
             exprs.extend(items)
         return tuple(names), tuple(sizes), exprs
 
-    def _derive(self):
-        """Gradient, Hessian and T[w] in the user's symbols.
+    @property
+    def _exprs(self) -> dict:
+        """Every expression of the model in the internal symbols, sympy's."""
+        f, k, t = self._derivation.sympy()
+        return dict(self._plain_exprs, f=f, K=k, T=t)
 
-        Sets :attr:`gradient`, :attr:`hessian` and the layouts of ``K`` and
-        ``T``; returns the upper-triangle expressions of ``K`` and ``T`` and
-        the symbols standing for ``w``.
-        """
-        dofs = self.dofs
-        n = len(dofs)
-        dof_set = set(dofs)
-        # Differentiate term by term, each term only by the DOFs it contains:
-        # for an energy that is a sum of local terms (springs, bonds) this keeps
-        # the work proportional to the number of terms instead of N times it.
-        terms = sympy.Add.make_args(_in.without_impulses(self.energy))
-        by_dof = {s: [] for s in dofs}
-        for term in terms:
-            for s in term.free_symbols & dof_set:
-                by_dof[s].append(term)
-        gradient = tuple(_in.without_impulses(sympy.Add(*[term.diff(s) for term in by_dof[s]]))
-                         for s in dofs)
-        depends = [g.free_symbols & dof_set for g in gradient]
-        k_rows, k_cols, k_exprs = [], [], []
-        hessian = {}
-        for i in range(n):
-            for j in range(i, n):
-                # ∂g_i/∂u_j is structurally zero unless g_i contains u_j
-                if dofs[j] not in depends[i]:
-                    continue
-                e = _in.without_impulses(gradient[i].diff(dofs[j]))
-                if e == 0:
-                    continue
-                k_rows.append(i)
-                k_cols.append(j)
-                k_exprs.append(e)
-                hessian[(i, j)] = hessian[(j, i)] = e
-        # a Dummy cannot collide with any symbol of the user
-        w = tuple(sympy.Dummy(f"w{i}") for i in range(n))
-        t_rows, t_cols, t_exprs = [], [], []
-        for i, j, e in zip(k_rows, k_cols, k_exprs):
-            present = e.free_symbols
-            terms = [e.diff(s) * w[k] for k, s in enumerate(dofs) if s in present]
-            te = _in.without_impulses(sympy.Add(*terms))
-            if te == 0:
-                continue
-            t_rows.append(i)
-            t_cols.append(j)
-            t_exprs.append(te)
-        leftover = [e for e in (*gradient, *k_exprs, *t_exprs) if e.has(sympy.Derivative)]
-        if leftover:
-            raise ValueError("sympy could not differentiate the energy in closed form: "
-                             f"{leftover[0]}; with Abs, sign, Max and the like, declare the "
-                             "DOF symbols real, e.g. sympy.symbols('x y', real=True)")
-        self.gradient = gradient
-        self.hessian = sympy.ImmutableSparseMatrix(n, n, hessian)
-        self._k_layout = _in.SymmetricLayout(n, k_rows, k_cols)
-        self._t_layout = _in.SymmetricLayout(n, t_rows, t_cols)
-        return k_exprs, t_exprs, w
+    @property
+    def gradient(self) -> tuple:
+        """``∂V/∂u_i`` in the user's symbols."""
+        if self._gradient is None:
+            self._gradient = tuple(e.xreplace(self._user_symbol)
+                                   for e in self._derivation.sympy()[0])
+        return self._gradient
 
-    def _build_functions(self):
-        u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
-        ex = self._exprs
-        self._fun_v = _in.lambdified([u, p], ex["V"], "energy")
-        self._fun_f = _in.lambdified([u, p], ex["f"], "internal force (the energy's gradient)")
-        self._fun_k = _in.lambdified([u, p], ex["K"], "stiffness")
-        self._fun_t = _in.lambdified([u, w, p], ex["T"], "stiffness derivative")
-        self._fun_q = _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None
-        self._fun_p = _in.lambdified([t, p], ex["p"], "load") if ex.get("p") else None
-        self._fun_dp = _in.lambdified([t, p], ex["dp"], "load rate") if ex.get("p") else None
+    @property
+    def hessian(self):
+        """``∂²V/∂u_i ∂u_j`` in the user's symbols (sympy.ImmutableSparseMatrix)."""
+        entries = {}
+        d = self._derivation
+        for i, j, e in zip(d.k_rows, d.k_cols, d.sympy()[1]):
+            entries[(i, j)] = entries[(j, i)] = e.xreplace(self._user_symbol)
+        return sympy.ImmutableSparseMatrix(self.n_dof, self.n_dof, entries)
+
+    def _fn(self, name):
+        """The Python path's function ``name`` (``"v"``, ``"f"``, ``"k"``, ``"t"``,
+        ``"q"``, ``"p"``, ``"dp"``), lambdified on first use: a run on the
+        compiled path never needs them."""
+        if self._python_functions is None:
+            u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
+            ex = self._exprs
+            made = None
+            if self._derivation.engine == "symengine":
+                try:
+                    made = python_functions(self._derivation, u, w, p)
+                except UnprintableError:
+                    pass
+            if made is None:
+                made = {
+                    "v": _in.lambdified([u, p], ex["V"], "energy"),
+                    "f": _in.lambdified([u, p], ex["f"], "internal force (the energy's gradient)"),
+                    "k": _in.lambdified([u, p], ex["K"], "stiffness"),
+                    "t": _in.lambdified([u, w, p], ex["T"], "stiffness derivative")}
+            made["q"] = _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None
+            made["p"] = _in.lambdified([t, p], ex["p"], "load") if ex["p"] else None
+            made["dp"] = _in.lambdified([t, p], ex["dp"], "load rate") if ex["p"] else None
+            self._python_functions = made
+        return self._python_functions[name]
 
     # Generated functions do not pickle; the expressions do, so a copy in
-    # another process recompiles them (no new derivation).
+    # another process makes them again on first use (no new derivation).
     def __getstate__(self):
         state = self.__dict__.copy()
-        for key in self._FUNCTIONS:
-            state.pop(key, None)
+        state["_python_functions"] = None
         return state
 
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._build_functions()
-
-    # Copies in the same process share the compiled functions (they hold no
-    # state), instead of recompiling through __getstate__/__setstate__.
-    _FUNCTIONS = ("_fun_v", "_fun_f", "_fun_k", "_fun_t", "_fun_q", "_fun_p", "_fun_dp")
+    # Copies in the same process share the generated functions and the
+    # derivation (they hold no state), instead of making them again.
+    _SHARED = ("_python_functions", "_derivation")
 
     def __copy__(self):
         other = object.__new__(type(self))
@@ -370,7 +347,7 @@ class EnergyModel(SecondOrderSystem):
         other = object.__new__(type(self))
         memo[id(self)] = other
         for key, value in self.__dict__.items():
-            other.__dict__[key] = value if key in self._FUNCTIONS else copy.deepcopy(value, memo)
+            other.__dict__[key] = value if key in self._SHARED else copy.deepcopy(value, memo)
         return other
 
     @property
@@ -457,16 +434,16 @@ class EnergyModel(SecondOrderSystem):
         """``f(u) = ∂V/∂u``, shape (N,)."""
         # a constant entry (0 for a DOF that V does not depend on) comes back as
         # a Python scalar; the rest as numpy scalars: asarray takes both
-        return np.asarray(self._fun_f(self._state(u), self._param_values), dtype=float)
+        return np.asarray(self._fn("f")(self._state(u), self._param_values), dtype=float)
 
     def stiffness(self, u):
         """``K(u) = ∂²V/∂u²``: ndarray (N, N), or CSR when ``sparse``."""
-        values = np.asarray(self._fun_k(self._state(u), self._param_values), dtype=float)
+        values = np.asarray(self._fn("k")(self._state(u), self._param_values), dtype=float)
         return self._k_layout.csr(values) if self.sparse else self._k_layout.dense(values)
 
     def stiffness_derivative(self, u, w):
         """``T(u)[w] = d(K(u) w)/du``: ndarray (N, N), or CSR when ``sparse``."""
-        values = np.asarray(self._fun_t(self._state(u), self._state(w, "w"),
+        values = np.asarray(self._fn("t")(self._state(u), self._state(w, "w"),
                                         self._param_values), dtype=float)
         return self._t_layout.csr(values) if self.sparse else self._t_layout.dense(values)
 
@@ -474,25 +451,25 @@ class EnergyModel(SecondOrderSystem):
         """``V(u)``: a float for ``u`` of shape (N,), an (n,) array for (n, N)."""
         u = np.asarray(u, dtype=float)
         if u.ndim == 2 and u.shape[1] == self.n_dof:
-            value = self._fun_v(u.T, self._param_values)
+            value = self._fn("v")(u.T, self._param_values)
             return np.broadcast_to(np.asarray(value, dtype=float), u.shape[:1]).copy()
-        return float(self._fun_v(self._state(u), self._param_values))
+        return float(self._fn("v")(self._state(u), self._param_values))
 
     def load(self, t):
         """External load ``p(t)``, shape (N,)."""
-        if self._fun_p is not None:
-            return self._vector_at(self._fun_p, t)
+        if self._plain_exprs["p"]:
+            return self._vector_at(self._fn("p"), t)
         return np.zeros(self.n_dof) if self._load is None else np.asarray(self._load(t), float)
 
     @property
     def load_rate(self):
         """The exact load rate ``t -> p'(t)``: derived from a load of sympy
         expressions, or the callable given, or ``None``."""
-        return self._derived_load_rate if self._fun_dp is not None else self._load_rate
+        return self._derived_load_rate if self._plain_exprs["p"] else self._load_rate
 
     def _derived_load_rate(self, t):
         """``p'(t)``, derived from a load of sympy expressions."""
-        return self._vector_at(self._fun_dp, t)
+        return self._vector_at(self._fn("dp"), t)
 
     def _vector_at(self, fun, t):
         # constant entries come back as scalars: each entry as a float
@@ -522,17 +499,16 @@ class EnergyModel(SecondOrderSystem):
             raise ValueError(f"t must be a scalar or have {n} entries, got {t.size}")
         t = np.broadcast_to(t, (n,))
         if v is None:
-            if self.velocity_symbols and self._fun_q is not None and any(
-                    e.has(*self._v) for e in self._exprs["q"]):
+            if self.velocity_symbols and any(e.has(*self._v) for e in self._plain_exprs["q"]):
                 raise ValueError("these quantities use the velocities: pass v")
             v = np.zeros_like(u)
         v = np.atleast_2d(np.asarray(v, dtype=float))
         if v.shape != u.shape:
             raise ValueError(f"v must have the shape of u {u.shape}, got {v.shape}")
         out = {"u": u}
-        if self._fun_q is None:
+        if not self._plain_exprs["q"]:
             return out
-        values = self._fun_q(t, u.T, v.T, self._param_values)
+        values = self._fn("q")(t, u.T, v.T, self._param_values)
         # constant expressions come back as scalars: broadcast every column to (n,)
         columns = np.stack(np.broadcast_arrays(*[np.asarray(c, dtype=float) for c in values],
                                                np.empty(n))[:-1], axis=1)

@@ -173,12 +173,13 @@ class SymmetricLayout:
                              shape=(self.n, self.n))
 
 
-def lambdified(args, exprs, what):
-    """The numpy function of ``exprs`` (lambdify), or a ValueError naming
-    ``what`` when an expression has a function numpy lacks."""
+def lambdified(args, exprs, what, cse=True):
+    """The numpy function of ``exprs`` (lambdify, common subexpressions by
+    ``cse``: sympy's, or a function of lambdify's ``cse=``), or a ValueError
+    naming ``what`` when an expression has a function numpy lacks."""
     from sympy.printing.codeprinter import PrintMethodNotImplementedError
     try:
-        return sympy.lambdify(args, exprs, modules="numpy", cse=True)
+        return sympy.lambdify(args, exprs, modules="numpy", cse=cse)
     except PrintMethodNotImplementedError as exc:
         raise ValueError(f"the model's {what} has no numerical form: "
                          f"{str(exc).splitlines()[0]}") from None
