@@ -181,7 +181,7 @@ class System(SecondOrderSystem):
         self._k = stiffness
         self._t = stiffness_derivative
         self._p = load
-        self.load_rate = load_rate
+        self._load_rate = load_rate
         self._v = potential_energy
         self._q = quantities
         self.name = name
@@ -189,6 +189,31 @@ class System(SecondOrderSystem):
 
     def internal_force(self, u):
         return self._f(u)
+
+    def compiled_kernels(self):
+        """Kernels calling the given callables where every one is a numba
+        function (:mod:`hfdi.compiled.callables`): the run is then compiled.
+        Imports numba.
+
+        Raises
+        ------
+        hfdi.compiled.CompiledUnavailable
+            Naming a callable that is a Python function (the run takes the
+            Python path and says so once).
+        """
+        from .compiled.callables import system_kernels
+        return system_kernels(self, {
+            "internal_force": self._f, "stiffness": self._k, "stiffness_derivative": self._t,
+            "potential_energy": self._v, "load": self._p, "load_rate": self._load_rate})
+
+    @property
+    def load_rate(self):
+        """The exact load rate ``p'(t)`` given, or ``None``."""
+        return self._load_rate
+
+    @load_rate.setter
+    def load_rate(self, rate):
+        self._load_rate = checks.callable_or_none("System load_rate", rate, "p'(t) -> (N,)")
 
     def stiffness(self, u):
         return self._k(u)

@@ -1090,3 +1090,121 @@ def test_a_run_of_many_short_calls_keeps_only_its_rows():
     kept = sum(arr.nbytes for arr in (result.t, result.u, result.v, result.a))
     # a buffer per call (399 calls × 2048 rows) would be about 470 MB
     assert peak < 6 * kept + 20e6, (peak, kept)
+
+
+# -- a System of numba functions ------------------------------------------------------
+
+@njit
+def _chain_force(u):
+    """A chain of Duffing springs fixed at one end: f = Dᵀ s(D u), s(d) = d + d³/2."""
+    d = np.diff(np.concatenate((np.zeros(1), u)))
+    s = d + 0.5 * d ** 3
+    out = s.copy()
+    out[:-1] -= s[1:]
+    return out
+
+
+@njit
+def _chain_matrix(u, weights):
+    """Dᵀ diag(weights(D u)) D for the chain's springs."""
+    n = u.shape[0]
+    out = np.zeros((n, n))
+    for i in range(n):
+        out[i, i] += weights[i]
+        if i + 1 < n:
+            out[i, i] += weights[i + 1]
+            out[i, i + 1] -= weights[i + 1]
+            out[i + 1, i] -= weights[i + 1]
+    return out
+
+
+@njit
+def _chain_stiffness(u):
+    d = np.diff(np.concatenate((np.zeros(1), u)))
+    return _chain_matrix(u, 1.0 + 1.5 * d ** 2)
+
+
+@njit
+def _chain_derivative(u, w):
+    d = np.diff(np.concatenate((np.zeros(1), u)))
+    return _chain_matrix(u, 3.0 * d * np.diff(np.concatenate((np.zeros(1), w))))
+
+
+@njit
+def _chain_energy(u):
+    d = np.diff(np.concatenate((np.zeros(1), u)))
+    return np.sum(0.5 * d ** 2 + 0.125 * d ** 4)
+
+
+@njit
+def _chain_load(t):
+    p = np.zeros(4)
+    p[-1] = math.sin(3.0 * t)
+    return p
+
+
+@njit
+def _chain_load_rate(t):
+    p = np.zeros(4)
+    p[-1] = 3.0 * math.cos(3.0 * t)
+    return p
+
+
+_NJIT_CHAIN = dict(internal_force=_chain_force, stiffness=_chain_stiffness,
+                   stiffness_derivative=_chain_derivative, potential_energy=_chain_energy,
+                   load=_chain_load, load_rate=_chain_load_rate)
+
+
+def _njit_chain(**replace):
+    parts = dict(_NJIT_CHAIN, **replace)
+    return hfdi.System(np.array([1.0, 2.0, 1.0, 0.5]), parts.pop("internal_force"),
+                       parts.pop("stiffness"), parts.pop("stiffness_derivative"),
+                       damping=np.full(4, 0.05), initial_displacement=[0.1, 0.3, 0.2, 0.6],
+                       **parts)
+
+
+@pytest.mark.slow              # compiles the functions and their kernels: 5-10 s
+@pytest.mark.parametrize("scheme", list(hfdi.SCHEMES))
+def test_a_system_of_numba_functions_runs_compiled(scheme):
+    """Its callables are called by kernels of the compiled loop: the run is
+    compiled and is the Python path's run (the same functions) bit for bit."""
+    model = _njit_chain()
+    assert hfdi.check_derivatives(model).ok(1e-6)
+    compiled = hfdi.Integrator(model, scheme, rtol=1e-6)
+    assert compiled.compiled
+    assert compiled.advance(5.0)
+    python = hfdi.Integrator(model, scheme, rtol=1e-6, compiled=False)
+    assert python.advance(5.0)
+    assert compiled.statistics.steps == python.statistics.steps > 50
+    np.testing.assert_array_equal(compiled.state.u, python.state.u)
+    np.testing.assert_array_equal(compiled.state.v, python.state.v)
+    assert compiled.energy_error == python.energy_error
+
+
+@pytest.mark.parametrize("python_parts", [
+    ("internal_force", "stiffness", "stiffness_derivative", "potential_energy", "load",
+     "load_rate"),
+    pytest.param(("load",), marks=pytest.mark.slow),
+    pytest.param(("potential_energy",), marks=pytest.mark.slow)])
+def test_a_system_with_a_python_function_says_which_and_runs_python(python_parts):
+    """The first Python function is named (the others, numba's, are compiled
+    when the Python path calls them: the slow tier)."""
+    model = _njit_chain(**{name: _NJIT_CHAIN[name].py_func for name in python_parts})
+    said = f"System's {python_parts[0]} is a Python function"
+    with pytest.raises(CompiledUnavailable, match=said):
+        hfdi.Integrator(model, "newmark", rtol=1e-6, compiled=True)
+    with pytest.warns(RuntimeWarning, match=said):
+        assert not hfdi.Integrator(model, "newmark", rtol=1e-6).compiled
+
+
+@pytest.mark.slow
+def test_a_system_of_numba_functions_without_energy_or_load_runs_compiled():
+    model = hfdi.System(np.ones(4), _chain_force, _chain_stiffness, _chain_derivative,
+                        initial_displacement=[0.1, 0.3, 0.2, 0.6])
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6)
+    assert itg.compiled
+    assert itg.advance(3.0)
+    python = hfdi.Integrator(model, "hfdi", rtol=1e-6, compiled=False)
+    assert python.advance(3.0)
+    np.testing.assert_array_equal(itg.state.u, python.state.u)
+    assert math.isnan(itg.total_energy) and math.isnan(python.total_energy)
