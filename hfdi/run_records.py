@@ -91,7 +91,7 @@ def vectors(ev, rows):
             values[name] = np.zeros(2 * n)
         elif name == "g_stages":
             values[name] = np.zeros((PROPAGATOR_STAGES, 2 * n))
-        elif name in ("pivots", "b_pivots", "g_pivots"):
+        elif name in ("pivots", "b_pivots", "g_pivots", "mass_pivots"):
             values[name] = np.zeros(m, np.int32)
         elif name in ("ints", "b_ints"):
             values[name] = work_ints()

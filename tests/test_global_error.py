@@ -3,6 +3,7 @@
 solutions, and ``integrate(error="global")`` against its tolerance."""
 from __future__ import annotations
 
+import copy
 import importlib
 import math
 
@@ -104,16 +105,20 @@ def test_bad_error_arguments_are_named():
         hfdi.Integrator(model, "hfdi", global_error="yes")
 
 
-def test_without_the_estimate_there_is_none_and_it_costs_nothing():
+@pytest.mark.parametrize("scheme", ["hfdi", "newmark"])
+def test_without_the_estimate_there_is_none_and_it_costs_nothing(scheme):
     model, _ = damped_chain()
-    on = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-4)
-    off = hfdi.integrate(model, "hfdi", 1.0, rtol=1e-4, global_error=False)
+    on = hfdi.integrate(model, scheme, 1.0, rtol=1e-4)
+    off = hfdi.integrate(model, scheme, 1.0, rtol=1e-4, global_error=False)
     assert np.isnan(off.global_error).all() and math.isnan(off.global_error_ratio)
     assert on.global_error[1:].any() and not np.isnan(on.global_error).any()
     # the estimate is carried beside the run: the steps are the same
     np.testing.assert_array_equal(on.t, off.t)
     np.testing.assert_array_equal(on.u, off.u)
+    # its cost: one K a step; HFDI's steps are carried by their own
+    # tangent's factors, the others' by the SDIRK step's factorisation
     assert on.stats.njev == off.stats.njev + on.stats.accepted
+    assert on.stats.nlu == off.stats.nlu + (0 if scheme == "hfdi" else on.stats.accepted)
 
 
 def test_dense_output_of_the_estimate():
@@ -249,3 +254,46 @@ def test_a_failed_rerun_keeps_the_complete_answer():
     assert result.status == hfdi.Status.TOLERANCE_NOT_MET
     assert result.t[-1] == 4 * np.pi and result.runs == 2
     assert "the rerun at rtol" in result.message and "MAX_STEPS" in result.message
+
+
+@pytest.mark.parametrize("damped", [False, True])
+def test_hfdi_carries_the_estimate_by_the_derivative_of_its_own_step(damped):
+    """After an HFDI step the estimate is carried by that step's derivative
+    with respect to its start: Φ e (the estimates of two runs from one state
+    whose estimates differ by e) against a central difference of the step
+    itself, on the (nonlinear, T ≠ 0) dumbbell, with dense damping."""
+    model = dumbbell()
+    if damped:
+        model = hfdi.System(model.mass, model.internal_force, model.stiffness,
+                            model.stiffness_derivative, damping=0.3 * np.eye(4) + 0.1,
+                            potential_energy=model.potential_energy,
+                            initial_displacement=model.initial_displacement,
+                            initial_velocity=model.initial_velocity)
+    h = 2e-3
+    itg = hfdi.Integrator(model, "hfdi", step=h, tol=1e-13)
+    itg.advance(0.1)
+    start = itg.get_state()
+    rng = np.random.default_rng(5)
+    e = rng.standard_normal(8)
+
+    def carry(g):
+        other = hfdi.Integrator(model, "hfdi", step=h, tol=1e-13)
+        state = copy.deepcopy(start)
+        state.global_error = g
+        other.set_state(state)
+        assert other.step()
+        return other.global_error
+
+    def end_of_step(du, dv):
+        # the step map's value does not depend on the predictor (Newton converged)
+        other = hfdi.Integrator(model, "hfdi", step=h, tol=1e-13, t0=start.current.t,
+                                u0=start.current.u + du, v0=start.current.v + dv)
+        assert other.step()
+        assert other.state.t == start.current.t + h
+        return np.concatenate([other.state.u, other.state.v])
+
+    carried = carry(e) - carry(np.zeros(8))
+    eps = 1e-6
+    difference = (end_of_step(eps * e[:4], eps * e[4:])
+                  - end_of_step(-eps * e[:4], -eps * e[4:])) / (2 * eps)
+    assert np.abs(carried - difference).max() < 1e-6 * np.abs(difference).max()

@@ -223,6 +223,8 @@ RUN = Scalars("Run", [
     ("saved_iterations", "i8", 0),
     ("saved_newton_error", "f8", 0.0),
     ("saved_err", "f8", _NAN),
+    ("tangent_kind", "i8", 0),          # VECTORS.lu: the last HFDI tangent's factors (0: none)
+    ("tangent_h", "f8", _NAN),          # of the attempt of this size
 ])
 
 # -- arrays ---------------------------------------------------------------------------
@@ -261,6 +263,8 @@ VECTORS = Arrays("Vectors", [
     *[(name, "matrix") for name in ("J", "lu", "S", "SB", "product", "B", "B_lu",
                                     "columns")],
     ("G", "matrix"), ("G_lu", "matrix"),                          # the propagator's matrix
+    ("K_last", "matrix"), ("T_last", "matrix"),   # K, T[v_D] of the last HFDI iterate
+    ("mass_lu", "matrix"), ("mass_pivots", "int32 vector"),      # M's factors (dense M)
     ("pivots", "int32 vector"), ("b_pivots", "int32 vector"), ("g_pivots", "int32 vector"),
     ("ints", "int32 vector"), ("b_ints", "int32 vector"),
     ("stage_iterations", "int64 vector"),                         # MAX_STAGES

@@ -21,7 +21,8 @@ from ..core.arrays import all_finite_matrix
 from ..core.jit import jitable, primitive
 
 __all__ = ["CHOLESKY_FROM", "SYMMETRY_TOLERANCE", "INTS", "work_ints", "symmetric", "solve",
-           "gesv", "getrf", "getrs", "getrs_columns"]
+           "factored_solve", "NOT_SOLVED", "CHOLESKY", "LU", "gesv", "getrf", "getrs",
+           "getrs_columns"]
 
 #: The smallest dense system solved by Cholesky when symmetric: below it
 #: ``gesv``'s one call is the faster (in a compiled loop, N = 4: 0.46 against
@@ -34,6 +35,10 @@ SYMMETRY_TOLERANCE = 1e-12
 #: Length of the int32 work array LAPACK's integer arguments are passed in.
 INTS = 5
 _N, _NRHS, _INFO, _TRANS, _UPLO = range(INTS)
+#: What :func:`solve` did: nothing (singular or not finite), or solved by the
+#: factors it left in its ``lu`` (and ``pivots``) of one of two kinds, which
+#: :func:`factored_solve` solves with again.
+NOT_SOLVED, CHOLESKY, LU = 0, 1, 2
 
 _F64 = np.empty(1)
 _gesv, _getrf, _getrs, _potrf, _potrs = sla.get_lapack_funcs(
@@ -111,7 +116,10 @@ def _gesv_compiled(A, x, lu, pivots, ints):
 
 @primitive(_gesv_compiled)
 def _gesv_finite(A, x, lu, pivots, ints):
-    _, _, solution, info = _gesv(A, x)
+    factors, pivots_0, solution, info = _gesv(A, x)
+    # the factors kept as compiled code keeps them (LAPACK's layout, 1-based)
+    lu[:, :] = factors.T
+    pivots[:] = pivots_0 + 1
     if info != 0:
         return False
     x[:] = solution
@@ -144,6 +152,7 @@ def _cholesky(A, x, lu, ints):
     factor, info = _potrf(A, lower=1, clean=0)
     if info != 0:
         return 1
+    lu[:, :] = factor.T
     solution, info = _potrs(factor, x, lower=1)
     if info != 0:
         return 2
@@ -155,14 +164,38 @@ def _cholesky(A, x, lu, ints):
 def solve(A, x, lu, pivots, ints):
     """``x ← A⁻¹ x`` for a dense tangent: Cholesky when ``A`` has at least
     :data:`CHOLESKY_FROM` rows, is symmetric to rounding and positive
-    definite, else :func:`gesv`; false when ``A`` is singular or not finite."""
+    definite, else :func:`gesv`. :data:`CHOLESKY` or :data:`LU`, the factors
+    left in ``lu`` and ``pivots`` for :func:`factored_solve`; or
+    :data:`NOT_SOLVED` (0) when ``A`` is singular or not finite."""
     if not all_finite_matrix(A):
-        return False
+        return NOT_SOLVED
     if A.shape[0] >= CHOLESKY_FROM and symmetric(A, lu[0]):
         outcome = _cholesky(A, x, lu, ints)
         if outcome != 1:
-            return outcome == 0
-    return _gesv_finite(A, x, lu, pivots, ints)
+            return CHOLESKY if outcome == 0 else NOT_SOLVED
+    return LU if _gesv_finite(A, x, lu, pivots, ints) else NOT_SOLVED
+
+
+def _potrs_compiled(lu, ints, x):
+    ints[_N], ints[_NRHS], ints[_INFO] = lu.shape[0], 1, 0
+    _dpotrs(ints[_UPLO:].ctypes, ints.ctypes, ints[_NRHS:].ctypes, lu.ctypes, ints.ctypes,
+            x.ctypes, ints.ctypes, ints[_INFO:].ctypes)
+
+
+@primitive(_potrs_compiled)
+def _potrs_factors(lu, ints, x):
+    solution, _ = _potrs(lu.T, x, lower=1)
+    x[:] = solution
+
+
+@jitable
+def factored_solve(kind, lu, pivots, ints, x):
+    """``x ← A⁻¹ x`` with the factors :func:`solve` left of ``A`` (``kind``, what
+    it returned: not :data:`NOT_SOLVED`)."""
+    if kind == CHOLESKY:
+        _potrs_factors(lu, ints, x)
+    else:
+        getrs(lu, pivots, ints, x)
 
 
 def _getrf_compiled(A, lu, pivots, ints):

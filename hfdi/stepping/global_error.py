@@ -6,21 +6,23 @@ The error ``e_n = y_n − y(t_n)`` of ``y = (u, v)`` obeys, to first order in
 (:func:`hfdi.core.estimate.local_error` estimates it) and ``Φ_n`` the
 derivative of the exact flow over the step at ``y_n``, the solution operator
 of the variational equation ``M δu'' + C δu' + K(u(t)) δu = 0``.
-:func:`propagate` applies ``Φ_n`` to ``VECTORS.global_error`` by one step of
-an L-stable SDIRK method of order 3 with ``K`` frozen at the step's
-midpoint: one evaluation of ``K``, one factorisation of ``M + γh C + (γh)²
-K`` and three solves with it.
+:func:`propagate` applies ``Φ_n`` to ``VECTORS.global_error``: after an HFDI
+step the derivative of that step itself, from its Newton tangent's factors
+(one evaluation of ``K``, a few products and one solve); otherwise one step of an L-stable SDIRK
+method of order 3 with ``K`` frozen at the step's midpoint (one evaluation
+of ``K``, one factorisation of ``M + γh C + (γh)² K`` and three solves).
 """
 from __future__ import annotations
 
 import math
 
-from ..core.arrays import all_finite, axpy, copy, fill, lincomb, matvec, scaled_into, times
+from ..core.arrays import (all_finite, axpy, copy, fill, lincomb, matvec, scale, scaled_into,
+                           times)
 from ..core.codes import OK
 from ..core.jit import jitable
-from ..linsolve.dense import getrf, getrs
+from ..linsolve.dense import factored_solve, getrf, getrs
 from ..linsolve.sparse import general_propagation_factor, general_propagation_solve
-from .stages import _add_matrix, stiffness_of
+from .stages import _add_matrix, b_solve, stiffness_of
 
 __all__ = ["GAMMA", "PROPAGATOR", "PROPAGATOR_STAGES", "propagate"]
 
@@ -70,6 +72,10 @@ def propagate(fn, cfg, data, run, vec, h):
     g = vec.global_error
     if not g[0] == g[0]:
         return                        # NaN: the estimate was lost before
+    if run.tangent_kind != 0 and run.tangent_h == h and not run.a_taylor:
+        if not _propagate_hfdi(fn, cfg, data, run, vec, h) or not all_finite(g):
+            fill(g, math.nan)
+        return
     gh = GAMMA * h
     done, K = _factor(fn, cfg, data, run, vec, gh)
     if not done:
@@ -95,3 +101,44 @@ def propagate(fn, cfg, data, run, vec, h):
     copy(g[n:], w)
     if not all_finite(g):
         fill(g, math.nan)
+
+
+@jitable
+def _propagate_hfdi(fn, cfg, data, run, vec, h):
+    """``g ← Φ g`` with ``Φ`` the derivative of the HFDI step just taken with
+    respect to its start ``(u_n, v_n)``, by the step's own equations
+    (docs/algorithm.md, "Global error estimate"): with ``c = h²/6``,
+    ``S = M − c K``, ``B = 2h/3 M + c C`` and the Newton tangent ``J`` (its
+    factors in ``VECTORS.lu``), ``w = −h/3 M g_v − c K g_u``,
+    ``J δd = −(S B⁻¹ w + (2h/3 K − c T[v_D] + h/3 K_n) g_u − M g_v)``, then
+    ``g_u ← g_u + δd`` and ``g_v ← B⁻¹ (S δd + w)``. ``K``, ``T[v_D]``,
+    ``S`` and ``J`` are the last iterate's; ``K_n = K(u_n)`` is evaluated
+    (one ``K``). False where it cannot be."""
+    n = cfg.n
+    c = h * h / 6.0
+    g = vec.global_error
+    gu, gv = g[:n], g[n:]
+    ku, mv, w, y, r, tu = vec.kv, vec.residual, vec.a0, vec.v0, vec.du, vec.rhs
+    outcome, K_start = stiffness_of(fn, cfg, data, run, vec.u)
+    if outcome != OK:
+        return False
+    matvec(vec.K_last, gu, ku)
+    times(cfg.m_kind, data.Md, data.Mf, gv, mv)
+    lincomb(w, -(h / 3.0), mv, -c, ku)
+    copy(y, w)
+    b_solve(cfg, vec, y)
+    matvec(vec.S, y, r)
+    axpy(r, 2.0 * h / 3.0, ku)
+    matvec(vec.T_last, gu, tu)
+    axpy(r, -c, tu)
+    matvec(K_start, gu, tu)
+    axpy(r, h / 3.0, tu)
+    axpy(r, -1.0, mv)
+    scale(r, -1.0, r)
+    factored_solve(run.tangent_kind, vec.lu, vec.pivots, vec.ints, r)
+    matvec(vec.S, r, y)
+    axpy(y, 1.0, w)
+    b_solve(cfg, vec, y)
+    axpy(gu, 1.0, r)
+    copy(gv, y)
+    return True

@@ -34,7 +34,7 @@ from ..linsolve.sparse import (general_affine_tangent, general_hfdi_setup, gener
 
 __all__ = ["CONSTANT_MEMORY", "HFDI_STAGES", "AFFINE_STAGES", "convergence_test", "newton", "force_into", "stiffness_of",
            "derivative_of", "load_into", "one_sided", "mass_solve", "affine_setup",
-           "affine_end", "hfdi_setup", "hfdi_end"]
+           "affine_end", "hfdi_setup", "hfdi_end", "b_solve"]
 
 #: Memory of the corrector's carried quadratic constant (docs/algorithm.md,
 #: "Corrector"): a measurement replaces the constant when larger, else the
@@ -127,7 +127,8 @@ def mass_solve(cfg, data, vec, x):
     elif cfg.m_kind == DIAGONAL:
         divide(x, data.Md)
     else:
-        return gesv(data.Mf, x, vec.lu, vec.pivots, vec.ints)
+        # a workspace of its own: VECTORS.lu keeps the Newton tangent's factors
+        return gesv(data.Mf, x, vec.mass_lu, vec.mass_pivots, vec.ints)
     return True
 
 
@@ -175,10 +176,14 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
     """Newton on the stage ``st`` (HFDI's when ``hfdi``) from the guess in
     ``VECTORS.trial``, corrected in place: ``(outcome, corrections, error,
     constant, guard)``, corrections ``−1`` when a model value failed (the
-    stage's corrections then uncounted)."""
+    stage's corrections then uncounted). The last tangent's factors stay in
+    ``VECTORS.lu``: ``RUN.tangent_kind`` (:func:`hfdi.linsolve.dense.solve`'s
+    kind; 0 where they are not kept: sparse, affine stages) and
+    ``RUN.tangent_h`` say for which step (:mod:`hfdi.stepping.global_error`)."""
     u = vec.trial
     du = vec.du
     previous = math.inf
+    run.tangent_kind = 0
     lincomb(vec.u_iterate, 1.0, vec.u, 1.0, u)
     for k in range(1, cfg.max_iterations + 1):
         if hfdi is not None:
@@ -195,6 +200,9 @@ def newton(fn, cfg, data, run, vec, st, h, constant, guard, hfdi):
             solved = general_solve(vec, J, du)
         else:
             solved = solve(J, du, vec.lu, vec.pivots, vec.ints)
+            if hfdi is not None:
+                run.tangent_kind = solved
+                run.tangent_h = h
         if not solved:
             return TANGENT_SINGULAR, k - 1, math.inf, constant, guard
         # ‖Δu‖² as np.linalg.norm forms it; NaN or infinity in Δu makes it
@@ -383,18 +391,24 @@ def _add_matrix(out, c, kind, diagonal, full):
 
 
 @jitable
+def b_solve(cfg, vec, x):
+    """``x ← B⁻¹ x``, ``B = 2h/3 M + h²/6 C`` of :func:`hfdi_setup`."""
+    if cfg.sparse:
+        general_velocity(vec, x)
+    elif cfg.m_kind == DENSE or cfg.c_kind == DENSE:
+        getrs(vec.B_lu, vec.b_pivots, vec.b_ints, x)
+    else:
+        divide(x, vec.b_diagonal)
+
+
+@jitable
 def _velocity(cfg, data, vec, u, g, h, out):
     """``out = v_D`` of Eq. 19 from the increment ``u = u_{n+1} − u_n``:
     ``B v_D = M u + q0 + h²/6 g``."""
     times(cfg.m_kind, data.Md, data.Mf, u, out)
     axpy(out, 1.0, vec.q0)
     axpy(out, h * h / 6.0, g)
-    if cfg.sparse:
-        general_velocity(vec, out)
-    elif cfg.m_kind == DENSE or cfg.c_kind == DENSE:
-        getrs(vec.B_lu, vec.b_pivots, vec.b_ints, out)
-    else:
-        divide(out, vec.b_diagonal)
+    b_solve(cfg, vec, out)
 
 
 @jitable
@@ -427,6 +441,10 @@ def _hfdi_residual(fn, cfg, data, run, vec, u, h):
         return outcome, vec.J
     if cfg.sparse:
         return OK, general_hfdi_tangent(vec, data, cfg, K, T, c, c2)
+    if cfg.global_error:
+        # the step's own derivative carries the global error estimate
+        copy_matrix(vec.K_last, K)
+        copy_matrix(vec.T_last, T)
     S, SB, J = vec.S, vec.SB, vec.J
     scaled_into(S, -c, K)
     _add_matrix(S, 1.0, cfg.m_kind, data.Md, data.Mf)
