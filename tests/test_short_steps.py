@@ -20,9 +20,18 @@ MODES = {"iterations": dict(target_iterations=3),
          "fixed": dict(step=2e-3)}
 
 
-@pytest.mark.parametrize("compiled", [False, True], ids=["python", "compiled"])
-@pytest.mark.parametrize("mode", list(MODES))
-@pytest.mark.parametrize("scheme", SCHEMES)
+def _short_step_cases():
+    for scheme in SCHEMES:
+        for mode in MODES:
+            for compiled in (False, True):
+                # error control on the Python path: 1.7-2.5 s each, the slow tier
+                slow = mode == "error" and not compiled and scheme != "hfdi"
+                yield pytest.param(scheme, mode, compiled,
+                                   id=f"{scheme}-{mode}-{'compiled' if compiled else 'python'}",
+                                   marks=pytest.mark.slow if slow else ())
+
+
+@pytest.mark.parametrize("scheme, mode, compiled", list(_short_step_cases()))
 def test_a_short_step_changes_the_state_as_the_motion_does(scheme, mode, compiled):
     """v and a change by what the motion gives over the short step, not by
     rounding divided by h²; and the run after it is the run without it."""
