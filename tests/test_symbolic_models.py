@@ -623,3 +623,21 @@ def test_a_copy_and_a_pickle_compute_in_the_same_order():
         np.testing.assert_array_equal(clone.internal_force(u), model.internal_force(u))
         np.testing.assert_array_equal(clone.stiffness_derivative(u, w),
                                       model.stiffness_derivative(u, w))
+
+
+def test_a_float_of_another_precision_is_its_decimal_value_on_both_routes():
+    """Float("0.1", 3) is 0.1 as sympy prints it, whichever engine derives the
+    rest of the energy (symengine would take its 12-bit binary value)."""
+    from hfdi.models import derivation
+    x, y = sympy.symbols("x y", real=True)
+    low = sympy.Float("0.1", 3)
+    assert not derivation.elementary(low * x ** 2)
+    for energy in (low * x ** 2 + y ** 2, low * x ** 2 + sympy.Abs(y) ** 3):
+        model = EnergyModel([x, y], energy, np.ones(2))
+        assert model.stiffness(np.array([0.3, 0.5]))[0, 0] == 0.2
+
+
+def test_a_quantity_without_a_numerical_form_is_refused_at_construction():
+    x = sympy.Symbol("x")
+    with pytest.raises(ValueError, match="quantities has no numerical form.*fresnels"):
+        EnergyModel([x], x ** 2 / 2, [1.0], quantities={"fs": sympy.fresnels(x)})

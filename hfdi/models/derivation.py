@@ -44,14 +44,17 @@ def _symengine():
 
 def elementary(expr) -> bool:
     """Whether ``expr`` is built only from what symengine takes exactly:
-    ``Add``, ``Mul``, ``Pow``, symbols, integers, rationals, double-precision
-    floats, ``π``, ``e`` and the functions of :data:`ELEMENTARY`."""
+    ``Add``, ``Mul``, ``Pow``, symbols, integers, rationals, floats of
+    double precision (53 bits), ``π``, ``e`` and the functions of
+    :data:`ELEMENTARY`."""
     for node in sympy.preorder_traversal(expr):
         if isinstance(node, (sympy.Add, sympy.Mul, sympy.Pow, sympy.Symbol, sympy.Integer,
                              sympy.Rational)) or node in (sympy.pi, sympy.E):
             continue
         if isinstance(node, sympy.Float):
-            if node._prec <= 53:
+            # a double exactly: another precision's value is its decimal
+            # digits on sympy's route (Float("0.1", 3) is 0.1 there)
+            if node._prec == 53:
                 continue
             return False
         if isinstance(node, sympy.Function) and node.func in ELEMENTARY and len(node.args) == 1:

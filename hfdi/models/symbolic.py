@@ -242,6 +242,9 @@ class EnergyModel(SecondOrderSystem):
             "dp": [e.xreplace(rename) for e in rates],
         }
         self._python_functions = None
+        # sympy's derivatives are lambdified now, as any model's quantities and
+        # load: what has no numerical form is refused here
+        self._make_functions(derivatives=self._derivation.engine == "sympy")
         self.load_expressions = load_exprs
 
     # -- construction helpers ------------------------------------------------
@@ -304,39 +307,53 @@ class EnergyModel(SecondOrderSystem):
 
     def _fn(self, name):
         """The Python path's function ``name`` (``"v"``, ``"f"``, ``"k"``, ``"t"``,
-        ``"q"``, ``"p"``, ``"dp"``), lambdified on first use: a run on the
-        compiled path never needs them."""
+        ``"q"``, ``"p"``, ``"dp"``). Those of the energy's derivatives are
+        made on first use from symengine's reduced expressions (a run on the
+        compiled path never needs them); the others at construction
+        (:meth:`_make_functions`)."""
         if self._python_functions is None:
-            u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
-            ex = self._exprs
-            made = None
-            if self._derivation.engine == "symengine":
-                try:
-                    made = python_functions(self._derivation, u, w, p)
-                except UnprintableError:
-                    pass
-            if made is None:
-                made = {
-                    "v": _in.lambdified([u, p], ex["V"], "energy"),
-                    "f": _in.lambdified([u, p], ex["f"], "internal force (the energy's gradient)"),
-                    "k": _in.lambdified([u, p], ex["K"], "stiffness"),
-                    "t": _in.lambdified([u, w, p], ex["T"], "stiffness derivative")}
-            made["q"] = _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None
-            made["p"] = _in.lambdified([t, p], ex["p"], "load") if ex["p"] else None
-            made["dp"] = _in.lambdified([t, p], ex["dp"], "load rate") if ex["p"] else None
-            self._python_functions = made
+            self._make_functions(derivatives=True)
         return self._python_functions[name]
+
+    def _make_functions(self, derivatives):
+        """Lambdify the quantities and the load (a ValueError naming what has
+        no numerical form), and the derivatives' functions if ``derivatives``;
+        without them only where symengine derived them (made on first use)."""
+        u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
+        ex = self._plain_exprs
+        made = {"q": _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None,
+                "p": _in.lambdified([t, p], ex["p"], "load") if ex["p"] else None,
+                "dp": _in.lambdified([t, p], ex["dp"], "load rate") if ex["p"] else None}
+        if not derivatives:
+            self._plain_functions = made
+            return
+        made = dict(getattr(self, "_plain_functions", None) or made)
+        derived = None
+        if self._derivation.engine == "symengine":
+            try:
+                derived = python_functions(self._derivation, u, w, p)
+            except UnprintableError:
+                pass
+        if derived is None:
+            ex = self._exprs
+            derived = {
+                "v": _in.lambdified([u, p], ex["V"], "energy"),
+                "f": _in.lambdified([u, p], ex["f"], "internal force (the energy's gradient)"),
+                "k": _in.lambdified([u, p], ex["K"], "stiffness"),
+                "t": _in.lambdified([u, w, p], ex["T"], "stiffness derivative")}
+        made.update(derived)
+        self._python_functions = made
 
     # Generated functions do not pickle; the expressions do, so a copy in
     # another process makes them again on first use (no new derivation).
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_python_functions"] = None
+        state["_python_functions"] = state["_plain_functions"] = None
         return state
 
     # Copies in the same process share the generated functions and the
     # derivation (they hold no state), instead of making them again.
-    _SHARED = ("_python_functions", "_derivation")
+    _SHARED = ("_python_functions", "_plain_functions", "_derivation")
 
     def __copy__(self):
         other = object.__new__(type(self))
