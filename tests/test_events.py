@@ -86,7 +86,7 @@ def test_direction_is_honoured():
     np.testing.assert_allclose(r.t_events[1], zeros[0::2], rtol=1e-7)
 
 
-@pytest.mark.parametrize("compiled", [False, None])
+@pytest.mark.parametrize("compiled", [pytest.param(False, marks=pytest.mark.slow), None])
 def test_a_terminal_event_ends_the_run_at_its_zero(compiled):
     g = lambda t, u, v: u[0]         # noqa: E731
     g.terminal = 2
@@ -437,7 +437,7 @@ def test_events_none_takes_the_models_and_an_empty_list_none():
     assert own.u[:, 0].min() < -1.5 * model.gap
 
 
-@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("compiled", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_advance_until_event_stops_at_each_zero(compiled):
     """advance(until_event=True) returns at every zero, on its time, and the
     run goes on from there to the same events as without stopping."""

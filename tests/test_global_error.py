@@ -58,7 +58,8 @@ def test_the_estimate_tracks_the_true_error(scheme, problem, rtol):
     assert 1 / 3 < worst < 3 and 1 / 3 < end < 3, (worst, end)
 
 
-@pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.parametrize("scheme", [s if s == "hfdi" else pytest.param(s, marks=pytest.mark.slow)
+                                    for s in SCHEMES])          # 1.1-1.3 s each
 def test_error_global_meets_its_tolerance(scheme):
     """On Kepler's ellipse the error of the answer is about 7–13 times rtol
     (docs/accuracy.md): the global mode reruns once, and the true error is

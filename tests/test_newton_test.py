@@ -119,7 +119,8 @@ def test_a_run_stopped_on_the_estimate_leaves_an_error_within_the_bound(
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
-@pytest.mark.parametrize("problem", sorted(EXACT) + ["damped_chain"])
+@pytest.mark.parametrize("problem", sorted(EXACT) + [
+    pytest.param("damped_chain", marks=pytest.mark.slow)])    # its Python load: 1.1-1.4 s
 def test_the_estimate_halves_the_corrections_at_the_same_accuracy(problem, scheme):
     make = {"damped_chain": (exact_problems.damped_chain, 5.0), **EXACT}[problem]
     runs = {}
