@@ -158,3 +158,34 @@ def sigint_as_in_a_terminal():
     """
     import signal
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def run_in_ecos(fmu_path, t_end, reads, cwd):
+    """Run the FMU in Ecos (``ecospy``, a C++ co-simulation engine with FMI 2.0
+    and 3.0 imports) in steps of 0.01 to ``t_end``, in a subprocess (so that a
+    crash of the host shows as such): ``(time reached, values)``, the values of
+    ``reads``, ``(kind, name)`` pairs with kind ``"real"`` or ``"integer"``.
+    Skips the test where Ecos (or Debian's libtbb12) is missing."""
+    import subprocess
+    import sys
+    import textwrap
+    try:
+        import ecospy  # noqa: F401
+    except (ImportError, OSError) as exc:
+        pytest.skip(f"Ecos is not available here: {exc}")
+    values = ", ".join(f"repr(sim.get_{kind}('a::{name}'))" for kind, name in reads)
+    script = textwrap.dedent(f"""
+        from ecospy import EcosSimulation, EcosSimulationStructure
+        structure = EcosSimulationStructure()
+        structure.add_model("a", {str(fmu_path)!r})
+        sim = EcosSimulation(structure=structure, step_size=0.01)
+        sim.init()
+        sim.step_until({float(t_end)!r})
+        print(repr(sim.get_time()), {values})
+        sim.terminate()
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=600, cwd=cwd)
+    assert done.returncode == 0, done.stderr[-2000:]
+    t, *got = map(float, done.stdout.split()[-1 - len(reads):])
+    return t, got

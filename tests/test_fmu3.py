@@ -25,6 +25,7 @@ import hfdi  # noqa: E402
 from fmu.build import build  # noqa: E402
 from fmu.cli import main  # noqa: E402
 from hfdi.models.impact_oscillator import exact_events  # noqa: E402
+from problems import run_in_ecos  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -363,29 +364,9 @@ def test_a_second_master_ecos_runs_the_fmi3_fmu(built, tmp_path):
     import) runs the FMI 3.0 FMU: the values fmpy's FMI 3.0 API gives at the
     same communication points, bit for bit, and the events counted. In a
     subprocess, so that a crash of the host would show as such."""
-    import subprocess
-    import sys
-    import textwrap
-    try:
-        import ecospy  # noqa: F401
-    except (ImportError, OSError) as exc:   # ecospy, or Debian's libtbb12, missing
-        pytest.skip(f"Ecos is not available here: {exc}")
     path = built[("impact_oscillator", 3)]
-    script = textwrap.dedent(f"""
-        from ecospy import EcosSimulation, EcosSimulationStructure
-        structure = EcosSimulationStructure()
-        structure.add_model("a", {str(path)!r})
-        sim = EcosSimulation(structure=structure, step_size=0.01)
-        sim.init()
-        sim.step_until(1.0)
-        print(repr(sim.get_time()), repr(sim.get_real("a::u[1]")),
-              repr(sim.get_real("a::v[1]")), repr(sim.get_integer("a::event_count[1]")))
-        sim.terminate()
-    """)
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=600, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr[-2000:]
-    t, u1, v1, impacts = map(float, done.stdout.split()[-4:])
+    t, (u1, v1, impacts) = run_in_ecos(path, 1.0, [("real", "u[1]"), ("real", "v[1]"),
+                                                   ("integer", "event_count[1]")], tmp_path)
     steps = round(t / 0.01)
     assert 95 <= steps <= 100
     unit = Slave3(path)

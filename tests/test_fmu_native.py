@@ -22,6 +22,7 @@ from fmpy import extract, read_model_description  # noqa: E402
 
 from fmu.build import BuildError, build  # noqa: E402
 from fmu.master import CoSimulationError, Unit  # noqa: E402
+from problems import run_in_ecos  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = Path(__file__).with_name("data") / "fmi2_host.c"
@@ -338,24 +339,7 @@ def test_a_second_master_ecos_gets_the_same_values(fmu, tmp_path):
     """Ecos (``ecospy``, a C++ co-simulation engine) runs the FMU through its
     own FMI 2.0 import: same values as fmpy's, bit for bit. In a subprocess,
     so that a crash of the host would show as such."""
-    try:
-        import ecospy  # noqa: F401
-    except (ImportError, OSError) as exc:   # ecospy, or Debian's libtbb12, missing
-        pytest.skip(f"Ecos is not available here: {exc}")
-    script = textwrap.dedent(f"""
-        from ecospy import EcosSimulation, EcosSimulationStructure
-        structure = EcosSimulationStructure()
-        structure.add_model("a", {str(fmu)!r})
-        sim = EcosSimulation(structure=structure, step_size=0.01)
-        sim.init()
-        sim.step_until(0.2)
-        print(repr(sim.get_time()), repr(sim.get_real("a::u[1]")), repr(sim.get_real("a::v[2]")))
-        sim.terminate()
-    """)
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=600, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr[-2000:]
-    t, u1, v2 = map(float, done.stdout.split()[-3:])
+    t, (u1, v2) = run_in_ecos(fmu, 0.2, [("real", "u[1]"), ("real", "v[2]")], tmp_path)
     steps = round(t / 0.01)
     assert 15 <= steps <= 20
     unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
