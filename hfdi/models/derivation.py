@@ -24,7 +24,7 @@ import sympy
 from . import sympy_input as _in
 
 __all__ = ["ELEMENTARY", "Derivation", "derive", "elementary", "cse", "reduced_lines",
-           "python_functions", "UnprintableError"]
+           "unpacked", "python_functions", "UnprintableError"]
 
 #: The functions symengine differentiates for an energy (one argument each).
 ELEMENTARY = frozenset({sympy.sin, sympy.cos, sympy.tan, sympy.exp, sympy.log, sympy.asin,
@@ -68,7 +68,7 @@ class Derivation:
     internal symbols (``u`` → ``_u<i>``, ``w`` → ``_w<i>``, the parameters
     ``_p<i>``), as expressions of the engine that derived them (``engine``:
     ``"symengine"`` or ``"sympy"``), and the places ``(k_rows, k_cols)``,
-    ``(t_rows, t_cols)`` of their entries. :meth:`sympy` gives all three as
+    ``(t_rows, t_cols)`` of their entries. :meth:`sympy` gives all four as
     sympy expressions (converted once)."""
 
     def __init__(self, engine, v, f, k_rows, k_cols, k, t_rows, t_cols, t):
@@ -79,45 +79,45 @@ class Derivation:
         self._sympy = None
         self._reduced = {}
 
-    def reduced(self, group: str) -> list:
+    def reduced(self, group: str) -> tuple:
         """``group`` (``"v"``, ``"f"``, ``"k"`` or ``"t"``; symengine derivations
-        only) after symengine's common-subexpression elimination, as lines of
-        Python text: ``(target, text)`` pairs, the temporaries ``_c<k>`` first,
-        then ``<group>0``, ``<group>1``, ... (:func:`reduced_lines` makes the
-        code of them). Made once and kept with copies and pickles, so that a
-        copy computes in the same order, bit for bit (symengine's
-        elimination may order terms otherwise for the same expressions)."""
+        only) after symengine's common-subexpression elimination, as Python
+        text: ``(temporaries, results)``, the temporaries ``(name, text)``
+        pairs named ``_c<k>``, the results the group's expressions in order
+        (:func:`reduced_lines` makes the code of them). Made once and kept
+        with copies and pickles, so that a copy computes in the same order,
+        bit for bit (symengine's elimination may order terms otherwise for
+        the same expressions)."""
         made = self._reduced.get(group)
         if made is None:
             exprs = [self.v] if group == "v" else getattr(self, group)
             temporaries, reduced = _symengine().cse(exprs) if exprs else ([], [])
             names = {str(a): f"_c{i}" for i, (a, _) in enumerate(temporaries)}
-            made = [(names[str(a)], _text(b, names)) for a, b in temporaries]
-            made += [(f"{group}{i}", _text(e, names)) for i, e in enumerate(reduced)]
-            self._reduced[group] = made
+            made = self._reduced[group] = (
+                [(names[str(a)], _text(b, names)) for a, b in temporaries],
+                [_text(e, names) for e in reduced])
         return made
 
     def sympy(self) -> tuple:
-        """``(f, K, T)`` as lists of sympy expressions."""
+        """``(V, f, K, T)``, ``V`` a sympy expression, the others lists of them."""
         if self._sympy is None:
             if self.engine == "sympy":
-                self._sympy = (self.f, self.k, self.t)
+                self._sympy = (self.v, self.f, self.k, self.t)
             else:
-                self._sympy = tuple([sympy.sympify(e) for e in group]
-                                    for group in (self.f, self.k, self.t))
+                self._sympy = (sympy.sympify(self.v), *([sympy.sympify(e) for e in group]
+                                                         for group in (self.f, self.k, self.t)))
         return self._sympy
 
     def __getstate__(self):
         # symengine's objects are kept as sympy's in copies and pickles (made
         # symengine's again on loading), the reduced text as it is
-        f, k, t = self.sympy()
+        v, f, k, t = self.sympy()
         reduced = self._reduced
         if self.engine == "symengine":
             try:
                 reduced = {group: self.reduced(group) for group in ("v", "f", "k", "t")}
             except UnprintableError:
                 pass
-        v = self.v if self.engine == "sympy" else sympy.sympify(self.v)
         return dict(self.__dict__, v=v, f=f, k=k, t=t, _sympy=None, _reduced=dict(reduced))
 
     def __setstate__(self, state):
@@ -134,9 +134,9 @@ class Derivation:
 
 def derive(energy, dofs, rename, w_internal) -> tuple[Derivation, tuple]:
     """The :class:`Derivation` of ``energy`` in the user's ``dofs`` and the
-    gradient in the user's symbols (``None`` when the symengine path is
-    taken: :func:`user_gradient` makes it on demand). ``rename`` maps every
-    user symbol to its internal one, ``w_internal`` the internal ``w``."""
+    gradient in the user's symbols (``None`` when symengine derived it: the
+    model's ``gradient`` converts it on demand). ``rename`` maps every user
+    symbol to its internal one, ``w_internal`` the internal ``w``."""
     energy = _in.without_impulses(energy)
     se = _symengine()
     if se is not None and elementary(energy):
@@ -221,9 +221,10 @@ def _derive_sympy(energy, dofs, rename, w_internal):
                          "DOF symbols real, e.g. sympy.symbols('x y', real=True)")
     w_rename = dict(zip(w, w_internal))
     w_rename.update(rename)
-    derivation = Derivation("sympy", energy.xreplace(rename), [g.xreplace(rename) for g in gradient], k_rows, k_cols,
-                            [e.xreplace(rename) for e in k_exprs], t_rows, t_cols,
-                            [e.xreplace(w_rename) for e in t_exprs])
+    derivation = Derivation("sympy", energy.xreplace(rename),
+                            [g.xreplace(rename) for g in gradient],
+                            k_rows, k_cols, [e.xreplace(rename) for e in k_exprs],
+                            t_rows, t_cols, [e.xreplace(w_rename) for e in t_exprs])
     return derivation, gradient
 
 
@@ -249,8 +250,8 @@ def cse(exprs, symbol_prefix="_c"):
 
 # -- code from symengine's expressions ---------------------------------------------------
 
-_FUNCTION_NAMES = frozenset({"sin", "cos", "tan", "exp", "log", "asin", "acos", "atan", "sinh",
-                             "cosh", "tanh", "asinh", "acosh", "atanh"})
+#: The names of :data:`ELEMENTARY` (math's and symengine's alike).
+_FUNCTION_NAMES = frozenset(function.__name__ for function in ELEMENTARY)
 
 
 class UnprintableError(ValueError):
@@ -315,15 +316,20 @@ def reduced_lines(derivation, group, prefix, ns):
     ``<prefix><i>``, functions and constants of the module ``ns``
     (``"math"`` for compiled code, ``"np"`` for the Python path: numpy's
     rules for a NaN or a division by zero)."""
+    temporaries, results = derivation.reduced(group)
+    targets = [name for name, _ in temporaries] + [f"{prefix}{i}" for i in range(len(results))]
     lines = []
-    for target, text in derivation.reduced(group):
-        if not target.startswith("_c"):
-            target = prefix + target[len(group):]
+    for target, text in zip(targets, [text for _, text in temporaries] + results):
         if ns == "np":
             for name, numpy_name in _NUMPY_NAMES.items():
                 text = text.replace(name, numpy_name)
         lines.append(f"    {target} = {text.replace(_NS + '.', ns + '.')}")
     return lines
+
+
+def unpacked(name, symbols):
+    """Lines binding each of ``symbols`` to ``name[i]``."""
+    return [f"    {s} = {name}[{i}]" for i, s in enumerate(symbols)]
 
 
 def python_functions(derivation, u, w, p) -> dict:
@@ -332,19 +338,16 @@ def python_functions(derivation, u, w, p) -> dict:
     as their upper-triangle values), made from the same reduced expressions
     as the compiled kernels and computing the same operations with numpy's
     functions: ``V`` takes ``u`` of shape ``(N,)`` or ``(N, n)``."""
-    def unpack(name, symbols):
-        return [f"    {s} = {name}[{i}]" for i, s in enumerate(symbols)]
-
     lines = ["import numpy as np", ""]
-    for group, prefix, head, args in (("v", "_v", "def v(u, params):", ("u",)),
-                                      ("f", "_f", "def f(u, params):", ("u",)),
-                                      ("k", "_k", "def k(u, params):", ("u",)),
-                                      ("t", "_t", "def t(u, w, params):", ("u", "w"))):
+    for group, prefix, head in (("v", "_v", "def v(u, params):"),
+                                ("f", "_f", "def f(u, params):"),
+                                ("k", "_k", "def k(u, params):"),
+                                ("t", "_t", "def t(u, w, params):")):
         lines.append(head)
-        lines += unpack("u", u)
-        if "w" in args:
-            lines += unpack("w", w)
-        lines += unpack("params", p)
+        lines += unpacked("u", u)
+        if group == "t":
+            lines += unpacked("w", w)
+        lines += unpacked("params", p)
         lines += reduced_lines(derivation, group, prefix, "np")
         count = 1 if group == "v" else len(getattr(derivation, group))
         values = [f"{prefix}{i}" for i in range(count)]

@@ -233,18 +233,18 @@ class EnergyModel(SecondOrderSystem):
                 f"the model's load rate could not be derived in closed form (sympy left "
                 f"{next(iter(leftover[0].atoms(sympy.Derivative)))}); declare the symbols that "
                 f"Abs, sign, re or im act on real (sympy.Symbol(name, real=True))")
-        # the expressions that need no derivative; f, K and T: _exprs
+        # the expressions that need no derivative (V, f, K, T: _exprs)
         self._plain_exprs = {
-            "V": _in.without_impulses(energy).xreplace(rename),
             "q": [_in.without_impulses(e).xreplace(rename) for e in quantity_exprs],
             "p": [] if load_exprs is None else [_in.without_impulses(e).xreplace(rename)
                                                  for e in load_exprs],
             "dp": [e.xreplace(rename) for e in rates],
         }
-        self._python_functions = None
-        # sympy's derivatives are lambdified now, as any model's quantities and
-        # load: what has no numerical form is refused here
-        self._make_functions(derivatives=self._derivation.engine == "sympy")
+        # the quantities, the load and sympy's derivatives are lambdified now:
+        # what has no numerical form is refused here
+        self._plain_functions = self._make_plain_functions()
+        self._derived_functions = (self._make_derived_functions()
+                                   if self._derivation.engine == "sympy" else None)
         self.load_expressions = load_exprs
 
     # -- construction helpers ------------------------------------------------
@@ -285,15 +285,15 @@ class EnergyModel(SecondOrderSystem):
     @property
     def _exprs(self) -> dict:
         """Every expression of the model in the internal symbols, sympy's."""
-        f, k, t = self._derivation.sympy()
-        return dict(self._plain_exprs, f=f, K=k, T=t)
+        v, f, k, t = self._derivation.sympy()
+        return dict(self._plain_exprs, V=v, f=f, K=k, T=t)
 
     @property
     def gradient(self) -> tuple:
         """``∂V/∂u_i`` in the user's symbols."""
         if self._gradient is None:
-            self._gradient = tuple(e.xreplace(self._user_symbol)
-                                   for e in self._derivation.sympy()[0])
+            _, f, _, _ = self._derivation.sympy()
+            self._gradient = tuple(e.xreplace(self._user_symbol) for e in f)
         return self._gradient
 
     @property
@@ -301,59 +301,58 @@ class EnergyModel(SecondOrderSystem):
         """``∂²V/∂u_i ∂u_j`` in the user's symbols (sympy.ImmutableSparseMatrix)."""
         entries = {}
         d = self._derivation
-        for i, j, e in zip(d.k_rows, d.k_cols, d.sympy()[1]):
+        _, _, k, _ = d.sympy()
+        for i, j, e in zip(d.k_rows, d.k_cols, k):
             entries[(i, j)] = entries[(j, i)] = e.xreplace(self._user_symbol)
         return sympy.ImmutableSparseMatrix(self.n_dof, self.n_dof, entries)
 
     def _fn(self, name):
-        """The Python path's function ``name`` (``"v"``, ``"f"``, ``"k"``, ``"t"``,
-        ``"q"``, ``"p"``, ``"dp"``). Those of the energy's derivatives are
-        made on first use from symengine's reduced expressions (a run on the
-        compiled path never needs them); the others at construction
-        (:meth:`_make_functions`)."""
-        if self._python_functions is None:
-            self._make_functions(derivatives=True)
-        return self._python_functions[name]
+        """The Python path's function ``name``: ``"v"``, ``"f"``, ``"k"``, ``"t"``
+        (:meth:`_make_derived_functions`, made on first use where symengine
+        derived them: a run on the compiled path never needs them) or ``"q"``,
+        ``"p"``, ``"dp"`` (:meth:`_make_plain_functions`)."""
+        if name in ("q", "p", "dp"):
+            if self._plain_functions is None:            # not kept by a pickle
+                self._plain_functions = self._make_plain_functions()
+            return self._plain_functions[name]
+        if self._derived_functions is None:
+            self._derived_functions = self._make_derived_functions()
+        return self._derived_functions[name]
 
-    def _make_functions(self, derivatives):
-        """Lambdify the quantities and the load (a ValueError naming what has
-        no numerical form), and the derivatives' functions if ``derivatives``;
-        without them only where symengine derived them (made on first use)."""
-        u, w, v, p, t = list(self._u), list(self._w), list(self._v), list(self._p), self._t
+    def _make_plain_functions(self) -> dict:
+        """The quantities', the load's and its rate's functions (lambdify; a
+        ValueError naming what has no numerical form)."""
+        u, v, p, t = list(self._u), list(self._v), list(self._p), self._t
         ex = self._plain_exprs
-        made = {"q": _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None,
+        return {"q": _in.lambdified([t, u, v, p], ex["q"], "quantities") if ex["q"] else None,
                 "p": _in.lambdified([t, p], ex["p"], "load") if ex["p"] else None,
                 "dp": _in.lambdified([t, p], ex["dp"], "load rate") if ex["p"] else None}
-        if not derivatives:
-            self._plain_functions = made
-            return
-        made = dict(getattr(self, "_plain_functions", None) or made)
-        derived = None
+
+    def _make_derived_functions(self) -> dict:
+        """``V``, ``f``, ``K`` and ``T``'s functions: from symengine's reduced
+        expressions where it derived them, else lambdified."""
+        u, w, p = list(self._u), list(self._w), list(self._p)
         if self._derivation.engine == "symengine":
             try:
-                derived = python_functions(self._derivation, u, w, p)
+                return python_functions(self._derivation, u, w, p)
             except UnprintableError:
                 pass
-        if derived is None:
-            ex = self._exprs
-            derived = {
-                "v": _in.lambdified([u, p], ex["V"], "energy"),
+        ex = self._exprs
+        return {"v": _in.lambdified([u, p], ex["V"], "energy"),
                 "f": _in.lambdified([u, p], ex["f"], "internal force (the energy's gradient)"),
                 "k": _in.lambdified([u, p], ex["K"], "stiffness"),
                 "t": _in.lambdified([u, w, p], ex["T"], "stiffness derivative")}
-        made.update(derived)
-        self._python_functions = made
 
     # Generated functions do not pickle; the expressions do, so a copy in
     # another process makes them again on first use (no new derivation).
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_python_functions"] = state["_plain_functions"] = None
+        state["_plain_functions"] = state["_derived_functions"] = None
         return state
 
     # Copies in the same process share the generated functions and the
     # derivation (they hold no state), instead of making them again.
-    _SHARED = ("_python_functions", "_plain_functions", "_derivation")
+    _SHARED = ("_plain_functions", "_derived_functions", "_derivation")
 
     def __copy__(self):
         other = object.__new__(type(self))
