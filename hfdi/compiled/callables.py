@@ -53,12 +53,11 @@ def system_kernels(system, functions: dict):
     force, stiffness, stiffness_derivative, potential_energy, load, load_rate = _kernels(
         *(functions.get(name) for name in _CALLABLES))
     params = np.zeros(1)
+    load_params = params
     if load is None:          # the zero load
-        return CompiledKernels(force, stiffness, stiffness_derivative, potential_energy, params,
-                               load=compiled(hat_load), load_params=hat_load_params(system.n_dof),
-                               load_rate=load_rate)
+        load, load_params = compiled(hat_load), hat_load_params(system.n_dof)
     return CompiledKernels(force, stiffness, stiffness_derivative, potential_energy, params,
-                           load=load, load_params=params, load_rate=load_rate)
+                           load=load, load_params=load_params, load_rate=load_rate)
 
 
 @functools.lru_cache(maxsize=64)

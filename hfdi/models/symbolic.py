@@ -309,7 +309,7 @@ class EnergyModel(SecondOrderSystem):
     def _fn(self, name):
         """The Python path's function ``name``: ``"v"``, ``"f"``, ``"k"``, ``"t"``
         (:meth:`_make_derived_functions`, made on first use where symengine
-        derived them: a run on the compiled path never needs them) or ``"q"``,
+        derived them: building the model does not print them) or ``"q"``,
         ``"p"``, ``"dp"`` (:meth:`_make_plain_functions`)."""
         if name in ("q", "p", "dp"):
             if self._plain_functions is None:            # not kept by a pickle

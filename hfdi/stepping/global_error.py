@@ -8,9 +8,10 @@ derivative of the exact flow over the step at ``y_n``, the solution operator
 of the variational equation ``M δu'' + C δu' + K(u(t)) δu = 0``.
 :func:`propagate` applies ``Φ_n`` to ``VECTORS.global_error``: after an HFDI
 step the derivative of that step itself, from its Newton tangent's factors
-(one evaluation of ``K``, a few products and one solve); otherwise one step of an L-stable SDIRK
-method of order 3 with ``K`` frozen at the step's midpoint (one evaluation
-of ``K``, one factorisation of ``M + γh C + (γh)² K`` and three solves).
+(one evaluation of ``K``, a few products and one solve); otherwise one step
+of an L-stable SDIRK method of order 3 with ``K`` frozen at the step's
+midpoint (one evaluation of ``K``, one factorisation of ``M + γh C + (γh)²
+K`` and three solves).
 """
 from __future__ import annotations
 
