@@ -7,10 +7,15 @@ accuracy tests: each gives a model and a function ``exact(t) -> (u, v)``.
   exact by Jacobi's elliptic function ``cn``;
 - :func:`kepler`: the two-body problem on an ellipse, exact by Kepler's
   equation solved by Newton's method to round-off.
+
+Duffing and Kepler are :class:`~hfdi.models.symbolic.EnergyModel`s (they run
+compiled, as a user's energy does); ``python=True`` gives the same physics as
+a :class:`hfdi.System` of Python functions, which takes the Python path.
 """
 from __future__ import annotations
 
 import numpy as np
+import sympy
 from scipy.special import ellipj
 
 import hfdi
@@ -47,18 +52,28 @@ def damped_chain():
     return model, exact
 
 
-def duffing(alpha=1.0, beta=2.0, amplitude=1.2):
+def _energy_model(V, coordinates, name, **options):
+    from hfdi.models.symbolic import EnergyModel
+    return EnergyModel(coordinates, V, mass=np.ones(len(coordinates)), name=name, **options)
+
+
+def duffing(alpha=1.0, beta=2.0, amplitude=1.2, python=False):
     """``u'' + α u + β u³ = 0``, ``u(0) = A``, ``u'(0) = 0``:
     ``u = A cn(ω t, m)`` with ``ω² = α + β A²``, ``m = β A² / (2 ω²)``."""
     omega = np.sqrt(alpha + beta * amplitude ** 2)
     mpar = beta * amplitude ** 2 / (2.0 * omega ** 2)
-    model = hfdi.System(
-        np.array([1.0]),
-        lambda u: alpha * u + beta * u ** 3,
-        lambda u: np.array([[alpha + 3.0 * beta * u[0] ** 2]]),
-        lambda u, w: np.array([[6.0 * beta * u[0] * w[0]]]),
-        potential_energy=lambda u: 0.5 * alpha * u[0] ** 2 + 0.25 * beta * u[0] ** 4,
-        initial_displacement=[amplitude])
+    if not python:
+        u, a, b = sympy.symbols("u alpha beta")
+        model = _energy_model(a * u ** 2 / 2 + b * u ** 4 / 4, [u], "duffing",
+                              parameters={a: alpha, b: beta}, initial_displacement=[amplitude])
+    else:
+        model = hfdi.System(
+            np.array([1.0]),
+            lambda u: alpha * u + beta * u ** 3,
+            lambda u: np.array([[alpha + 3.0 * beta * u[0] ** 2]]),
+            lambda u, w: np.array([[6.0 * beta * u[0] * w[0]]]),
+            potential_energy=lambda u: 0.5 * alpha * u[0] ** 2 + 0.25 * beta * u[0] ** 4,
+            initial_displacement=[amplitude])
 
     def exact(t):
         sn, cn, dn, _ = ellipj(omega * np.atleast_1d(t), mpar)
@@ -67,7 +82,7 @@ def duffing(alpha=1.0, beta=2.0, amplitude=1.2):
     return model, exact
 
 
-def kepler(eccentricity=0.5):
+def kepler(eccentricity=0.5, python=False):
     """A unit-mass planet around a unit attractor (``f = u/|u|³``), started at
     the pericentre of an ellipse with semi-major axis 1 (period 2π)."""
     e = eccentricity
@@ -86,10 +101,14 @@ def kepler(eccentricity=0.5):
                 - 3.0 * (uw * np.eye(2) + np.outer(u, w)) / r2 ** 2.5
                 + 15.0 * uw * np.outer(u, u) / r2 ** 3.5)
 
-    model = hfdi.System(np.ones(2), force, stiffness, stiffness_derivative,
-                        potential_energy=lambda u: -1.0 / np.sqrt(np.dot(u, u)),
-                        initial_displacement=[1.0 - e, 0.0],
-                        initial_velocity=[0.0, np.sqrt((1.0 + e) / (1.0 - e))])
+    start = {"initial_displacement": [1.0 - e, 0.0],
+             "initial_velocity": [0.0, np.sqrt((1.0 + e) / (1.0 - e))]}
+    if python:
+        model = hfdi.System(np.ones(2), force, stiffness, stiffness_derivative,
+                            potential_energy=lambda u: -1.0 / np.sqrt(np.dot(u, u)), **start)
+    else:
+        x, y = sympy.symbols("x y")
+        model = _energy_model(-1 / sympy.sqrt(x ** 2 + y ** 2), [x, y], "kepler", **start)
 
     def exact(t):
         M = np.atleast_1d(np.asarray(t, dtype=float))

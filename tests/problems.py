@@ -43,12 +43,27 @@ def coupled_duffing(damping=0.05, load=None, load_rate=None, c=1.0):
                        name="coupled_duffing")
 
 
-def pleiades():
+def pleiades(python=False):
     """The Pleiades problem (Hairer, Nørsett & Wanner, *Solving ODEs I*, II.10):
     seven bodies of masses 1 … 7 in a plane under gravity (G = 1) on
     [0, 3], with close encounters. ``u = (x1, y1, …, x7, y7)``,
-    ``V = −Σ_{i<j} m_i m_j / r_ij``; every pair at once, no loop over bodies."""
+    ``V = −Σ_{i<j} m_i m_j / r_ij``: an :class:`~hfdi.models.symbolic.EnergyModel`
+    (compiled), or with ``python=True`` a :class:`hfdi.System` of hand-written
+    numpy functions (every pair at once, no loop over bodies; the Python path)."""
     masses = np.arange(1.0, 8.0)
+    x0 = np.column_stack([[3, 3, -1, -3, 2, -2, 2], [3, -3, 2, 0, 0, -4, 4]]).ravel()
+    v0 = np.column_stack([[0, 0, 0, 0, 0, 1.75, -1.5], [0, 0, 0, -1.25, 1, 0, 0]]).ravel()
+    start = {"initial_displacement": x0.astype(float), "initial_velocity": v0.astype(float),
+             "name": "pleiades"}
+    if not python:
+        import sympy
+        from hfdi.models.symbolic import EnergyModel
+        xy = sympy.symbols("x1:8 y1:8")
+        x, y = xy[:7], xy[7:]
+        V = -sum(masses[a] * masses[b] / sympy.sqrt((x[b] - x[a]) ** 2 + (y[b] - y[a]) ** 2)
+                 for a in range(7) for b in range(a + 1, 7))
+        coordinates = [c for pair in zip(x, y) for c in pair]
+        return EnergyModel(coordinates, V, mass=np.repeat(masses, 2), **start)
     i, j = np.triu_indices(7, 1)
     mm = masses[i] * masses[j]
     eye = np.eye(2)
@@ -96,12 +111,9 @@ def pleiades():
         _, r2 = pairs(u)
         return float(-np.sum(mm / np.sqrt(r2)))
 
-    x0 = np.column_stack([[3, 3, -1, -3, 2, -2, 2], [3, -3, 2, 0, 0, -4, 4]]).ravel()
-    v0 = np.column_stack([[0, 0, 0, 0, 0, 1.75, -1.5], [0, 0, 0, -1.25, 1, 0, 0]]).ravel()
     return hfdi.System(mass=np.repeat(masses, 2), internal_force=force, stiffness=stiffness,
                        stiffness_derivative=stiffness_derivative, potential_energy=energy,
-                       initial_displacement=x0.astype(float),
-                       initial_velocity=v0.astype(float), name="pleiades")
+                       **start)
 
 
 def dumbbell_states(rng, n):

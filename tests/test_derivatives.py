@@ -65,11 +65,13 @@ def test_check_detects_a_wrong_stiffness():
 
 
 def test_reference_problems_derivatives():
-    """The test problems with exact or published references have exact f, K, T too."""
+    """The test problems with exact or published references have exact f, K, T
+    too: the hand-written ones and the derived ones."""
     import exact_problems
     from problems import pleiades
     for model in (pleiades(), exact_problems.kepler()[0], exact_problems.duffing()[0],
-                  exact_problems.damped_chain()[0]):
+                  pleiades(python=True), exact_problems.kepler(python=True)[0],
+                  exact_problems.duffing(python=True)[0], exact_problems.damped_chain()[0]):
         check = hfdi.check_derivatives(model, samples=10, spread=0.1)
         assert check.ok(1e-7), (model.name, check)
 

@@ -122,9 +122,9 @@ def test_simulate_fmu_reproduces_integrator_advance(fmus, scheme):
 
 
 @pytest.mark.parametrize("how, in_process", [
-    (dict(tolerance=1e-6), dict(rtol=1e-6, target_iterations=3.0)),        # combined
-    (dict(parameters={"target_iterations": 0.0, "rtol": 1e-7}), dict(rtol=1e-7)),
-    (dict(parameters={"target_iterations": 0.0}, tolerance=1e-5), dict(rtol=1e-5)),
+    (dict(tolerance=1e-5), dict(rtol=1e-5, target_iterations=3.0)),        # combined
+    (dict(parameters={"target_iterations": 0.0, "rtol": 1e-5}), dict(rtol=1e-5)),
+    (dict(parameters={"target_iterations": 0.0}, tolerance=1e-4), dict(rtol=1e-4)),
 ])
 @pytest.mark.slow
 def test_tolerances_give_error_control_as_in_process(dumbbell_fmu, how, in_process):
@@ -215,11 +215,11 @@ def test_compiled_fmu_reproduces_the_compiled_integrator(dumbbell_fmu, scheme):
     communication steps, a discarded step and the step budget: the same outputs
     as the compiled in-process integrator fed the same inputs, and the same
     internal steps as the FMU on the Python path."""
-    parameters = {"scheme": scheme, "target_iterations": 0.0, "rtol": 1e-6}
+    parameters = {"scheme": scheme, "target_iterations": 0.0, "rtol": 1e-4}
     fast = unit(dumbbell_fmu, dict(parameters, compiled=True), "fast")
     slow = unit(dumbbell_fmu, parameters, "slow")
     held = np.zeros(N)
-    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), scheme, rtol=1e-6, compiled=True,
+    itg = hfdi.Integrator(hfdi.models.get("dumbbell"), scheme, rtol=1e-4, compiled=True,
                           extra_load=hfdi.HeldLoad(lambda: held), max_steps=2 ** 62)
     assert itg.compiled
     t, h, rows, refs = 0.0, 0.01, [], []
@@ -677,14 +677,16 @@ def test_copies_unused_for_a_month_are_removed_when_another_is_made(tmp_path, mo
 
 
 @pytest.mark.slow
-def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus, tmp_path):
+def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus):
     """The compiled FMU compiles its bundled kernels once per machine, not once
-    per extraction: a second process extracting the FMU anew loads the
-    compiled loop from numba's cache."""
+    per extraction: a process extracting the FMU anew loads the compiled loop
+    from numba's cache, which the session's first extraction filled (the
+    ``fmus`` fixture runs the compiled loops once in a process of its own)."""
     import os
     import subprocess
     import sys
     from pathlib import Path
+    from hfdi.files import cache_dir
     root = Path(__file__).resolve().parents[1]
     code = (
         "import sys\n"
@@ -699,19 +701,14 @@ def test_a_new_extraction_loads_the_compiled_code_of_the_last(fmus, tmp_path):
         "stats = sys.modules[name].advance_hfdi.dispatcher.stats\n"
         "print(sys.modules[name].__file__)\n"
         "print(stats.cache_hits.total(), stats.cache_misses.total())\n")
-    env = dict(os.environ, HFDI_CACHE_DIR=str(tmp_path / "cache"),
+    env = dict(os.environ,
                PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
-    runs = []
-    for _ in range(2):
-        out = subprocess.run([sys.executable, "-c", code, str(fmus["dumbbell"])], env=env,
-                             capture_output=True, text=True, timeout=600)
-        assert out.returncode == 0, out.stderr[-2000:]
-        where, counts = out.stdout.strip().splitlines()[-2:]
-        runs.append((Path(where), [int(x) for x in counts.split()]))
-    for where, _ in runs:
-        assert (tmp_path / "cache" / "fmu") in where.parents
-    assert runs[0][1] == [0, 1]                    # compiled in the first process
-    assert runs[1][1] == [1, 0]                    # loaded in the second
+    out = subprocess.run([sys.executable, "-c", code, str(fmus["dumbbell"])], env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    where, counts = out.stdout.strip().splitlines()[-2:]
+    assert Path(cache_dir()) / "fmu" in Path(where).parents, where
+    assert [int(x) for x in counts.split()] == [1, 0]          # loaded, not compiled
 
 
 def test_last_successful_time_is_the_time_the_fmu_is_at(dumbbell_fmu):
@@ -864,8 +861,10 @@ def _play(u, calls):
     return seen
 
 
+# the scheme and the control repeat every 12 sequences: 24 take each
+# combination twice, with other random calls
 @pytest.mark.parametrize("sequences", [pytest.param(3, id="quick"),
-                                       pytest.param(200, id="200", marks=pytest.mark.slow)])
+                                       pytest.param(24, id="24", marks=pytest.mark.slow)])
 def test_native_and_python_fmus_agree_on_any_call_sequence(dumbbell_fmu, sequences):
     """The compiled FMU (its native layer takes the doSteps and reads it can)
     and the Python-path FMU, driven by the same random calls of a master:
