@@ -21,6 +21,27 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def pytest_sessionstart(session):
+    """With xdist's workers (``-n 2``, the default): before they start, the
+    integrator's two compiled loops (affine and HFDI stages) are compiled into
+    the disk cache by two processes at once, so that the workers load them
+    instead of each compiling both (some 40 s a loop on a cold cache; a
+    second or two when the cache holds them). Runs before xdist's own
+    ``pytest_sessionstart``, which starts the workers (it runs last)."""
+    import subprocess
+    import sys
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    code = ("import sys, hfdi\n"
+            "hfdi.integrate(hfdi.models.get('dumbbell'), sys.argv[1], 1e-3, rtol=1e-3)\n")
+    runs = [subprocess.Popen([sys.executable, "-c", code, scheme], cwd=ROOT,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            for scheme in ("newmark", "hfdi")]
+    for run in runs:
+        run.wait(timeout=900)      # a failure shows in the tests themselves
+
+
 @pytest.fixture(scope="session")
 def fmus(tmp_path_factory):
     """Every registered model built as an FMU once per session: ``{name: Path}``."""

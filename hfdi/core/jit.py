@@ -429,33 +429,51 @@ def _say_uncached(why):
                      "every process", why)
 
 
+#: A compilation shorter than this (s) is not announced: loading code from the
+#: disk cache compiles small wrappers (tenths of a second) in every process.
+ANNOUNCE_AFTER = 1.0
+
+
 @contextlib.contextmanager
 def compiling(what: str):
     """Within this context numba may compile ``what``: when it does (code not
-    found in the disk cache), say so once per process on stderr, as a log
-    record at WARNING of the logger ``hfdi``, when the compilation begins and
-    again with the time it took."""
+    found in the disk cache) for longer than :data:`ANNOUNCE_AFTER`, say so
+    once per process on stderr, as a log record at WARNING of the logger
+    ``hfdi``, while the compilation goes on and again with the time it took."""
     if what in _SAID:
         yield
         return
     _numba()                    # imported with the cache's locator installed
+    import threading
+
     from numba.core import event
 
-    class Notice(event.Listener):
-        began = None
+    began, announced = [], threading.Event()
 
+    def announce():
+        announced.set()
+        _log.warning("hfdi: compiling %s (once: the code is kept in %s) ...", what,
+                     numba_cache_dir() if cache_trusted()[0] else "memory only")
+
+    timer = threading.Timer(ANNOUNCE_AFTER, announce)
+    timer.daemon = True
+
+    class Notice(event.Listener):
         def on_start(self, _):
-            if self.began is None:
-                self.began = time.perf_counter()
-                _log.warning("hfdi: compiling %s (once: the code is kept in %s) ...", what,
-                             numba_cache_dir() if cache_trusted()[0] else "memory only")
+            if not began:
+                began.append(time.perf_counter())
+                timer.start()
 
         def on_end(self, _):
             pass
 
-    notice = Notice()
-    with event.install_listener("numba:compile", notice):
-        yield
+    try:
+        with event.install_listener("numba:compile", Notice()):
+            yield
+    finally:
+        timer.cancel()
+        if began:
+            timer.join()
     _SAID.add(what)             # compiled or loaded: not watched again
-    if notice.began is not None:
-        _log.warning("hfdi: compiled %s in %.1f s", what, time.perf_counter() - notice.began)
+    if announced.is_set():
+        _log.warning("hfdi: compiled %s in %.1f s", what, time.perf_counter() - began[0])
