@@ -21,25 +21,37 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _warm(scheme):
+    """A short run of ``scheme``: its compiled loop loaded from the disk cache, or compiled."""
+    import hfdi
+    hfdi.integrate(hfdi.models.get("dumbbell"), scheme, 1e-3, rtol=1e-3)
+
+
 def pytest_sessionstart(session):
-    """With xdist's workers (``-n 2``, the default): before they start, the
-    integrator's two compiled loops (affine and HFDI stages) are compiled into
-    the disk cache by two processes at once, so that the workers load them
-    instead of each compiling both (some 40 s a loop on a cold cache; a
-    second or two when the cache holds them). Runs before xdist's own
-    ``pytest_sessionstart``, which starts the workers (it runs last)."""
+    """The integrator's two compiled loops (affine and HFDI stages), ready
+    before the first test.
+
+    In xdist's controller (``-n 2``, the default), before the workers start
+    (xdist's own ``pytest_sessionstart`` runs last): compiled into the disk
+    cache by two processes at once, so that the workers load them instead
+    of each compiling both (some 40 s a loop on a cold cache; a second or two
+    when the cache holds them). In a worker, or a run without workers: loaded
+    (or compiled) in the process, from the cache that ``HFDI_CACHE_DIR``
+    names at the start, so that a test module that points it at a cache of
+    its own (for its references or kernels) does not compile the loops anew."""
     import subprocess
     import sys
     config = session.config
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        for scheme in ("newmark", "hfdi"):
+            _warm(scheme)
         return
-    code = ("import sys, hfdi\n"
-            "hfdi.integrate(hfdi.models.get('dumbbell'), sys.argv[1], 1e-3, rtol=1e-3)\n")
-    runs = [subprocess.Popen([sys.executable, "-c", code, scheme], cwd=ROOT,
+    code = "import sys, conftest\nconftest._warm(sys.argv[1])\n"
+    runs = [subprocess.Popen([sys.executable, "-c", code, scheme], cwd=Path(__file__).parent,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             for scheme in ("newmark", "hfdi")]
     for run in runs:
-        run.wait(timeout=900)      # a failure shows in the tests themselves
+        run.wait(timeout=900)          # a failure shows in the tests themselves
 
 
 @pytest.fixture(scope="session")

@@ -19,12 +19,6 @@ numba = pytest.importorskip("numba")
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture(autouse=True)
-def _kernel_cache(tmp_path_factory, monkeypatch):
-    """The generated sources go to a cache of this session, not the user's."""
-    monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "hfdi-cache"))
-
-
 def _dense(a):
     return a.toarray() if hasattr(a, "toarray") else np.asarray(a)
 
@@ -247,7 +241,7 @@ def test_a_model_with_a_load_of_expressions_runs_whole_in_the_driver(scheme):
              for c in (False, True)]
     assert fixed[0].stats.newton_iterations == fixed[1].stats.newton_iterations
     assert _relative(fixed[1].u, fixed[0].u) < 1e-12
-    runs = [hfdi.integrate(_loaded_chain(), scheme, 1.0, rtol=1e-6, compiled=c)
+    runs = [hfdi.integrate(_loaded_chain(), scheme, 1.0, rtol=1e-4, compiled=c)
             for c in (False, True)]
     reference = hfdi.integrate(_loaded_chain(), "hfdi", 1.0, rtol=1e-10, compiled=False)
     assert reference.success
