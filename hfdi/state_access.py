@@ -75,12 +75,14 @@ class StateAccess:
         if not isinstance(saved, IntegratorState):
             raise TypeError(f"state must be an IntegratorState, got {type(saved).__name__}")
         self._check_state(saved)
-        before = (RUN.copy(self._run), self._message, self._model_version, self.get_state())
         now = getattr(self.system, "parameter_version", None)
         # the state's f_n, a_n and V were computed under the parameters of its
         # version; under others they are recomputed (Newmark and Bathe keep no
-        # f_n to tell by)
+        # f_n to tell by), and a failure there puts back what was (kept only
+        # then: a copy of the state costs a third of a restore)
         refresh = now is not None and saved.model_version != now
+        before = (RUN.copy(self._run), self._message, self._model_version,
+                  self.get_state()) if refresh else None
         self._model_version = now
         self._restore(saved)
         if getattr(self, "_events", None) is not None:
