@@ -434,46 +434,91 @@ def _say_uncached(why):
 ANNOUNCE_AFTER = 1.0
 
 
+class _CompileNotice:
+    """The compilations numba makes in one thread (the one that entered
+    :func:`compiling`; numba's listeners hear every thread's), timed from
+    the start of each outermost compilation to its end: a timer announces
+    them once they have taken :data:`ANNOUNCE_AFTER` in all."""
+
+    def __init__(self, what):
+        import threading
+        self.what, self.thread = what, threading.get_ident()
+        self.depth, self.spent, self.since = 0, 0.0, 0.0
+        self.timer, self.where = None, None
+        self.announced = threading.Event()
+
+    def start(self):
+        import threading
+        if threading.get_ident() != self.thread:
+            return
+        self.depth += 1
+        if self.depth > 1 or self.announced.is_set():
+            return
+        self.since = time.perf_counter()
+        if self.where is None:      # in the compiling thread: HFDI_CACHE_DIR as it is now
+            self.where = numba_cache_dir() if cache_trusted()[0] else "memory only"
+        timer = threading.Timer(max(ANNOUNCE_AFTER - self.spent, 0.0), self._announce)
+        timer.daemon = True
+        try:
+            timer.start()
+        except RuntimeError:        # no new thread (interpreter shutdown): no notice
+            return
+        self.timer = timer
+
+    def end(self):
+        import threading
+        if threading.get_ident() != self.thread or self.depth == 0:
+            return
+        self.depth -= 1
+        if self.depth == 0:
+            self._stop()
+
+    def _announce(self):
+        self.announced.set()
+        _log.warning("hfdi: compiling %s (once: the code is kept in %s) ...", self.what,
+                     self.where)
+
+    def _stop(self):
+        self.spent += time.perf_counter() - self.since
+        timer, self.timer = self.timer, None
+        if timer is not None:
+            timer.cancel()
+            timer.join()
+
+    def close(self):
+        """After the context: the time spent, counting a compilation cut short."""
+        if self.depth:
+            self.depth = 0
+            self._stop()
+
+
 @contextlib.contextmanager
 def compiling(what: str):
     """Within this context numba may compile ``what``: when it does (code not
     found in the disk cache) for longer than :data:`ANNOUNCE_AFTER`, say so
     once per process on stderr, as a log record at WARNING of the logger
-    ``hfdi``, while the compilation goes on and again with the time it took."""
+    ``hfdi``, while the compilation goes on and again with the time it took
+    (the compilations' time, not the rest of the context's)."""
     if what in _SAID:
         yield
         return
     _numba()                    # imported with the cache's locator installed
-    import threading
-
     from numba.core import event
 
-    began, announced = [], threading.Event()
+    notice = _CompileNotice(what)
 
-    def announce():
-        announced.set()
-        _log.warning("hfdi: compiling %s (once: the code is kept in %s) ...", what,
-                     numba_cache_dir() if cache_trusted()[0] else "memory only")
-
-    timer = threading.Timer(ANNOUNCE_AFTER, announce)
-    timer.daemon = True
-
-    class Notice(event.Listener):
+    class Listener(event.Listener):
         def on_start(self, _):
-            if not began:
-                began.append(time.perf_counter())
-                timer.start()
+            notice.start()
 
         def on_end(self, _):
-            pass
+            notice.end()
 
     try:
-        with event.install_listener("numba:compile", Notice()):
+        with event.install_listener("numba:compile", Listener()):
             yield
     finally:
-        timer.cancel()
-        if began:
-            timer.join()
-    _SAID.add(what)             # compiled or loaded: not watched again
-    if announced.is_set():
-        _log.warning("hfdi: compiled %s in %.1f s", what, time.perf_counter() - began[0])
+        notice.close()
+    if notice.announced.is_set():
+        _SAID.add(what)         # not watched again in this process
+        _log.warning("hfdi: compiled %s in %.1f s", what, notice.spent)
