@@ -85,16 +85,7 @@ class StateAccess:
                   self.get_state()) if refresh else None
         self._model_version = now
         self._restore(saved)
-        if getattr(self, "_events", None) is not None:
-            # the event functions' values at the restored state (the events
-            # found so far stay: they are the caller's record), and the zeros
-            # counted there as they were: a zero the state was stopped at is
-            # not found again (its g may round to the side before it)
-            current = self.state
-            self._events.start(current.t, current.u, current.v)
-            if saved.event_values is not None \
-                    and saved.event_values.shape == self._events.g.shape:
-                self._events.resume(current.t, saved.event_values, saved.event_counted)
+        self._prime_events(saved)
         if refresh:
             try:
                 self.model_changed()
@@ -102,7 +93,20 @@ class StateAccess:
                 run, self._message, self._model_version, state = before
                 self._restore(state)
                 self._run = run
+                self._prime_events(state)
                 raise
+
+    def _prime_events(self, saved: IntegratorState) -> None:
+        """The event functions' values at the restored state (the events
+        found so far stay: they are the caller's record), and the zeros
+        counted there as they were: a zero the state was stopped at is not
+        found again (its g may round to the side before it)."""
+        if getattr(self, "_events", None) is None:
+            return
+        current = self.state
+        self._events.start(current.t, current.u, current.v)
+        if saved.event_values is not None and saved.event_values.shape == self._events.g.shape:
+            self._events.resume(current.t, saved.event_values, saved.event_counted)
 
     def _restore(self, saved: IntegratorState) -> None:
         run = self._run

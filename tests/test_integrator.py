@@ -571,3 +571,41 @@ def test_rows_join_single_steps_and_driver_blocks_in_order():
     np.testing.assert_array_equal(got["external_work"], 100.0 * ks)
     np.testing.assert_array_equal(got["global_error"], 1e-3 * np.repeat(ks[:, None], 2 * n, 1))
     assert all(arr.flags.c_contiguous and arr.flags.owndata for arr in got.values())
+
+
+def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():
+    """set_state of a state saved under other parameters recomputes f, a and
+    V there (model_changed). When the changed model cannot be evaluated
+    there, set_state raises and the integrator is as it was, its event
+    functions' values included: it goes on as one never given that state.
+    (The events stayed primed at the refused state: a zero was found at the
+    next step that the run does not cross.)"""
+    def crossing(t, u, v):
+        return u[0]
+
+    runs = []
+    for attempt in (True, False):
+        domain = {"c": 2.0}
+
+        def potential(u):
+            if u[0] + domain["c"] <= 0.0:
+                raise ValueError("u is outside the model's domain")
+            return 0.5 * u[0] ** 2
+
+        model = hfdi.System([1.0], lambda u: u.copy(), lambda u: np.eye(1),
+                            lambda u, w: np.zeros((1, 1)), potential_energy=potential,
+                            initial_displacement=[1.0])
+        model.parameter_version = 0          # a model that counts its changes
+        itg = hfdi.Integrator(model, "hfdi", rtol=1e-4, events=crossing, compiled=False)
+        assert itg.advance(3.0)              # u ≈ cos 3 ≈ −0.99
+        saved = itg.get_state()
+        assert itg.advance(6.0)              # u ≈ cos 6 ≈ 0.96
+        domain["c"], model.parameter_version = 0.5, 1     # the saved u is outside it now
+        if attempt:
+            before = itg.get_state().to_bytes()
+            with pytest.raises(hfdi.ModelError, match="cannot be evaluated"):
+                itg.set_state(saved)
+            assert itg.get_state().to_bytes() == before
+        assert itg.advance(7.5), itg.message      # u ≈ cos 7.5 > 0 on the way
+        runs.append((itg.state.u.tolist(), [list(t) for t in itg.t_events]))
+    assert runs[0] == runs[1]
