@@ -40,6 +40,7 @@ import logging
 import os
 import stat
 import sys
+import threading
 import time
 import types
 import warnings
@@ -441,14 +442,12 @@ class _CompileNotice:
     them once they have taken :data:`ANNOUNCE_AFTER` in all."""
 
     def __init__(self, what):
-        import threading
         self.what, self.thread = what, threading.get_ident()
         self.depth, self.spent, self.since = 0, 0.0, 0.0
         self.timer, self.where = None, None
         self.announced = threading.Event()
 
     def start(self):
-        import threading
         if threading.get_ident() != self.thread:
             return
         self.depth += 1
@@ -466,7 +465,6 @@ class _CompileNotice:
         self.timer = timer
 
     def end(self):
-        import threading
         if threading.get_ident() != self.thread or self.depth == 0:
             return
         self.depth -= 1
