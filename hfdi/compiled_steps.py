@@ -90,11 +90,13 @@ class CompiledSteps:
         self._compiled_call = None
         self._not_compiled = reason
 
-    def _refresh_compiled(self):
-        """The compiled structs of the data and vectors (after either was replaced)."""
+    def _refresh_compiled(self, data: bool = True):
+        """The compiled structs of the vectors and, unless ``data`` is false (only
+        the vectors were replaced), of the data."""
         call = self._compiled_call
         if call is not None:
-            call[2] = DATA.compiled(self._data)
+            if data:
+                call[2] = DATA.compiled(self._data)
             call[3] = VECTORS.compiled(self._vec)
 
     # -- a C function of the compiled loop ---------------------------------------------

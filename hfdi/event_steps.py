@@ -136,7 +136,7 @@ class EventSteps:
         from .integrator import ROWS_PER_CALL, STEPS_PER_CALL
         if not self._vec.row_t.shape[0]:
             self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
-            self._refresh_compiled()
+            self._refresh_compiled(data=False)
         consumer = self._rows
         start = self.state
         saved = self.get_state()

@@ -642,7 +642,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             return False
         if rows is not None and not self._vec.row_t.shape[0]:
             self._vec = self._vec._replace(**run_records.row_arrays(self.ev.n, ROWS_PER_CALL))
-            self._refresh_compiled()
+            self._refresh_compiled(data=False)
         if not isinstance(until_event, (bool, np.bool_)):
             raise ValueError(f"until_event must be True or False, got {until_event!r}")
         events = self._events if until_event else None
