@@ -246,6 +246,53 @@ def test_the_estimate_has_the_sign_of_the_error(with_rate):
         assert 0.7 < ratio < 1.3, (k, ratio)
 
 
+def elastic_pendulum():
+    """A mass on a spring in the vertical plane, an ``EnergyModel`` without a
+    load (geometric nonlinearity: the stiff spring turns with the swing), and
+    its reference, DOP853 at rtol 1e-13 on the first-order form."""
+    import sympy
+    from scipy.integrate import solve_ivp
+    from hfdi.models.symbolic import EnergyModel
+    x, y = sympy.symbols("x y")
+    m, k, length, gravity = 1.3, 30.0, 1.0, 9.81
+    V = k / 2 * (sympy.sqrt(x**2 + y**2) - length) ** 2 + m * gravity * y
+    model = EnergyModel([x, y], V, mass=[m, m], initial_displacement=[0.35, -1.6],
+                        initial_velocity=[0.4, 0.0], name="elastic pendulum")
+
+    def rhs(t, z):
+        u, r = z[:2], np.hypot(z[0], z[1])
+        force = k * (r - length) * u / r + np.array([0.0, m * gravity])
+        return np.concatenate([z[2:], -force / m])
+
+    reference = solve_ivp(rhs, (0.0, 7.0), [0.35, -1.6, 0.4, 0.0], method="DOP853",
+                          rtol=1e-13, atol=1e-13, dense_output=True)
+
+    def exact(t):
+        z = reference.sol(np.atleast_1d(t))
+        return z[:2].T, z[2:].T
+
+    return model, exact
+
+
+@pytest.mark.parametrize("rtol", [1e-3, 1e-5])
+def test_the_estimate_of_a_model_without_a_load_has_the_error_s_sign(rtol):
+    """HFDI's velocity estimate takes its exact-rate form for an EnergyModel
+    without a load (the zero load): signed, component by component, g/e near
+    +1 where the error is large (taken as smooth, the velocity's estimate had
+    the opposite sign and g was 0.08-0.10 of e)."""
+    model, exact = elastic_pendulum()
+    assert model.load_is_piecewise_linear
+    result = hfdi.integrate(model, "hfdi", 7.0, rtol=rtol)
+    assert result.success, result.message
+    e, g = true_error(result, exact), result.global_error
+    for k in range(4):
+        large = np.abs(e[:, k]) > 0.3 * np.abs(e[:, k]).max()
+        ratio = np.median(g[large, k] / e[large, k])
+        assert 0.6 < ratio < 1.5, (k, ratio)
+    worst, end = estimate_over_truth(result, exact)
+    assert 1 / 3 < worst < 3 and 1 / 3 < end < 3, (worst, end)
+
+
 def test_a_failed_rerun_keeps_the_complete_answer():
     """error="global": when the tighter rerun fails (here its step limit), the
     first, complete run is returned with TOLERANCE_NOT_MET and the reason."""
