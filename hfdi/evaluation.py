@@ -345,14 +345,6 @@ class Evaluator:
         return p
 
     @property
-    def load_is_piecewise_linear(self):
-        """The model's load and the extra one linear between breakpoints (a
-        :class:`~hfdi.HeldLoad` is constant between its changes)."""
-        from .system import HeldLoad
-        return bool(getattr(self.system, "load_is_piecewise_linear", False)) and (
-            self.extra_load is None or isinstance(self.extra_load, HeldLoad))
-
-    @property
     def has_load_rate(self):
         return self.system.load_rate is not None and self.extra_load is None
 

@@ -21,17 +21,13 @@ def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, es
     """:data:`CONFIG` of a run of the model ``ev`` (an Evaluator)."""
     settings = controller.settings() if core_kind(controller) != CUSTOM else \
         {"controller": CUSTOM}
-    # the scheme's error constant of v holds where its load rate is exact: the
-    # model's p', or a difference quotient of a load linear between breakpoints;
-    # else (HFDI's quotient of a smooth load) v's local error is O(h³)
-    velocity_exact = bool(scheme.velocity_error_constant) and (
-        exact_rate or ev.load_is_piecewise_linear)
+    # the scheme's error constant of v holds with the model's p'; the part the
+    # paper's quotient adds (O(h³), zero for a load linear between its
+    # breakpoints) the estimate takes on its own (stepping.attempt._load_rate_error)
     values = dict(
         n=ev.n, stages=scheme.n_stages, order=scheme.order,
         velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,
-        velocity_defect=scheme.velocity_defect if velocity_exact else 0.0,
-        velocity_order=scheme.order if velocity_exact or not scheme.velocity_error_constant
-        else 2,
+        velocity_defect=scheme.velocity_defect, velocity_order=scheme.order,
         lagged_acceleration=scheme.lagged_acceleration,
         acceleration_lag=scheme.acceleration_lag,
         m_kind=ev.mass_kind, c_kind=ev.damping_kind, sparse=ev.n >= DENSE_BELOW,

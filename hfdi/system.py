@@ -85,16 +85,6 @@ class SecondOrderSystem:
     #: case HFDI uses the paper's difference quotient (Section 4).
     load_rate: Callable | None = None
 
-    @property
-    def load_is_piecewise_linear(self) -> bool:
-        """Whether ``p`` is linear between its ``load_breakpoints`` (none,
-        constant, hat pulses): HFDI's difference quotient is then its exact
-        rate, and its error estimate of ``v`` takes the scheme's error
-        constant (docs/algorithm.md, "Velocity"). True for the zero load of
-        a system that does not override :meth:`load`; a model with a load
-        of that kind may say so."""
-        return type(self).load is SecondOrderSystem.load
-
     def load_breakpoints(self):
         """Times where the load ``p`` or its rate ``p'`` jumps (a kink of a hat
         pulse, a step load), as a sequence of floats; empty by default.
@@ -227,10 +217,6 @@ class System(SecondOrderSystem):
     def load(self, t):
         return np.zeros(self.n_dof) if self._p is None else self._p(t)
 
-    @property
-    def load_is_piecewise_linear(self) -> bool:
-        return self._p is None
-
     def potential_energy(self, u):
         return np.nan if self._v is None else self._v(u)
 
@@ -313,10 +299,6 @@ class LinearSystem(SecondOrderSystem):
 
     def load(self, t):
         return np.zeros(self.n_dof) if self._p is None else np.asarray(self._p(t), float)
-
-    @property
-    def load_is_piecewise_linear(self) -> bool:
-        return self._p is None
 
     def potential_energy(self, u):
         return 0.5 * float(u @ (self._K @ u))

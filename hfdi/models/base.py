@@ -46,9 +46,6 @@ class KernelModel(SecondOrderSystem):
     def load(self, t):
         return hat_load(float(t), self.load_params())
 
-    #: The hat pulses are linear between their kinks.
-    load_is_piecewise_linear = True
-
     def load_breakpoints(self):
         """The kinks of the hat pulses: ``0``, ``t1`` and ``2 t1`` of each."""
         pulses = self.load_params()

@@ -478,17 +478,6 @@ class EnergyModel(SecondOrderSystem):
         return np.zeros(self.n_dof) if self._load is None else np.asarray(self._load(t), float)
 
     @property
-    def load_is_piecewise_linear(self) -> bool:
-        """True without a load (the zero load): HFDI's difference quotient is
-        then the exact rate and its estimate of ``v``'s error takes the
-        scheme's error constant. (A load of sympy expressions has its exact
-        rate, :attr:`load_rate`; a callable ``load`` without ``load_rate`` is
-        taken as smooth.) Overriding :meth:`load` hid the zero load from the
-        base class's test, and the velocity's estimate then had the sign
-        opposite to the error (docs/algorithm.md, "Velocity")."""
-        return self._load is None and not self._plain_exprs["p"]
-
-    @property
     def load_rate(self):
         """The exact load rate ``t -> p'(t)``: derived from a load of sympy
         expressions, or the callable given, or ``None``."""

@@ -45,9 +45,9 @@ class Scheme:
         ``λ`` of the leading local error of ``v``, ``λ h^{p+1} v^{(p+1)}``,
         where the error estimate needs it: at order 3 the estimate's quartic
         has a defect in ``v`` of the same order (docs/algorithm.md,
-        "Velocity"); 0 where it is of higher order (order 2). Used where the
-        load rate is exact (``SecondOrderSystem.load_is_piecewise_linear``
-        or the model's ``load_rate``).
+        "Velocity"); 0 where it is of higher order (order 2). With the
+        paper's quotient for ``p'`` the estimate adds the quotient's own
+        ``O(h³)`` part (docs/algorithm.md, "Velocity").
     stage : numba dispatcher
         The stage function (:func:`stage_function`).
     """

@@ -12,12 +12,12 @@ from __future__ import annotations
 import math
 
 from ..core.arrays import (all_finite, axpy, copy, dot, fill, kinetic, lincomb, matvec,
-                           row_sum_max, times)
+                           row_sum_max, scale, times)
 from ..core.codes import (END_NOT_FINITE, ENERGY_GROWTH, MODEL_ERROR, OK, OVERFLOW,
                           SHAPE_FAULTS, STOP_ENERGY, STOP_MODEL_FAULT, STOP_MODEL_SHAPE,
                           STOP_OVERFLOW, STOP_POTENTIAL_LOST)
 from ..core.control import is_breakpoint
-from ..core.estimate import is_short, local_error, predict
+from ..core.estimate import is_short, local_error, predict, velocity_history_factor
 from ..core.jit import jitable
 from ..core.state import FIXED, MAX_STAGES
 from .global_error import propagate
@@ -198,6 +198,34 @@ def estimate_error(cfg, data, run, vec, h):
                 _velocity_by_quadrature(run, vec, h, before, now, end)
             return
     local_error(run, vec, h, cfg.velocity_order, cfg.velocity_defect, vec.a, vec.a_previous)
+    if cfg.velocity_defect != 0.0 and not cfg.exact_rate and run.has_previous:
+        _load_rate_error(cfg, data, run, vec, h)
+
+
+@jitable
+def _load_rate_error(cfg, data, run, vec, h):
+    """The part of HFDI's local error of ``v`` that the paper's quotient
+    ``(p_{n+1} − p_n)/h`` for ``p'(t_{n+1})`` makes, ``R = h³/12 M⁻¹ p''``
+    (``p''`` the second divided difference of ``p_{n−1}``, ``p_n``,
+    ``p_{n+1}``), into ``v``'s part of ``VECTORS.error``: :func:`local_error`
+    divided the velocity's difference by the factor of the scheme's own
+    ``λ h⁴ v⁽⁴⁾``; ``R``, of order ``h³``, enters that difference with
+    ``1 + (3σ² + 2σ³)/σ³`` (its share through ``v_{n−1}``), so the estimate
+    gains ``(1 − (1 + (3σ² + 2σ³)/σ³)/c_v(σ)) R``. Zero where the load is
+    linear between its breakpoints (docs/algorithm.md, "Velocity")."""
+    n = cfg.n
+    H = run.t - run.t_previous
+    R = vec.tmp
+    span = h + H
+    lincomb(R, 2.0 / (h * span), vec.p_new, -2.0 / (h * span) - 2.0 / (H * span), vec.p)
+    axpy(R, 2.0 / (H * span), vec.p_previous)
+    scale(R, h * h * h / 12.0, R)
+    if not mass_solve(cfg, data, vec, R):
+        return
+    sigma = h / H
+    history = 1.0 + 3.0 / sigma + 2.0
+    factor = velocity_history_factor(sigma, cfg.velocity_order, cfg.velocity_defect)
+    axpy(vec.error[n:], 1.0 - history / factor, R)
 
 
 @jitable
