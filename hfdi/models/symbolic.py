@@ -56,8 +56,10 @@ class EnergyModel(SecondOrderSystem):
         the parameters, its exact rate is derived and both run compiled
         (docs/user-models.md).
     load_rate : callable ``p'(t) -> (N,)``, optional
-        Exact load rate for HFDI (otherwise HFDI takes a difference quotient);
-        not with a load given as expressions, whose rate is derived.
+        Exact load rate for HFDI (otherwise HFDI takes the paper's difference
+        quotient, and on a smooth load it is then second order: many more
+        steps under error control); not with a load given as expressions,
+        whose rate is derived.
     damping : array_like (N,) or (N, N) or scipy sparse (N, N), optional
     quantities : dict of str to expression or sequence of expressions, optional
         Quantities of interest in the ``dofs``, the ``velocities``, ``time``
