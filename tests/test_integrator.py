@@ -339,6 +339,33 @@ def test_load_changed_recomputes_the_current_load_and_acceleration():
     np.testing.assert_allclose(after.p, before.p + force)
     expected = (after.p - system.internal_force(after.u) - system.damping @ after.v) / system.mass
     np.testing.assert_allclose(after.a, expected, rtol=1e-12)
+    # the history behind the jump is dropped, as at a load breakpoint
+    assert itg.get_state().previous is None
+
+
+@pytest.mark.parametrize("scheme", [pytest.param("newmark", marks=pytest.mark.slow), "hfdi"])
+def test_held_input_jumps_cost_fewer_steps_without_the_history_behind_them(scheme):
+    """200 input jumps in 0.02 s on the dumbbell at rtol 1e-4: with the
+    history kept across each jump the steps were 2,556 (HFDI) and 10,779
+    (Newmark), against 1,569 and 9,156 now, at errors within 20 % of each
+    other against an rtol-1e-10 run of the same inputs."""
+    model = hfdi.models.dumbbell()
+
+    def run(rtol):
+        held = np.zeros(model.n_dof)
+        itg = hfdi.Integrator(model, scheme, rtol=rtol, t_bound=0.02,
+                              extra_load=hfdi.HeldLoad(lambda: held.copy()))
+        rng = np.random.default_rng(0)
+        for t in np.append(np.sort(rng.uniform(0.0, 0.02, 200)), 0.02):
+            assert itg.advance(t)
+            held[:] = 1e3 * rng.standard_normal(model.n_dof)
+            itg.load_changed()
+        return itg
+
+    fine, itg = run(1e-10), run(1e-4)
+    error = np.abs(itg.state.u - fine.state.u).max() / np.abs(fine.state.u).max()
+    assert error < 1e-4
+    assert itg.statistics.steps < {"newmark": 9_800, "hfdi": 2_000}[scheme]
 
 
 def test_a_run_shorter_than_the_default_minimum_step_says_what_to_do():

@@ -460,8 +460,10 @@ def _is_shape_fault(outcome):
 @jitable
 def refresh(fn, cfg, data, run, vec, new_force):
     """The current state with ``p`` (the right limit) and ``a`` from the load
-    now, and ``f`` too with ``new_force`` or when not kept. False (the run
-    stopped, the state unchanged) when the model fails there."""
+    now, and ``f`` too with ``new_force`` or when not kept, the step history
+    dropped (a jump of the load or the model: the history behind it would
+    spoil the predictor and the error estimate). False (the run stopped, the
+    state unchanged) when the model fails there."""
     outcome = load_into(fn, cfg, data, run, run.t, vec.p_new)
     if outcome == OK and (new_force or not run.has_force):
         outcome = force_into(fn, cfg, data, run, vec.u, vec.f_new)
@@ -481,4 +483,5 @@ def refresh(fn, cfg, data, run, vec, new_force):
     copy(vec.f, vec.f_new)
     copy(vec.a, a)
     run.has_force = True
+    run.has_previous = False
     return True
