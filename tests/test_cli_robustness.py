@@ -589,7 +589,18 @@ def _swallowed_ctrl_c():
         pass
 
 
-def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path):
+@pytest.fixture
+def python_sigint():
+    """SIGINT with Python's own handler, as under a terminal: a suite started
+    in the background by a non-interactive shell inherits it ignored, and the
+    commands then rightly install nothing (validation.options)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path,
+                                                    python_sigint):
     """A Ctrl-C that a library swallows: ``all`` stops before its next output
     and exits 130 with its line, as does ``python -m benchmarks``; the next
     command in the process runs as usual and SIGINT is Python's own handler
