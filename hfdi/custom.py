@@ -20,7 +20,8 @@ from .stepping.loop import short_step
 
 __all__ = ["custom_steps"]
 
-_KEPT = ("u_new", "v_new", "a_new", "f_new", "p_new", "u_mid", "v_mid", "a_mid", "p_mid")
+_KEPT = ("u_new", "v_new", "a_new", "f_new", "p_new", "u_mid", "v_mid", "a_mid", "p_mid",
+         "a_start")
 _KEPT_RUN = ("a_h", "a_t_end", "a_proposed", "a_clipped", "a_iterations", "a_newton_error")
 
 

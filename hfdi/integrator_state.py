@@ -35,7 +35,11 @@ class IntegratorState:
 
     :meth:`to_bytes` and :meth:`from_bytes` write and read it as data only
     (:mod:`hfdi.serial`), so that bytes from elsewhere can never run code;
-    the round trip is bit-exact.
+    the round trip is bit-exact. ``previous`` is the step history (``None``
+    after a start, a restart or, for generalized-α, a short step); its
+    ``a`` is, for generalized-α, the lagged acceleration the last step
+    started from (at ``previous.t + lag·h``), not the acceleration at
+    ``previous.t``.
     """
 
     current: State

@@ -247,7 +247,8 @@ VECTORS = Arrays("Vectors", [
     *[(f"{name}_new", "vector") for name in _STATE],              # the attempt's end
     ("u_mid", "vector"), ("v_mid", "vector"), ("a_mid", "vector"),  # the first stage's end
     ("p_mid", "vector"),
-    *[(f"{name}_saved", "vector") for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid")],
+    *[(f"{name}_saved", "vector") for name in (*_STATE, "u_mid", "v_mid", "a_mid", "p_mid",
+                                               "a_start")],
     ("p_stage", "vector"),          # the load at the stage's load time
     ("a_start", "vector"),          # the state's a as the step's stages take it
     ("a_equation", "vector"),       # M⁻¹(p − C v − f) at t and t_previous, for the

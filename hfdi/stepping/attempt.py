@@ -382,7 +382,7 @@ def accept(fn, cfg, data, run, vec):
     if not is_short(h, run.proposed):
         copy(vec.u_previous, vec.u)
         copy(vec.v_previous, vec.v)
-        if cfg.acceleration_lag != 0.0 and not taylor:
+        if cfg.acceleration_lag != 0.0:
             # a lagged a is at t + lag·h of the step that made it, and the
             # state's is the equation's after a start or restart: the history
             # keeps the value this step started from, a step of h before the
@@ -397,6 +397,12 @@ def accept(fn, cfg, data, run, vec):
         copy(vec.p_previous, vec.p)
         run.t_previous = run.t
         run.has_previous = True
+    elif cfg.acceleration_lag != 0.0:
+        # a short step leaves a lagged a at its own short lag (the equation's
+        # after Taylor's expansion), which no longer pairs with the history:
+        # the next step starts afresh (kept, its steps fell 1e4-fold after an
+        # advance to just past t)
+        run.has_previous = False
     copy(vec.u, vec.u_new)
     copy(vec.v, vec.v_new)
     copy(vec.a, vec.a_new)

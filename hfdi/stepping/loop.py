@@ -107,6 +107,7 @@ def _save(run, vec):
     copy(vec.v_mid_saved, vec.v_mid)
     copy(vec.a_mid_saved, vec.a_mid)
     copy(vec.p_mid_saved, vec.p_mid)
+    copy(vec.a_start_saved, vec.a_start)
 
 
 @jitable(inline=True)
@@ -126,6 +127,7 @@ def _restore(run, vec):
     copy(vec.v_mid, vec.v_mid_saved)
     copy(vec.a_mid, vec.a_mid_saved)
     copy(vec.p_mid, vec.p_mid_saved)
+    copy(vec.a_start, vec.a_start_saved)
 
 
 @jitable(inline=True)
