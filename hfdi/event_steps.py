@@ -336,7 +336,6 @@ class EventSteps:
         run.work += jump
         run.energy_scale = max(run.energy_scale, abs(energy_after)
                                if math.isfinite(energy_after) else 0.0)
-        run.has_previous = False
         if self._rows is not None:
             # the new state's row, a step of size 0 (as a restart at a breakpoint)
             row = Rows(ev.n)

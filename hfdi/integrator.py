@@ -532,8 +532,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             self._absorb_counts()
             raise ModelError(f"the changed model cannot be evaluated at the current state "
                              f"(t = {run.t:.10g}): {type(exc).__name__}: {exc}") from None
-        self._refresh(new_force=True)
-        run.has_previous = False
+        self._refresh(new_force=True)      # drops the step history too
         run.potential = potential
         run.newton_constant = run.newton_guard = math.inf     # measured on the model as it was
         self._model_version = getattr(self.system, "parameter_version", None)

@@ -209,10 +209,11 @@ def _load_rate_error(cfg, data, run, vec, h):
     (``p''`` the second divided difference of ``p_{n−1}``, ``p_n``,
     ``p_{n+1}``), into ``v``'s part of ``VECTORS.error``: :func:`local_error`
     divided the velocity's difference by the factor of the scheme's own
-    ``λ h⁴ v⁽⁴⁾``; ``R``, of order ``h³``, enters that difference with
-    ``1 + (3σ² + 2σ³)/σ³`` (its share through ``v_{n−1}``), so the estimate
-    gains ``(1 − (1 + (3σ² + 2σ³)/σ³)/c_v(σ)) R``. Zero where the load is
-    linear between its breakpoints (docs/algorithm.md, "Velocity")."""
+    ``λ h⁴ v⁽⁴⁾``; ``R``, of order ``h³``, enters that difference as a local
+    error of order 2 does, with ``c_2(σ) = 1 + (3σ² + 2σ³)/σ³`` (its share
+    through ``v_{n−1}`` too), so the estimate gains ``(1 − c_2(σ)/c_v(σ)) R``.
+    Zero where the load is linear between its breakpoints
+    (docs/algorithm.md, "Velocity")."""
     n = cfg.n
     H = run.t - run.t_previous
     R = vec.tmp
@@ -223,9 +224,9 @@ def _load_rate_error(cfg, data, run, vec, h):
     if not mass_solve(cfg, data, vec, R):
         return
     sigma = h / H
-    history = 1.0 + 3.0 / sigma + 2.0
+    as_order_2 = velocity_history_factor(sigma, 2, 0.0)
     factor = velocity_history_factor(sigma, cfg.velocity_order, cfg.velocity_defect)
-    axpy(vec.error[n:], 1.0 - history / factor, R)
+    axpy(vec.error[n:], 1.0 - as_order_2 / factor, R)
 
 
 @jitable
