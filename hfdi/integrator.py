@@ -118,7 +118,9 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         First trial step. Default: ``1/ω`` with ``ω`` a Gershgorin bound of the
         highest frequency of ``(K(u0), M)``, capped by ``max_step``.
     min_step, max_step : float, optional
-        Guards on the step size. Defaults: ``1e-12·max(1, |t_bound|)`` and
+        Guards on the step size. Defaults: ``1e-12·max(1, |t_bound|)``, or a
+        millionth of a shorter span ``t_bound − t0``, but not below 64
+        spacings of the floating-point times at ``t_bound``; and
         ``t_bound − t0`` (or no limit without ``t_bound``).
     max_halvings : int
         Consecutive rejected attempts allowed for one step (the first

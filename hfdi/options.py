@@ -45,6 +45,23 @@ def initial_vector(name, value, n, source):
     return arr
 
 
+# the smallest step the default allows, in spacings of the floating-point
+# times it steps between: below it t_n + h rounds to a few values only
+_RESOLUTION = 64
+
+
+def default_min_step(t0, t_bound) -> float:
+    """The default ``min_step``: ``1e-12·max(1, |t_bound|)``, a millionth of a
+    shorter span ``t_bound − t0`` (so that a run of 1e-12 s has steps), and
+    never below ``_RESOLUTION`` spacings of the floating-point times at
+    ``t_bound``."""
+    t_end = t_bound if t_bound is not None else t0
+    step = 1e-12 * max(1.0, abs(t_end))
+    if t_bound is not None:
+        step = min(step, 1e-6 * abs(t_bound - t0))
+    return max(step, _RESOLUTION * math.ulp(max(abs(t0), abs(t_end))))
+
+
 def make_controller(controller, rtol, atol, target, step, span, min_step, max_step,
                     max_halvings, first_step_trials, scheme, t0, t_bound,
                     max_steps) -> Controller:
@@ -80,9 +97,15 @@ def make_controller(controller, rtol, atol, target, step, span, min_step, max_st
         or (span if span is not None else math.inf)
     default_min = min_step is None
     min_step = optional_positive("min_step", min_step) \
-        or 1e-12 * max(1.0, abs(t_bound if t_bound is not None else t0))
+        or default_min_step(t0, t_bound)
     if min_step >= max_step:
-        hint = " (the default; give min_step for so short a run)" if default_min else ""
+        hint = ""
+        if default_min and span is not None and min_step >= span:
+            hint = (f" (the default: t0 = {t0!r} and t_bound = {t_bound!r} are within "
+                    f"{_RESOLUTION:g} floating-point spacings of each other, too close "
+                    f"to step between)")
+        elif default_min:
+            hint = " (the default; give min_step for so small a max_step)"
         raise ValueError(f"min_step must be < max_step = {max_step}, got {min_step}{hint}")
     limits = dict(min_step=min_step, max_step=max_step, max_rejections=max_halvings,
                   first_step_trials=first_step_trials)

@@ -92,18 +92,18 @@ def B(*args, expect):
 
 
 BAD_TARGETS = ("0", "-1", "nan", "inf", "1e300", "text")
-BAD_T_END = ("0", "-1", "nan", "inf", "text", "1e-13")
+BAD_T_END = ("0", "-1", "nan", "inf", "text", "5e-324")
 # figures and all take the same --targets and --t-end as table (one parser
 # type each, and the same check of the runs): every value goes through
 # table, some through figures and all.
 SOME_TARGETS = ("0", "nan", "1e300", "text")
-SOME_T_END = ("-1", "inf", "1e-13")
+SOME_T_END = ("-1", "inf", "5e-324")
 
 
 def t_end_complaint(value, problem="dumbbell"):
     """What a bad ``--t-end`` must be called: by the parser, or for one
-    below the integrator's smallest step, by the library before any run."""
-    return f"cannot run {problem} to t = 1e-13" if value == "1e-13" else "--t-end"
+    too close to t0 to step between, by the library before any run."""
+    return f"cannot run {problem} to t = 4.94066e-324" if value == "5e-324" else "--t-end"
 
 
 CASES = [

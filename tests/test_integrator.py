@@ -368,10 +368,33 @@ def test_held_input_jumps_cost_fewer_steps_without_the_history_behind_them(schem
     assert itg.statistics.steps < {"newmark": 9_800, "hfdi": 2_000}[scheme]
 
 
-def test_a_run_shorter_than_the_default_minimum_step_says_what_to_do():
+@pytest.mark.parametrize("mode", [dict(), dict(target_iterations=3.0)])
+@pytest.mark.parametrize("t0, span", [(0.0, 1e-13), (0.0, 1e-30), (5.0, 1e-9)])
+def test_a_short_run_steps_with_the_default_minimum_step(t0, span, mode):
+    """The default min_step follows a short span: the end state is the
+    Taylor polynomial of the motion, to its next term."""
+    t_bound = t0 + span
+    h = t_bound - t0                    # the span as floating point has it
+    result = hfdi.integrate(DUMBBELL, "hfdi", t_bound, t0=t0, **mode)
+    assert result.success and result.t[-1] == t_bound
+    u0, v0 = DUMBBELL.initial_displacement, DUMBBELL.initial_velocity
+    a0 = (DUMBBELL.load(t0) - DUMBBELL.internal_force(u0)) / DUMBBELL.mass
+    scale = np.abs(u0).max() + h * np.abs(v0).max()
+    assert np.abs(result.u[-1] - (u0 + h * v0 + h * h / 2 * a0)).max() <= 4e-16 * scale
+    assert np.abs(result.v[-1] - (v0 + h * a0)).max() <= 1e-6 * h * np.abs(a0).max() \
+        + 4e-16 * np.abs(v0).max()
+
+
+def test_a_run_too_short_to_step_says_why():
+    """t_bound within a few floating-point spacings of t0: no step can land
+    between them, and the message says so (min_step given: its own words)."""
+    with pytest.raises(ValueError, match=r"min_step must be < max_step = .* \(the default: "
+                                         r"t0 = 1000000000.0 and t_bound = 1000000000.000001 "
+                                         r"are within 64 floating-point spacings"):
+        hfdi.integrate(DUMBBELL, "hfdi", 1e9 + 1e-6, t0=1e9)
     with pytest.raises(ValueError, match=r"min_step must be < max_step = 1e-13, got 1e-12 "
-                                         r"\(the default; give min_step"):
-        hfdi.integrate(DUMBBELL, "hfdi", 1e-13, target_iterations=3.0)
+                                         r"\(the default; give min_step for so small a max_step"):
+        hfdi.integrate(DUMBBELL, "hfdi", 1.0, max_step=1e-13)
     result = hfdi.integrate(DUMBBELL, "hfdi", 1e-13, target_iterations=3.0, min_step=1e-18)
     assert result.success and result.t[-1] == 1e-13
 
