@@ -76,6 +76,13 @@ def _at_t(t) -> str:
     return f"t = {t:.10g}"
 
 
+def _refuse_none(value, what, shape):
+    # np.array(None, dtype=float) is a NaN of shape (): name the usual cause
+    if value is None:
+        raise ModelError(f"{what} returned None, expected an array of shape {shape} "
+                         f"(a missing return statement?)")
+
+
 def _refuse_complex(value, what):
     if checks.complex_values(value):
         raise ModelError(f"{what} returned complex values; a model must return real ones "
@@ -275,6 +282,7 @@ class Evaluator:
                 and value.dtype == _float64 and all_finite(value)):
             return value.copy()
         _refuse_complex(value, what)
+        _refuse_none(value, what, f"({self.n},)")
         try:
             arr = np.array(value, dtype=float)
         except (TypeError, ValueError):
@@ -292,6 +300,7 @@ class Evaluator:
             return value.copy()
         n = self.n
         _refuse_complex(value, what)
+        _refuse_none(value, what, f"({n}, {n})")
         if sp.issparse(value):
             if value.shape != (n, n):
                 raise ModelError(f"{what} returned shape {value.shape}, expected ({n}, {n})")

@@ -298,7 +298,7 @@ class LinearSystem(SecondOrderSystem):
         return self._T
 
     def load(self, t):
-        return np.zeros(self.n_dof) if self._p is None else np.asarray(self._p(t), float)
+        return np.zeros(self.n_dof) if self._p is None else self._p(t)
 
     def potential_energy(self, u):
         return 0.5 * float(u @ (self._K @ u))
