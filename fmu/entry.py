@@ -65,10 +65,11 @@ CONFIG = "hfdi_fmu.json"
 #: of the state arrays and of the inputs, the value-reference table and its
 #: length, the CPU nanoseconds of the native steps not yet counted, and the
 #: doSteps, reads and writes the native path served (for tests and
-#: diagnostics), and whether the states may be read there (also on the
-#: Python path, from a copy the slave makes after its doStep).
+#: diagnostics), whether the states may be read there (also on the
+#: Python path, from a copy the slave makes after its doStep), and the
+#: address of the last time a doStep may end at (the slave's ``_stop_limit``).
 GATE_FIELDS = ("armed", "dirty", "function", "context", "time", "state", "inputs", "table",
-               "table_length", "cpu_ns", "steps", "reads", "writes", "readable")
+               "table_length", "cpu_ns", "steps", "reads", "writes", "readable", "stop")
 GATE_SIZE = 16
 
 

@@ -413,9 +413,9 @@ class HfdiSlave(Fmi2Slave):
     def _param_setter(self, key, convert, model=False):
         def setter(value):
             if self._phase not in ("instantiated", "initialization"):
-                self.log(f"parameter {key} is fixed after initialization; the value {value!r} "
-                         "is ignored", Fmi2Status.warning)
-                return
+                # FMI: after initialization only inputs and tunable parameters are set
+                self._reject(f"parameter {key} is fixed after initialization; the value "
+                             f"{value!r} is refused")
             # looked up now: fmi2SetFMUstate replaces the dictionaries
             store = self._mparams if model else self._params
             store[key] = convert(value)
@@ -513,7 +513,7 @@ class HfdiSlave(Fmi2Slave):
                      f"{value!r} refused)")
 
     def _output_setter(self, value):
-        self.log(f"outputs cannot be set (value {value!r} ignored)", Fmi2Status.warning)
+        self._reject(f"outputs cannot be set (value {value!r} refused)")
 
     # -- model description --------------------------------------------------------
     def to_xml(self, model_options=dict()):
@@ -741,7 +741,8 @@ class HfdiSlave(Fmi2Slave):
         Returns ``False`` (``fmi2Discard``) when the step cannot be taken; the
         FMU is then back at ``current_time`` (the time the native layer reports
         as ``fmi2LastSuccessfulTime``), with its outputs there, and the log says
-        why. Never raises.
+        why. Raises :class:`FmuError` (``fmi2Error``, nothing changed) only for a
+        step past the experiment's stop time.
 
         ``early_return`` (FMI 3.0's ``earlyReturnAllowed``): stop at the first
         zero of a model's event function after the step's start, after its
@@ -780,6 +781,13 @@ class HfdiSlave(Fmi2Slave):
                                      "resolution at t")
             if not math.isfinite(t_end):
                 return self._discard(f"doStep({t}, {h}): the end time overflows")
+            if t_end > self._stop_limit() + 1e-10 * h:
+                # FMI 2.0 (fmi2SetupExperiment), 3.0 (fmi3EnterInitializationMode):
+                # past a defined stop time the FMU returns an error; here the
+                # error control's share of the tolerance was set for that span
+                raise FmuError(f"doStep({t}, {h}) ends at {t_end!r}, past the stop time "
+                               f"{self._stop_time!r} that the experiment defined; set up "
+                               f"the experiment with a later stop time (or none)")
             budget = int(self._itg_key[0]["max_internal_steps"])
             # the rollback of a failed step: never leaves this object, never written
             snapshot = (itg.get_state(copy_arrays=False), self._F_applied.copy(),
@@ -818,6 +826,8 @@ class HfdiSlave(Fmi2Slave):
             return self._discard(f"step [{t!r}, {t_end!r}] rejected ({reason}); back at "
                                  f"t = {t!r}: retry with a shorter communication step or "
                                  "other inputs, or restore an earlier FMU state")
+        except FmuError:
+            raise                 # refused before anything changed: fmi2Error
         except Exception as exc:  # a failed step is a discard, never a refusal
             try:
                 if snapshot is not None:
@@ -827,6 +837,16 @@ class HfdiSlave(Fmi2Slave):
                 self.log(f"rollback failed ({again!r}); restore an FMU state",
                          Fmi2Status.error)
             return self._discard(f"doStep({current_time}, {step_size}) failed: {exc!r}")
+
+    def _stop_limit(self) -> float:
+        """The last time a doStep may end at (plus ``1e-10·h``, the slack of
+        its time): the stop time and a master's rounding of the sum of its
+        steps (1e-9 of the span), or +inf without a stop time. The native
+        layer's ``native_step`` takes it from the gate."""
+        stop = self._stop_time
+        if stop is None:
+            return math.inf
+        return stop + max(64.0 * math.ulp(abs(stop)), 1e-9 * (stop - self._start_time))
 
     # -- the native path (fmu/native/hfdi_fmu_core.h: the gate and its protocol) ------
     def attach_native_gate(self, gate, fields):
@@ -841,6 +861,8 @@ class HfdiSlave(Fmi2Slave):
         # arrays stay where they are while this slave holds them
         self._read_copy_address = self._read_copy.ctypes.data
         self._gate_table_address = 0
+        self._gate_stop = np.full(1, math.inf)         # _stop_limit(), as armed
+        self._gate_stop_address = self._gate_stop.ctypes.data
 
     def _prepare_native(self):
         """The native path's C function for the new integrator, loaded (or
@@ -896,6 +918,8 @@ class HfdiSlave(Fmi2Slave):
                 gate[at["time"]] = native.time_address
                 gate[at["state"]] = native.state_address
                 gate[at["inputs"]] = self._F_input.ctypes.data
+                self._gate_stop[0] = self._stop_limit()
+                gate[at["stop"]] = self._gate_stop_address
                 gate[at["armed"]] = 1
             else:
                 state, copy = itg.state, self._read_copy
@@ -1124,6 +1148,17 @@ class HfdiSlave(Fmi2Slave):
             values = [convert(value) for value in values]
         except Exception as exc:
             self._reject(f"{function}({self._names(vrs)}): {exc!r}; no value was set")
+        late = self._phase not in ("instantiated", "initialization")
+        for vr in vrs:
+            var = self.vars[vr]
+            # FMI: after initialization only inputs (and tunable parameters,
+            # which this FMU has none of) are set; outputs never
+            if var.causality == Fmi2Causality.output:
+                self._reject(f"{function}({self._names(vrs)}): {var.name} is an output; "
+                             f"outputs cannot be set; no value was set")
+            if late and var.causality == Fmi2Causality.parameter:
+                self._reject(f"{function}({self._names(vrs)}): parameter {var.name} is fixed "
+                             f"after initialization; no value was set")
         try:
             setter(vrs, values)
         except Exception as exc:
@@ -1215,6 +1250,11 @@ class HfdiSlave(Fmi2Slave):
                         key[3] is None or isinstance(key[3], float) and math.isfinite(key[3])
                         and key[3] > key[2]):
                     raise FmuError("the state is malformed")
+                # the parameters an initialized FMU reports are those its
+                # integrator was built with (they are fixed from then on)
+                if (params, mparams, start_time, stop_time) != key:
+                    raise FmuError("the state is inconsistent: its parameters or experiment "
+                                   "differ from those its integrator was built with")
                 if self._itg is not None and self._itg_key == key:
                     itg = self._itg
                 else:

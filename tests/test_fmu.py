@@ -209,6 +209,33 @@ def test_input_step_moves_the_centre_of_mass_exactly(dumbbell_fmu, scheme):
     assert abs(x.mean() - exact) < 1e-9 * abs(exact)
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_step_past_the_stop_time_is_refused_on_both_paths(dumbbell_fmu, compiled):
+    """FMI: past the stop time of fmi2SetupExperiment the FMU returns fmi2Error,
+    whether its slave or its native layer would take the doStep; a master's
+    rounded sum of steps still ends on the stop time. Nothing changes."""
+    path, unzip = dumbbell_fmu
+    name = f"stop-{compiled}"
+    u = Unit(path, name, unzip_dir=unzip)
+    u.initialize({"compiled": compiled, "rtol": 1e-5, "target_iterations": 0.0},
+                 stop_time=0.1)
+    gate = _gate(name)
+    t, h = 0.0, 0.01
+    for _ in range(10):
+        assert u.step(t, h), u.messages[-2:]
+        t += h
+    assert t != 0.1 and abs(t - 0.1) < 1e-15          # 0.09999999999999999
+    assert gate("steps") == (9 if compiled else 0)     # all but the first natively
+    before, steps = u.get(STATE), gate("steps")
+    with pytest.raises(FMICallException) as refused:
+        u.step(t, 1e-3)
+    assert refused.value.status == fmi2Error
+    assert "past the stop time 0.1 that the experiment defined" in u.messages[-1][2]
+    assert gate("steps") == steps and u.last_successful_time() == t
+    np.testing.assert_array_equal(u.get(STATE), before)
+    u.close()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_compiled_fmu_reproduces_the_compiled_integrator(dumbbell_fmu, scheme):
@@ -460,6 +487,35 @@ def test_corrupt_state_is_refused_not_a_crash(dumbbell_fmu):
     assert info.value.status == fmi2Error
     assert any("not a serialized hfdi FMU state" in m[2] for m in u.messages)
     u.close(terminate=False)
+
+
+@pytest.mark.parametrize("field, value", [("params", ("rtol", 0.09)), ("mparams", ("A", 5.0)),
+                                          ("start_time", 5.0), ("stop_time", 9.0)])
+def test_a_state_whose_parameters_are_not_its_integrators_is_refused(dumbbell_fmu, field,
+                                                                     value):
+    """An FMU state's header edited (the rest intact): the FMU would report
+    parameters it does not step with; refused, nothing changes."""
+    from hfdi import serial
+    u = unit(dumbbell_fmu, {"rtol": 1e-4})
+    assert u.step(0.0, 0.01)
+    state = u.get_state()
+    data = u.serialize(state)
+    magic, packed = data[:data.index(b"\n") + 1], data[data.index(b"\n") + 1:]
+    header, arrays = serial.unpack(packed)
+    if isinstance(value, tuple):
+        header[field][value[0]] = value[1]
+    else:
+        header[field] = value
+    tampered = u.deserialize(magic + serial.pack(header, arrays))
+    before = u.get(OBSERVED)
+    with pytest.raises(FMICallException) as refused:
+        u.set_state(tampered)
+    assert refused.value.status == fmi2Error
+    assert "differ from those its integrator was built with" in u.messages[-1][2]
+    assert np.array_equal(u.get(OBSERVED), before)
+    u.set_state(u.deserialize(data))                  # the untouched bytes restore
+    u.free_state(state)
+    u.close()
 
 
 # -- failures ----------------------------------------------------------------------------------

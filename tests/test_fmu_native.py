@@ -88,6 +88,17 @@ def vr_of(fmu, name):
                 if v.name == name)
 
 
+def test_the_fmu_leaves_a_c_hosts_locale_alone(fmu, host, tmp_path):
+    """Python's initialization sets LC_CTYPE from the environment (here
+    C.UTF-8); a host that never chose a locale keeps "C" (its parsers, its
+    multibyte conversions)."""
+    unzip = extract(str(fmu), unzipdir=str(tmp_path / "x"))
+    done = run_host(host, unzip, env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8",
+                                      "LC_ALL": "C.UTF-8", **BLAS_ENV})
+    assert done.returncode == 0, (done.stdout, done.stderr)
+    assert "locale C\n" in done.stdout, done.stdout[-500:]
+
+
 @pytest.mark.slow
 def test_a_host_without_python_runs_the_fmu(fmu, host, tmp_path):
     """A C program with an empty environment: the native layer loads the

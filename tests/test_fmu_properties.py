@@ -258,14 +258,16 @@ class FmuMachine(RuleBasedStateMachine):
     # -- traced operations ------------------------------------------------------------
     def _set_parameter(self, name, value, valid):
         before = self.read()
-        status, _, messages = self.call(self.unit.set, {name: value})
-        assert status == "OK"
-        if self.track.phase in ("instantiated", "initialization"):
+        early = self.track.phase in ("instantiated", "initialization")
+        status, _, messages = self.call(self.unit.set, {name: value}, error=not early)
+        if early:
+            assert status == "OK"
             iffy = self.track.iffy - {name}
             self.track.iffy = iffy if valid else iffy | {name}
         else:
-            # fixed after initialization: refused with a warning, nothing changes
-            assert any(m[0] == "WARNING" and "fixed after initialization" in m[2]
+            # fixed after initialization (FMI): refused, nothing changes
+            assert status == "ERROR"
+            assert any(m[0] == "ERROR" and "fixed after initialization" in m[2]
                        for m in messages), messages
             assert self.read() == before
         return status, messages
@@ -564,9 +566,10 @@ def _exit_with(parameters=None, inputs=None):
     return act
 
 
-def _after_initialization(call, parameters=None, inputs=None, start_time=0.0, then=()):
+def _after_initialization(call, parameters=None, inputs=None, start_time=0.0, then=(),
+                          stop_time=None):
     def act(unit):
-        unit.initialize(parameters or {}, start_time=start_time)
+        unit.initialize(parameters or {}, start_time=start_time, stop_time=stop_time)
         for step in then:
             step(unit)
         unit.set(inputs or {})
@@ -617,10 +620,16 @@ DOCUMENTED = [
     ("input-nan-init", "input `F[1]` = NaN at fmi2ExitInitializationMode",
      _exit_with(inputs={"F[1]": NAN}), "ERROR", "F[1] = nan"),
     ("parameter-late", "parameter `scheme` set after initialization",
-     _after_initialization(lambda unit: unit.set({"scheme": "bathe"})), "OK",
+     _after_initialization(lambda unit: unit.set({"scheme": "bathe"})), "ERROR",
      "fixed after initialization"),
     ("output-set", "output `u[1]` set",
-     _after_initialization(lambda unit: unit.set({"u[1]": 1.0})), "OK", "outputs cannot be set"),
+     _after_initialization(lambda unit: unit.set({"u[1]": 1.0})), "ERROR",
+     "outputs cannot be set"),
+    ("output-set-early", "output `u[1]` set before initialization",
+     lambda unit: lambda: unit.set({"u[1]": 1.0}), "ERROR", "outputs cannot be set"),
+    ("step-past-stop", "fmi2DoStep past the stop time of fmi2SetupExperiment",
+     _after_initialization(lambda unit: unit.step(0.0, 0.2), stop_time=0.1), "ERROR",
+     "past the stop time 0.1"),
     ("enter-again", "fmi2EnterInitializationMode after initialization",
      _after_initialization(lambda unit: unit.fmu.enterInitializationMode()), "ERROR",
      "enters initialization mode once"),

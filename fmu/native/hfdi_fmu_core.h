@@ -17,6 +17,7 @@
 #define HFDI_FMU_CORE_H
 #define _GNU_SOURCE
 #include <dlfcn.h>
+#include <locale.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdarg.h>
@@ -180,7 +181,15 @@ static int start_python(const char* resources)
         } else if (home[0]) {
             setenv("PYTHONHOME", home, 0);   /* Pythons without Py_SetPythonHome (3.13) */
         }
+        /* Python's initialization sets LC_CTYPE from the environment; the
+         * host's locale is the host's: put it back as it was */
+        const char* current = setlocale(LC_ALL, NULL);
+        char* host_locale = current ? strdup(current) : NULL;
         p_Py_InitializeEx(0);
+        if (host_locale) {
+            setlocale(LC_ALL, host_locale);
+            free(host_locale);
+        }
         if (!p_Py_IsInitialized()) {
             snprintf(api_problem, sizeof api_problem, "Python failed to initialize");
             return 0;
@@ -229,7 +238,7 @@ static int python_ready(const char* resources, char* problem, size_t size)
  * ------------------------------------------------------------------------- */
 enum { GATE_ARMED, GATE_DIRTY, GATE_FUNCTION, GATE_CONTEXT, GATE_TIME, GATE_STATE,
        GATE_INPUTS, GATE_TABLE, GATE_TABLE_LENGTH, GATE_CPU_NS, GATE_STEPS, GATE_READS,
-       GATE_WRITES, GATE_READABLE, GATE_SIZE = 16 };
+       GATE_WRITES, GATE_READABLE, GATE_STOP, GATE_SIZE = 16 };
 typedef int64_t (*NativeAdvance)(int64_t* context, double t_stop);
 
 typedef struct Instance Instance;
@@ -432,6 +441,10 @@ static int native_step(Instance* inst, double t, double h)
     if (!(fabs(t - here) <= tolerance)) return 0;
     double t_end = t + h;
     if (!(t_end > here && isfinite(t_end))) return 0;
+    /* past the experiment's stop time (the slave's _stop_limit, with the
+     * slack of the time above): the slave refuses it, fmi2Error */
+    const double* stop_limit = (const double*)(intptr_t)gate[GATE_STOP];
+    if (stop_limit && t_end > *stop_limit + 1e-10 * h) return 0;
     NativeAdvance advance = (NativeAdvance)(intptr_t)gate[GATE_FUNCTION];
     int64_t started = cpu_ns();
     int64_t taken = advance((int64_t*)(intptr_t)gate[GATE_CONTEXT], t_end);

@@ -11,6 +11,7 @@
  * 5 a step not taken, 6 a value not read, 2 and 3 usage and loading.
  */
 #include <dlfcn.h>
+#include <locale.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -109,5 +110,7 @@ int main(int argc, char** argv)
     }
     if (!status) fmi2Terminate(c);
     fmi2FreeInstance(c);
+    /* a C program runs in the "C" locale until it sets another: the FMU must not */
+    printf("locale %s\n", setlocale(LC_ALL, NULL));
     return status;
 }
