@@ -12,7 +12,8 @@ from .arrays import axpy, dot, lincomb, max_abs
 from .jit import jitable, primitive
 
 __all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
-           "velocity_noise", "displacement_noise", "error_fraction", "SHORT_STEP", "is_short"]
+           "velocity_noise", "displacement_noise", "error_fraction", "SHARE_FLOOR_STEPS",
+           "SHORT_STEP", "is_short"]
 
 #: A step shorter than this fraction of the one proposed is a *short step*,
 #: taken by Taylor's expansion (or the scheme past a stiff component) and not
@@ -143,6 +144,15 @@ def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction, 
     return math.sqrt(dot(ratio, ratio) / ratio.shape[0])
 
 
+#: The share of the tolerance is never below ``1/(SHARE_FLOOR_STEPS·(n + 1))``
+#: after ``n`` accepted steps: a run that starts in a fast transient (a
+#: stiff, damped mode) resolves it with tiny steps whose mean would make the
+#: share so small that the steps could never grow again (docs/algorithm.md,
+#: "Tolerance proportionality"). It adds about
+#: ``(ln(N/100) + 0.6)/100`` of the tolerance over a run of ``N`` steps.
+SHARE_FLOOR_STEPS = 100.0
+
+
 @jitable
 def error_fraction(per_step, span, elapsed, accepted, history):
     """The share of the tolerance a step may spend: all of it under the
@@ -153,14 +163,14 @@ def error_fraction(per_step, span, elapsed, accepted, history):
     ``accepted`` steps before it) and ``τ`` the run's span, or ``elapsed``
     when the end is not known (``span`` NaN): the run's local errors then
     add up to about the tolerance (docs/algorithm.md, "Tolerance
-    proportionality")."""
+    proportionality"); but not below ``1/(SHARE_FLOOR_STEPS·(accepted + 1))``."""
     if per_step or not history:
         return 1.0
     tau = elapsed if math.isnan(span) else span
     mean = elapsed / (accepted + 1.0)
     if not tau > mean:
         return 1.0
-    return mean / tau
+    return max(mean / tau, 1.0 / (SHARE_FLOOR_STEPS * (accepted + 1.0)))
 
 
 @jitable
