@@ -366,3 +366,27 @@ def test_hfdi_carries_the_estimate_by_the_derivative_of_its_own_step(damped):
     difference = (end_of_step(eps * e[:4], eps * e[4:])
                   - end_of_step(-eps * e[:4], -eps * e[4:])) / (2 * eps)
     assert np.abs(carried - difference).max() < 1e-6 * np.abs(difference).max()
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_a_fixed_step_over_a_load_jump_leaves_no_estimate(scheme):
+    """``u'' + u = H(t − t_b)``, fixed steps of 0.01. On the grid the jump is
+    landed on and the estimate holds (0.98–0.99 of the true error); off it a
+    step passes over the jump with an O(h) error the estimate does not see
+    (it said 0.006–160 of the error): NaN from that step on, not a number."""
+    h = 0.01
+    for t_jump in (1.0, 4.0 / 3.0):
+        model = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]], initial_displacement=[1.0],
+                                  load=lambda t, t_jump=t_jump: np.array([float(t >= t_jump)]))
+        result = hfdi.integrate(model, scheme, 2.0, step=h, breakpoints=[t_jump])
+        assert result.success, result.message
+        exact = math.cos(2.0) + 1.0 - math.cos(2.0 - t_jump)
+        error = abs(result.u[-1, 0] - exact)
+        estimate = result.global_error[:, 0]
+        before = result.t < t_jump - h / 2
+        assert np.all(np.isfinite(estimate[before]))
+        if t_jump == 1.0:
+            assert 1 / 3 < abs(estimate[-1]) / error < 3, (estimate[-1], error)
+        else:
+            after = result.t > t_jump
+            assert np.all(np.isnan(estimate[after]))

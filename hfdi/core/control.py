@@ -14,8 +14,8 @@ from .codes import STOP_FIXED_FAILED, STOP_HALVINGS, STOP_MIN_STEP, STOP_NONE
 from .jit import jitable
 from .state import COMBINED, ERROR, FIXED, ITERATION
 
-__all__ = ["landing", "clip", "limit", "on_grid", "is_breakpoint", "retry", "iteration_adapt",
-           "error_adapt", "adapt", "iteration_search", "uses_error"]
+__all__ = ["landing", "clip", "limit", "on_grid", "is_breakpoint", "passes_breakpoint",
+           "retry", "iteration_adapt", "error_adapt", "adapt", "iteration_search", "uses_error"]
 
 
 @jitable
@@ -76,6 +76,16 @@ def limit(cfg, data, run, t_limit):
                 return float(points[i])
             i += 1
     return t_limit
+
+
+@jitable
+def passes_breakpoint(data, t_start, t_end):
+    """Whether a load breakpoint lies strictly inside ``(t_start, t_end)``."""
+    points = data.breakpoints
+    for i in range(points.shape[0]):
+        if points[i] > t_start:
+            return points[i] < t_end
+    return False
 
 
 @jitable
