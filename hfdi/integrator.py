@@ -30,14 +30,15 @@ from .event_steps import EventSteps
 from .state_access import StateAccess
 from .messages import Status, stop_message
 from .options import (NEWTON_TESTS, breakpoints_of, fit_error_control, initial_vector,
-                      make_controller, newton_tolerance, optional_positive, time_value)
+                      load_response_scale, make_controller, needs_load_scale,
+                      newton_tolerance, optional_positive, time_value)
 from .preflight import default_first_step, initial_state
 from .result import STATISTICS_FIELDS, Statistics
 from .schemes import HFDI, Scheme, get_scheme
 from .stepping import attempt as stepping
 from .stepping.loop import advance as advance_python
 from .stepping.stages import AFFINE_STAGES, HFDI_STAGES
-from .system import SecondOrderSystem
+from .system import SecondOrderSystem, declared_u_scale
 
 __all__ = ["Integrator", "ROWS_PER_CALL", "STEPS_PER_CALL"]
 
@@ -83,8 +84,9 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         (:class:`~hfdi.controller.ErrorControl`; docs/accuracy.md).
     atol : float or array_like (N,) or (2N,), optional
         Absolute tolerance, ``> 0``. Default ``1e-3 · rtol · U`` for ``u`` and
-        ``1e-3 · rtol · V`` for ``v``, the scales of the initial state
-        (:func:`hfdi.options.state_scales`).
+        ``1e-3 · rtol · V`` for ``v``, the scales of the initial state, or of
+        a model at rest its declared ``u_scale`` or the displacement its load
+        drives (:func:`hfdi.options.state_scales`).
     target_iterations : float, optional
         Target Newton iteration count ``N̄`` per (sub-)step (Eq. 39), in
         ``[1, 100]``. For Bathe the step's target is ``2 N̄``, as the paper's
@@ -272,11 +274,9 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                            initial_vector(name, given, n, source))
         u0, v0 = initial
         error_span = optional_positive("error_span", error_span)
-        fit_error_control(c, span if error_span is None else error_span, u0, v0, u_scale)
         self.newton_test = newton_test or (
             "error" if isinstance(c, ErrorControl) else "correction")
         self.tol = newton_tolerance(tol, c)
-        c.prepare(ev.n, self.scheme.order)
         first_step = optional_positive("first_step", first_step)
         if first_step is not None:
             if self.fixed:
@@ -292,6 +292,13 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         start = time.process_time()
         current, K0, T0, potential = initial_state(
             ev, self.scheme, self.t0, u0, v0, check_stiffness, self.floor, self.t_bound, every)
+        # the default atol's scales: of the state, or (a model at rest) of its load
+        declared = declared_u_scale(system)
+        load_scale = load_response_scale(ev, K0, self.t0, self.t_bound) \
+            if needs_load_scale(c, u0, declared) else None
+        fit_error_control(c, span if error_span is None else error_span, u0, v0, declared,
+                          load_scale)
+        c.prepare(ev.n, self.scheme.order)
         if self.energy_limit is not None and math.isnan(potential):
             raise ValueError(
                 f"energy_limit needs the model's potential energy (the energy balance, "

@@ -137,23 +137,68 @@ def make_controller(controller, rtol, atol, target, step, span, min_step, max_st
     return error if iteration is None else Combined(iteration, error)
 
 
-def state_scales(u0, v0, u_scale, span):
+def state_scales(u0, v0, u_scale, span, load_scale=None):
     """``(U, V)``, the scales of ``u`` and ``v`` of the default ``atol``:
-    ``U = ‖u0‖∞``, or the model's ``u_scale`` for a model starting at
-    ``u0 = 0``; ``V = max(‖v0‖∞, U/τ)`` with ``τ`` the run's span (one
-    length per span: the slowest motion the run can show), or
-    ``max(‖v0‖∞, U)`` (per unit of time) when the span is not known."""
-    U = float(np.max(np.abs(u0), initial=0.0)) or float(u_scale)
+    ``U = ‖u0‖∞``; for a model starting at ``u0 = 0`` the model's declared
+    ``u_scale`` (``None``: none), else ``load_scale``, the displacement its
+    load drives (:func:`load_response_scale`), else 1; ``V = max(‖v0‖∞,
+    U/τ)`` with ``τ`` the run's span (one length per span: the slowest
+    motion the run can show), or ``max(‖v0‖∞, U)`` (per unit of time) when
+    the span is not known."""
+    U = float(np.max(np.abs(u0), initial=0.0)) or float(u_scale or load_scale or 1.0)
     V = max(float(np.max(np.abs(v0), initial=0.0)), U / span if span else U)
     return U, V
 
 
-def fit_error_control(controller, span, u0, v0, u_scale):
+#: Times in the span where the load is sampled for :func:`load_response_scale`.
+LOAD_SAMPLES = 17
+
+
+def load_response_scale(ev, K0, t0, t_bound) -> float | None:
+    """The displacement the model's load drives from rest: the largest
+    ``p̂_i / (|K_ii| + 2 M_ii/τ²)``, ``p̂_i`` the largest ``|p_i|`` at
+    :data:`LOAD_SAMPLES` times of the span (at ``t0`` alone when it is not
+    known), ``K = K(u0)``, ``τ`` the span (1 when not known): the static
+    deflection of a stiff degree of freedom, the free flight ``p τ²/(2M)``
+    of a soft one. ``None`` without a load. Samples where the load cannot
+    be evaluated are left out; they are not counted as the run's."""
+    times = [t0] if t_bound is None else np.linspace(t0, t_bound, LOAD_SAMPLES)
+    counted = ev.npev
+    largest = np.zeros(ev.n)
+    for t in times:
+        try:
+            np.maximum(largest, np.abs(ev.load(float(t))), out=largest)
+        except Exception:           # a load that fails later fails in the run
+            continue
+    ev.npev = counted
+    if not largest.any():
+        return None
+    tau = t_bound - t0 if t_bound is not None else 1.0
+    m = ev.mass
+    mass = m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
+    stiffness = np.abs(np.asarray(K0.diagonal()).ravel())
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        response = largest / (stiffness + 2.0 * mass / (tau * tau))
+    response = response[np.isfinite(response)]
+    scale = float(response.max(initial=0.0))
+    return scale if scale > 0.0 else None
+
+
+def fit_error_control(controller, span, u0, v0, u_scale, load_scale=None):
     """Give the error rule(s) of ``controller`` the run's span and the state's
     scales (:meth:`hfdi.controller.ErrorControl.fit_run`)."""
     for part in (controller, getattr(controller, "error", None)):
         if isinstance(part, ErrorControl):
-            part.fit_run(span, *state_scales(u0, v0, u_scale, span))
+            part.fit_run(span, *state_scales(u0, v0, u_scale, span, load_scale))
+
+
+def needs_load_scale(controller, u0, u_scale) -> bool:
+    """Whether the default ``atol`` of ``controller`` would take its scale of
+    ``u`` from the load (:func:`state_scales`)."""
+    if np.any(u0) or u_scale:
+        return False
+    return any(isinstance(part, ErrorControl) and part.atol is None and part.u_scale is None
+               for part in (controller, getattr(controller, "error", None)))
 
 
 def newton_tolerance(tol, controller):

@@ -50,7 +50,9 @@ class SecondOrderSystem:
         Default initial conditions ``u(t0)`` and ``u'(t0)``.
     u_scale : float
         A length of the model, the absolute floor of the Newton convergence
-        test (see :func:`hfdi.integrate`).
+        test (see :func:`hfdi.integrate`) and, for a model starting at
+        ``u0 = 0``, the scale of the default ``atol`` of ``u`` where the model
+        declares it (:func:`declared_u_scale`).
     """
 
     name: str = "system"
@@ -121,6 +123,16 @@ class SecondOrderSystem:
         return f"{type(self).__name__}({params})"
 
 
+def declared_u_scale(system) -> float | None:
+    """The model's own ``u_scale``, or ``None`` where it only inherits the
+    base class's 1 (a :class:`System` or :class:`LinearSystem` built
+    without one): set on the instance or by its class."""
+    if "u_scale" in vars(system) or type(system).u_scale != SecondOrderSystem.u_scale:
+        value = getattr(system, "u_scale", None)
+        return float(value) if value else None
+    return None
+
+
 class System(SecondOrderSystem):
     """A model assembled from callables.
 
@@ -141,6 +153,9 @@ class System(SecondOrderSystem):
         Zero when omitted.
     name : str, optional
     u_scale : float, optional
+        A length of the model (:attr:`SecondOrderSystem.u_scale`); 1 when
+        omitted, and the default ``atol`` then takes its scale from the load
+        for a model starting at rest.
 
     Raises
     ------
@@ -153,7 +168,7 @@ class System(SecondOrderSystem):
     def __init__(self, mass, internal_force, stiffness, stiffness_derivative, *,
                  damping=None, load=None, load_rate=None, potential_energy=None,
                  quantities=None, initial_displacement=None,
-                 initial_velocity=None, name="system", u_scale=1.0):
+                 initial_velocity=None, name="system", u_scale=None):
         _matrices_and_start(self, "System", mass, damping, initial_displacement,
                             initial_velocity)
         for what, value, signature in (
@@ -175,7 +190,8 @@ class System(SecondOrderSystem):
         self._v = potential_energy
         self._q = quantities
         self.name = name
-        self.u_scale = checks.positive("System u_scale", u_scale)
+        if u_scale is not None:
+            self.u_scale = checks.positive("System u_scale", u_scale)
 
     def internal_force(self, u):
         return self._f(u)
@@ -234,6 +250,8 @@ class LinearSystem(SecondOrderSystem):
     damping : array_like or sparse, optional
     load, load_rate : callable, optional
     initial_displacement, initial_velocity : array_like (N,), optional
+    u_scale : float, optional
+        As for :class:`System`.
 
     Raises
     ------
@@ -244,9 +262,11 @@ class LinearSystem(SecondOrderSystem):
     name = "linear"
 
     def __init__(self, mass, stiffness, damping=None, load=None, load_rate=None,
-                 initial_displacement=None, initial_velocity=None):
+                 initial_displacement=None, initial_velocity=None, u_scale=None):
         n = _matrices_and_start(self, "LinearSystem", mass, damping, initial_displacement,
                                 initial_velocity)
+        if u_scale is not None:
+            self.u_scale = checks.positive("LinearSystem u_scale", u_scale)
         k = _matching_matrix("LinearSystem stiffness", stiffness, n)
         # A diagonal K is dense below the integrator's dense threshold, sparse
         # above it: as a dense (N, N) array it would cost N² memory and dense

@@ -233,6 +233,44 @@ def test_state_scales_of_the_default_atol():
     assert state_scales(np.array([0.0, -2.0]), np.array([0.5, 0.0]), 1.0, 4.0) == (2.0, 0.5)
     assert state_scales(np.zeros(2), np.zeros(2), 3.0, 6.0) == (3.0, 0.5)
     assert state_scales(np.zeros(2), np.zeros(2), 3.0, None) == (3.0, 3.0)
+    # at rest: the declared u_scale, else the load's, else 1
+    assert state_scales(np.zeros(2), np.zeros(2), 3.0, 6.0, 1e-7) == (3.0, 0.5)
+    assert state_scales(np.zeros(2), np.zeros(2), None, 2.0, 1e-7) == (1e-7, 5e-8)
+    assert state_scales(np.zeros(2), np.zeros(2), None, 2.0, None) == (1.0, 0.5)
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=SCHEMES))
+def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
+    """A stiff structure starting at rest under a sine load moves by 1.8e-7:
+    with u's scale 1 (no u_scale given) the default atol let its error reach
+    7-16 rtol; from the load's static response (3.3e-7) it stays below rtol,
+    measured against a Radau rtol-1e-12 reference; a declared u_scale still
+    rules."""
+    from scipy.integrate import solve_ivp
+    M = np.array([[2.0, 0.5], [0.5, 1.0]])
+    K = 1e6 * np.array([[3.0, -1.0], [-1.0, 2.0]])
+    C = 1e-3 * K
+    A = np.block([[np.zeros((2, 2)), np.eye(2)],
+                  [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+    Minv = np.linalg.inv(M)
+    reference = solve_ivp(lambda t, y: A @ y + np.concatenate(
+        [np.zeros(2), Minv @ np.array([np.sin(2000 * t), 0.0])]), (0.0, 0.02), np.zeros(4),
+        method="Radau", rtol=1e-12, atol=1e-20, dense_output=True)
+    times = np.linspace(0.001, 0.02, 50)
+    exact = reference.sol(times)[:2].T
+    scale = np.abs(exact).max()
+    model = hfdi.LinearSystem(mass=M, stiffness=K, damping=C,
+                              load=lambda t: np.array([np.sin(2000 * t), 0.0]))
+    rtol = 1e-3
+    result = hfdi.integrate(model, scheme, 0.02, rtol=rtol)
+    assert result.success, result.message
+    error = np.abs(np.asarray(result.sol(times)[0]) - exact).max() / scale
+    assert error < rtol, error
+    declared = hfdi.LinearSystem(mass=M, stiffness=K, damping=C, u_scale=1.0,
+                                 load=lambda t: np.array([np.sin(2000 * t), 0.0]))
+    loose = hfdi.integrate(declared, scheme, 0.02, rtol=rtol)
+    assert loose.stats.steps < result.stats.steps
+    assert np.abs(np.asarray(loose.sol(times)[0]) - exact).max() / scale > rtol
 
 
 @pytest.mark.parametrize("problem", sorted(PROBLEMS))

@@ -75,7 +75,9 @@ class EnergyModel(SecondOrderSystem):
     name : str, optional
     u_scale : float, optional
         A length of the model: the floor of the Newton convergence test and
-        the scale of the perturbations of :func:`hfdi.check_derivatives`.
+        the scale of the perturbations of :func:`hfdi.check_derivatives`; 1
+        when omitted, and the default ``atol`` then takes its scale from the
+        load for a model starting at rest.
     observation_time : float, optional
         A natural duration of the model's experiment.
     sparse : bool, optional
@@ -139,7 +141,7 @@ class EnergyModel(SecondOrderSystem):
                  damping=None, quantities: Mapping | None = None,
                  velocities: Sequence | None = None, time: sympy.Symbol | None = None,
                  initial_displacement=None, initial_velocity=None,
-                 name: str = "energy_model", u_scale: float = 1.0,
+                 name: str = "energy_model", u_scale: float | None = None,
                  observation_time: float | None = None, sparse: bool = False):
         dofs = _in.symbols(dofs, "dofs")
         n = len(dofs)
@@ -189,7 +191,8 @@ class EnergyModel(SecondOrderSystem):
                         _in.square_or_diagonal(damping, n, "damping"))
         self.initial_displacement = _in.vector(initial_displacement, n, "initial_displacement")
         self.initial_velocity = _in.vector(initial_velocity, n, "initial_velocity")
-        self.u_scale = checks.positive("u_scale", u_scale)
+        if u_scale is not None:
+            self.u_scale = checks.positive("u_scale", u_scale)
         self.observation_time = (None if observation_time is None
                                  else checks.positive("observation_time", observation_time))
         if not isinstance(name, str):
