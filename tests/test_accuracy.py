@@ -190,7 +190,7 @@ def _stiff_damped_pair(u0):
 
 @pytest.mark.parametrize("scheme", SCHEMES)
 @pytest.mark.parametrize("u2", [0.0, 1e-6])
-@pytest.mark.parametrize("rtol", [1e-3, 1e-6])
+@pytest.mark.parametrize("rtol", [1e-3, pytest.param(1e-6, marks=pytest.mark.slow)])
 def test_a_fast_damped_transient_at_the_start_does_not_stall_the_steps(scheme, u2, rtol):
     """The mean step's share after a transient resolved with steps of 1e-12
     was 1e-12 of the tolerance: the steps never grew again
@@ -244,7 +244,7 @@ def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
     """A stiff structure starting at rest under a sine load moves by 1.8e-7:
     with u's scale 1 (no u_scale given) the default atol let its error reach
     7-16 rtol; from the load's static response (3.3e-7) it stays below rtol,
-    measured against a Radau rtol-1e-12 reference; a declared u_scale still
+    measured against a Radau rtol-1e-10 reference; a declared u_scale still
     rules."""
     from scipy.integrate import solve_ivp
     M = np.array([[2.0, 0.5], [0.5, 1.0]])
@@ -255,7 +255,7 @@ def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
     Minv = np.linalg.inv(M)
     reference = solve_ivp(lambda t, y: A @ y + np.concatenate(
         [np.zeros(2), Minv @ np.array([np.sin(2000 * t), 0.0])]), (0.0, 0.02), np.zeros(4),
-        method="Radau", rtol=1e-12, atol=1e-20, dense_output=True)
+        method="Radau", rtol=1e-10, atol=1e-18, dense_output=True)
     times = np.linspace(0.001, 0.02, 50)
     exact = reference.sol(times)[:2].T
     scale = np.abs(exact).max()
