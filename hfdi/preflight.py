@@ -46,6 +46,8 @@ def initial_state(ev, scheme, t0, u0, v0, check_stiffness, floor, t_bound, break
     T = None
     if check_stiffness:
         check_stiffness_of(ev, u0, K, call, name, floor)
+        if not np.any(u0):
+            check_stiffness_off_rest(ev, u0, name, floor)
     if scheme.name == "hfdi" or isinstance(scheme, HFDI):
         T = call("stiffness_derivative", ev.stiffness_derivative, u0, v0)
         if scheme.load_rate == "exact" or (scheme.load_rate == "auto"
@@ -64,7 +66,42 @@ def initial_state(ev, scheme, t0, u0, v0, check_stiffness, floor, t_bound, break
     return State(t0, u0.copy(), v0.copy(), a, f, p), K, T, potential
 
 
-def check_stiffness_of(ev, u0, K, call, name, floor):
+#: Where :func:`check_stiffness_off_rest` checks ``K`` again: this share of
+#: ``u_scale`` away from a start at rest, along the fixed direction.
+OFF_REST = 0.05
+
+
+def check_stiffness_off_rest(ev, u0, name, floor):
+    """``K`` against ``f`` once more, :data:`OFF_REST` of ``u_scale`` away from a
+    start at rest: there the terms of ``f`` above the linear one vanish, and a
+    ``K`` right at ``u0`` but wrong elsewhere (``f = u + u³`` with ``K = 1``)
+    passed, and HFDI gave a wrong answer with ``SUCCESS``. A model that
+    cannot be evaluated there is not checked there."""
+    u = u0 + OFF_REST * floor * _direction(ev.n)
+    where = f"at u = {brief(u)} ({OFF_REST:g} of u_scale = {floor:g} from the rest u0)"
+
+    def call(function, fun, *args):
+        try:
+            return fun(*args)
+        except Exception:
+            raise _Unchecked from None
+
+    try:
+        K = call("stiffness", ev.stiffness, u)
+        check_stiffness_of(ev, u, K, call, name, floor, where)
+    except _Unchecked:
+        pass
+
+
+class _Unchecked(ModelError):
+    """The model cannot be evaluated where an optional check would look."""
+
+
+def _direction(n):
+    return np.sin(np.arange(1, n + 1) * 2.399963229728653)  # golden angle: no zero
+
+
+def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
     """``K(u0)`` against central differences of ``f`` along one direction
     (docs/user-models.md, "Writing your own model").
 
@@ -76,7 +113,7 @@ def check_stiffness_of(ev, u0, K, call, name, floor):
     the smallest over the scales that count; above 0.1 % of its terms it is
     refused. Beyond the first scale a failing evaluation only drops that scale.
     """
-    w = np.sin(np.arange(1, ev.n + 1) * 2.399963229728653)  # golden angle: no zero
+    w = _direction(ev.n)
     size_u = max(float(np.abs(u0).max()), floor)
     base = _SQRT_EPS * np.maximum(np.abs(u0), 1e-3 * size_u) * w
     n = ev.n
@@ -115,13 +152,13 @@ def check_stiffness_of(ev, u0, K, call, name, floor):
     if best[worst] > 1e-3:
         largest = float(np.abs(base).max()) * best_scale[worst]
         raise ModelError(
-            f"model {name!r}: stiffness does not match internal_force at u0: in row "
-            f"{worst}, K(u0)·d and the central differences of f (|d| ≤ {largest:.3g}, "
+            f"model {name!r}: stiffness does not match internal_force {where}: in row "
+            f"{worst}, K·d and the central differences of f (|d| ≤ {largest:.3g}, "
             f"Richardson-extrapolated; the best of the steps 1 … 1e6 times that) "
             f"differ by {best[worst]:.2%} of the size of the row's terms. K must be "
             f"∂f/∂u: HFDI uses it in its step equation, where a wrong K gives a wrong "
             f"answer (check the model with hfdi.check_derivatives; pass "
-            f"check_stiffness=False only if f has a kink at u0)")
+            f"check_stiffness=False only if f has a kink there)")
 
 
 def check_load_rate(ev, call, name, t0, t_bound, breakpoints):

@@ -1012,6 +1012,26 @@ def test_the_stiffness_check_accepts_correct_models_that_differences_find_hard()
     hfdi.Integrator(stiff, "hfdi", rtol=1e-6)
 
 
+def test_the_stiffness_check_looks_off_a_start_at_rest():
+    """f = u + u³ with K = 1: right at u0 = 0, wrong elsewhere; HFDI ran to
+    SUCCESS with it. Refused, by K against f at 5 % of u_scale off the rest;
+    the right K passes, and a model that cannot be evaluated there is not
+    checked there."""
+    def system(stiffness, force=lambda u: u + u ** 3):
+        return hfdi.System(mass=[1.0], internal_force=force, stiffness=stiffness,
+                           stiffness_derivative=lambda u, w: np.diag(6 * u * w),
+                           initial_velocity=[1.0])
+    with pytest.raises(hfdi.ModelError, match=r"stiffness does not match internal_force at "
+                                              r"u = \[0.0337745\] \(0.05 of u_scale = 1 "
+                                              r"from the rest u0\)"):
+        hfdi.Integrator(system(lambda u: np.eye(1)), "hfdi", rtol=1e-6)
+    hfdi.Integrator(system(lambda u: np.diag(1 + 3 * u ** 2)), "hfdi", rtol=1e-6)
+    # defined near rest only: f raises farther off, and the check there is left out
+    at_rest_only = system(lambda u: np.eye(1),
+                          force=lambda u: u if np.abs(u).max() < 0.01 else u[5])
+    hfdi.Integrator(at_rest_only, "newmark", step=0.1)
+
+
 def test_the_stiffness_check_refuses_a_wrong_k_hidden_by_size():
     """A soft DOF's K wrong beside a 1e12 stiff one, and a K twice too large
     under a preload 1e5 times the force of its step: refused."""
