@@ -841,12 +841,15 @@ class HfdiSlave(Fmi2Slave):
     def _stop_limit(self) -> float:
         """The last time a doStep may end at (plus ``1e-10·h``, the slack of
         its time): the stop time and a master's rounding of the sum of its
-        steps (1e-9 of the span), or +inf without a stop time. The native
-        layer's ``native_step`` takes it from the gate."""
+        steps, 1e-9 of the larger of the stop time and the span (fmpy takes
+        the stop time as reached within that relative tolerance), or +inf
+        without a stop time. The native layer's ``native_step`` takes it from
+        the gate."""
         stop = self._stop_time
         if stop is None:
             return math.inf
-        return stop + max(64.0 * math.ulp(abs(stop)), 1e-9 * (stop - self._start_time))
+        return stop + max(64.0 * math.ulp(abs(stop)),
+                          1e-9 * max(abs(stop), stop - self._start_time))
 
     # -- the native path (fmu/native/hfdi_fmu_core.h: the gate and its protocol) ------
     def attach_native_gate(self, gate, fields):

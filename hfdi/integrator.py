@@ -294,10 +294,10 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             ev, self.scheme, self.t0, u0, v0, check_stiffness, self.floor, self.t_bound, every)
         # the default atol's scales: of the state, or (a model at rest) of its load
         declared = declared_u_scale(system)
-        load_scale = load_response_scale(ev, K0, self.t0, self.t_bound) \
+        error_span = span if error_span is None else error_span
+        load_scale = load_response_scale(ev, K0, self.t0, error_span) \
             if needs_load_scale(c, u0, declared) else None
-        fit_error_control(c, span if error_span is None else error_span, u0, v0, declared,
-                          load_scale)
+        fit_error_control(c, error_span, u0, v0, declared, load_scale)
         c.prepare(ev.n, self.scheme.order)
         if self.energy_limit is not None and math.isnan(potential):
             raise ValueError(

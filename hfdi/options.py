@@ -154,26 +154,27 @@ def state_scales(u0, v0, u_scale, span, load_scale=None):
 LOAD_SAMPLES = 17
 
 
-def load_response_scale(ev, K0, t0, t_bound) -> float | None:
-    """The displacement the model's load drives from rest: the largest
+def load_response_scale(ev, K0, t0, span) -> float | None:
+    """The displacement the model's own load drives from rest: the largest
     ``p̂_i / (|K_ii| + 2 M_ii/τ²)``, ``p̂_i`` the largest ``|p_i|`` at
-    :data:`LOAD_SAMPLES` times of the span (at ``t0`` alone when it is not
-    known), ``K = K(u0)``, ``τ`` the span (1 when not known): the static
+    :data:`LOAD_SAMPLES` times of the span ``τ`` of the error control (at
+    ``t0`` alone, ``τ = 1``, when it is not known), ``K = K(u0)``: the static
     deflection of a stiff degree of freedom, the free flight ``p τ²/(2M)``
-    of a soft one. ``None`` without a load. Samples where the load cannot
-    be evaluated are left out; they are not counted as the run's."""
-    times = [t0] if t_bound is None else np.linspace(t0, t_bound, LOAD_SAMPLES)
-    counted = ev.npev
+    of a soft one. ``None`` without a load. The model's load only, not an
+    ``extra_load`` (an FMU's inputs: the scale is the model's); samples
+    where it cannot be evaluated or is not a finite (N,) vector are left out."""
+    times = [t0] if span is None else np.linspace(t0, t0 + span, LOAD_SAMPLES)
     largest = np.zeros(ev.n)
     for t in times:
         try:
-            np.maximum(largest, np.abs(ev.load(float(t))), out=largest)
+            value = np.abs(np.asarray(ev.system.load(float(t)), dtype=float))
         except Exception:           # a load that fails later fails in the run
             continue
-    ev.npev = counted
+        if value.shape == largest.shape and np.all(np.isfinite(value)):
+            np.maximum(largest, value, out=largest)
     if not largest.any():
         return None
-    tau = t_bound - t0 if t_bound is not None else 1.0
+    tau = span if span is not None else 1.0
     m = ev.mass
     mass = m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
     stiffness = np.abs(np.asarray(K0.diagonal()).ravel())

@@ -125,9 +125,10 @@ class SecondOrderSystem:
 
 def declared_u_scale(system) -> float | None:
     """The model's own ``u_scale``, or ``None`` where it only inherits the
-    base class's 1 (a :class:`System` or :class:`LinearSystem` built
-    without one): set on the instance or by its class."""
-    if "u_scale" in vars(system) or type(system).u_scale != SecondOrderSystem.u_scale:
+    base class's (a :class:`System` or :class:`LinearSystem` built without
+    one): set on the instance or by a subclass."""
+    if "u_scale" in vars(system) or any("u_scale" in vars(k) for k in type(system).__mro__
+                                        if k is not SecondOrderSystem):
         value = getattr(system, "u_scale", None)
         return float(value) if value else None
     return None

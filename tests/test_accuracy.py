@@ -239,6 +239,28 @@ def test_state_scales_of_the_default_atol():
     assert state_scales(np.zeros(2), np.zeros(2), None, 2.0, None) == (1.0, 0.5)
 
 
+def test_the_load_scale_of_a_model_at_rest():
+    """U = p/(k + 2m/τ²) over the span of the error control (t_bound or
+    error_span), from the model's own load (an extra_load, an FMU's input,
+    is not the model's); a u_scale a subclass writes down is declared."""
+    def atol_u(model, **options):
+        return hfdi.Integrator(model, "hfdi", rtol=1e-4, **options).tolerances[1][0] / 1e-7
+
+    def spring(**kw):
+        return hfdi.LinearSystem(mass=[2.0], stiffness=[[50.0]],
+                                 load=lambda t: np.array([3.0]), **kw)
+    assert atol_u(spring(), t_bound=4.0) == pytest.approx(3.0 / (50.0 + 4.0 / 16.0))
+    assert atol_u(spring(), error_span=1e-3) == pytest.approx(3.0 / (50.0 + 4.0 / 1e-6))
+    assert atol_u(spring(), t_bound=4.0, extra_load=lambda t: np.array([300.0])) == \
+        pytest.approx(3.0 / (50.0 + 4.0 / 16.0))
+    assert atol_u(spring(u_scale=0.5), t_bound=4.0) == pytest.approx(0.5)
+
+    class Declared(hfdi.LinearSystem):
+        u_scale = 1.0
+    declared = Declared(mass=[2.0], stiffness=[[50.0]], load=lambda t: np.array([3.0]))
+    assert atol_u(declared, t_bound=4.0) == pytest.approx(1.0)
+
+
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=SCHEMES))
 def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
     """A stiff structure starting at rest under a sine load moves by 1.8e-7:
