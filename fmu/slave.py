@@ -412,10 +412,7 @@ class HfdiSlave(Fmi2Slave):
 
     def _param_setter(self, key, convert, model=False):
         def setter(value):
-            if self._phase not in ("instantiated", "initialization"):
-                # FMI: after initialization only inputs and tunable parameters are set
-                self._reject(f"parameter {key} is fixed after initialization; the value "
-                             f"{value!r} is refused")
+            # _set refuses a parameter after initialization, before any value is set
             # looked up now: fmi2SetFMUstate replaces the dictionaries
             store = self._mparams if model else self._params
             store[key] = convert(value)
@@ -444,8 +441,7 @@ class HfdiSlave(Fmi2Slave):
         return setter
 
     def _register_outputs(self):
-        out = dict(causality=Fmi2Causality.output, initial=Fmi2Initial.calculated,
-                   setter=self._output_setter)
+        out = dict(causality=Fmi2Causality.output, initial=Fmi2Initial.calculated)
         continuous = dict(variability=Fmi2Variability.continuous, **out)
         n = self._n
         for key, what, index in (("u", "displacement", 0), ("v", "velocity", 1),
@@ -495,7 +491,7 @@ class HfdiSlave(Fmi2Slave):
 
     def _register_events(self):
         discrete = dict(causality=Fmi2Causality.output, initial=Fmi2Initial.calculated,
-                        variability=Fmi2Variability.discrete, setter=self._output_setter)
+                        variability=Fmi2Variability.discrete)
         for k, label in enumerate(self._event_names):
             self.register_variable(Integer(
                 f"event_count[{k + 1}]", description=f"zeros of the model's event function "
@@ -511,9 +507,6 @@ class HfdiSlave(Fmi2Slave):
     def _time_setter(self, value):
         self._reject(f"time is the independent variable: it changes in doStep only (value "
                      f"{value!r} refused)")
-
-    def _output_setter(self, value):
-        self._reject(f"outputs cannot be set (value {value!r} refused)")
 
     # -- model description --------------------------------------------------------
     def to_xml(self, model_options=dict()):

@@ -229,6 +229,12 @@ class Evaluator:
         return matrix_kind(self.mass)
 
     @property
+    def mass_diagonal(self) -> np.ndarray:
+        """The diagonal of ``M`` (of a diagonal, dense or sparse one), (N,)."""
+        m = self.mass
+        return m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
+
+    @property
     def damping_kind(self) -> int:
         return matrix_kind(self.damping)
 

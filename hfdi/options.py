@@ -175,11 +175,9 @@ def load_response_scale(ev, K0, t0, span) -> float | None:
     if not largest.any():
         return None
     tau = span if span is not None else 1.0
-    m = ev.mass
-    mass = m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
     stiffness = np.abs(np.asarray(K0.diagonal()).ravel())
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        response = largest / (stiffness + 2.0 * mass / (tau * tau))
+        response = largest / (stiffness + 2.0 * ev.mass_diagonal / (tau * tau))
     response = response[np.isfinite(response)]
     scale = float(response.max(initial=0.0))
     return scale if scale > 0.0 else None

@@ -187,8 +187,7 @@ def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
 def default_first_step(ev, K, t0, t_bound, min_step) -> float:
     """``1/ω`` with ``ω²`` bounded by Gershgorin's theorem on ``M⁻¹K(u0)``."""
     row_sums = np.asarray(abs(K).sum(axis=1)).ravel()
-    m = ev.mass
-    m_diag = m if m.ndim == 1 else np.asarray(m.diagonal()).ravel()
+    m_diag = ev.mass_diagonal
     with np.errstate(divide="ignore", invalid="ignore"):
         omega2 = np.nanmax(np.where(m_diag > 0, row_sums / m_diag, 0.0))
     if omega2 > 0 and math.isfinite(omega2):
