@@ -92,12 +92,24 @@ class CompiledSteps:
 
     def _refresh_compiled(self, data: bool = True):
         """The compiled structs of the vectors and, unless ``data`` is false (only
-        the vectors were replaced), of the data."""
+        the vectors were replaced), of the data are out of date: made again
+        when next needed (:meth:`_compiled_structs`; a run through
+        ``integrate`` replaces its vectors before its first step)."""
         call = self._compiled_call
         if call is not None:
             if data:
-                call[2] = DATA.compiled(self._data)
+                call[2] = None
+            call[3] = None
+
+    def _compiled_structs(self):
+        """``(fn, cfg, data, vec)`` of the compiled loop, its structs made where
+        they are out of date."""
+        call = self._compiled_call
+        if call[2] is None:
+            call[2] = DATA.compiled(self._data)
+        if call[3] is None:
             call[3] = VECTORS.compiled(self._vec)
+        return call
 
     # -- a C function of the compiled loop ---------------------------------------------
     def native_advance(self):
@@ -113,7 +125,7 @@ class CompiledSteps:
         if self._compiled_call is None:
             raise ValueError("integrator must run compiled (Integrator.compiled), it does not")
         from .compiled.native import NativeAdvance
-        fn, cfg, data, vec = self._compiled_call
+        fn, cfg, data, vec = self._compiled_structs()
         return NativeAdvance(self, fn, cfg, data, vec, self._data.held, self._run,
                              self._state_block, self._hfdi)
 
@@ -167,7 +179,7 @@ class CompiledSteps:
         return True
 
     def _compiled_steps(self, t_stop, max_accepted):
-        fn, cfg, data, vec = self._compiled_call
+        fn, cfg, data, vec = self._compiled_structs()
         run = RUN.pack(self._run)
         vectors = self._vec
         saved = [getattr(vectors, name).copy() for name in _SNAPSHOT]

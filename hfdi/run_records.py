@@ -2,6 +2,7 @@
 model, scheme and controller: what the stepping code reads and writes."""
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -74,33 +75,52 @@ def data(ev, controller, scheme, breakpoints):
 def vectors(ev, rows):
     """``(VECTORS, state_block)``: the work arrays of the stepping code, with room
     for ``rows`` rows; ``u, v, a, f, p`` are the rows of ``state_block`` (5, N),
-    whose address a native host reads the state at (:mod:`hfdi.compiled.native`)."""
+    whose address a native host reads the state at (:mod:`hfdi.compiled.native`).
+
+    The arrays of one shape are the rows of one workspace, laid out once per
+    N (:func:`_layout`): a run's fixed cost was 86 allocations here."""
     n = ev.n
+    shapes, fields = _layout(n)
+    spaces = [np.zeros(shape, kind) for kind, shape in shapes]
+    values = {name: spaces[space][row] for name, space, row in fields}
+    values["ints"][:] = values["b_ints"][:] = work_ints()
+    values["sparse"] = np.zeros(0) if n < DENSE_BELOW else General(ev.bands)
+    values.update(row_arrays(n, rows))
+    return VECTORS.python._make(map(values.__getitem__, VECTORS.names)), spaces[0][:5]
+
+
+@functools.lru_cache(maxsize=16)
+def _layout(n):
+    """The workspaces of :func:`vectors`, ``(dtype, (rows, *shape))`` each, and
+    where each work array lies, ``(name, workspace, row)``; the state
+    block's five vectors are the first rows of the first."""
     dense = n < DENSE_BELOW
     m = n if dense else 0
-    block = np.zeros((5, n))
-    values = {name: block[row] for row, name in enumerate(("u", "v", "a", "f", "p"))}
+    kinds = {name: (np.float64, (n,)) for name in ("u", "v", "a", "f", "p")}
     for name, kind in VECTORS.fields:
-        if name.startswith("row_") or name in values:
+        if name.startswith("row_") or name == "sparse" or name in kinds:
             continue
         if name in ("error", "ratio", "global_error", "g_z"):
-            values[name] = np.zeros(2 * n)
+            kinds[name] = (np.float64, (2 * n,))
         elif name == "g_stages":
-            values[name] = np.zeros((PROPAGATOR_STAGES, 2 * n))
+            kinds[name] = (np.float64, (PROPAGATOR_STAGES, 2 * n))
         elif name in ("pivots", "b_pivots", "g_pivots", "mass_pivots"):
-            values[name] = np.zeros(m, np.int32)
+            kinds[name] = (np.int32, (m,))
         elif name in ("ints", "b_ints"):
-            values[name] = work_ints()
+            kinds[name] = (np.int32, work_ints().shape)
         elif name == "stage_iterations":
-            values[name] = np.zeros(MAX_STAGES, np.int64)
-        elif name == "sparse":
-            values[name] = np.zeros(0) if dense else General(ev.bands)
+            kinds[name] = (np.int64, (MAX_STAGES,))
         elif kind == "matrix":
-            values[name] = np.zeros((m, m))
+            kinds[name] = (np.float64, (m, m))
         else:
-            values[name] = np.zeros(n)
-    values.update(row_arrays(n, rows))
-    return VECTORS.new(**values), block
+            kinds[name] = (np.float64, (n,))
+    spaces, fields = {}, []
+    for name, kind in kinds.items():
+        rows = spaces.setdefault(kind, [])
+        fields.append((name, list(spaces).index(kind), len(rows)))
+        rows.append(name)
+    shapes = tuple((dtype, (len(rows), *shape)) for (dtype, shape), rows in spaces.items())
+    return shapes, tuple(fields)
 
 
 def row_arrays(n, rows):

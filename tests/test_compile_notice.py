@@ -97,3 +97,27 @@ def test_a_compilation_cut_short_stops_its_timer(notices):
     assert threading.active_count() == before
     time.sleep(0.1)                    # past ANNOUNCE_AFTER: the timer was stopped
     assert said(notices) == []
+
+
+def _package(root, files):
+    for name, text in files.items():
+        path = root / "pkg" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return root / "pkg"
+
+
+def test_the_cache_key_follows_what_a_module_reads_not_the_package_init(tmp_path):
+    """``from . import b`` reads b.py, not the package's __init__ (which imports
+    every module of the library): an edit of a Python-only module must not
+    recompile code that does not read it; a name of the __init__ itself does."""
+    pkg = _package(tmp_path, {"__init__.py": "from . import a, c\nVALUE = 1\n",
+                              "a.py": "from . import b\n", "b.py": "X = 1\n",
+                              "c.py": "Y = 1\n", "d.py": "from . import VALUE\n"})
+    key_a, key_d = jit.source_digest(pkg / "a.py"), jit.source_digest(pkg / "d.py")
+    (pkg / "c.py").write_text("Y = 22\n")
+    (pkg / "__init__.py").write_text("from . import a, c\nVALUE = 1\nZ = 3\n")
+    assert jit.source_digest(pkg / "a.py") == key_a
+    assert jit.source_digest(pkg / "d.py") != key_d       # d reads the __init__'s VALUE
+    (pkg / "b.py").write_text("X = 22\n")
+    assert jit.source_digest(pkg / "a.py") != key_a

@@ -312,9 +312,12 @@ def _resolve(path: Path, level: int, module: str, names: tuple) -> list[Path]:
     if target.with_suffix(".py").is_file():
         found.append(target.with_suffix(".py"))
     elif target.is_dir():
-        if (target / "__init__.py").is_file():
+        modules = [target / f"{name}.py" for name in names]
+        found += [module for module in modules if module.is_file()]
+        # the package's __init__ only where a name is its own (``from . import
+        # checks`` reads checks.py: the package's __init__ imports everything)
+        if len(found) < len(names) and (target / "__init__.py").is_file():
             found.append(target / "__init__.py")
-        found += [target / f"{name}.py" for name in names if (target / f"{name}.py").is_file()]
     return found
 
 
