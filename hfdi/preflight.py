@@ -3,6 +3,7 @@ against differences of its force, its load rate against differences of its
 load, and the first trial step."""
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -97,8 +98,11 @@ class _Unchecked(ModelError):
     """The model cannot be evaluated where an optional check would look."""
 
 
+@functools.lru_cache(maxsize=16)
 def _direction(n):
-    return np.sin(np.arange(1, n + 1) * 2.399963229728653)  # golden angle: no zero
+    w = np.sin(np.arange(1, n + 1) * 2.399963229728653)  # golden angle: no zero
+    w.flags.writeable = False
+    return w
 
 
 def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
@@ -119,6 +123,8 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
     n = ev.n
     best = np.full(n, np.inf)
     best_scale = np.zeros(n)
+    dense = type(K) is np.ndarray
+    K_abs = np.abs(K) if dense else abs(K)
     for scale in (1.0, 1e2, 1e4, 1e6):
         steps, values = [], []
         try:
@@ -133,17 +139,21 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
                 raise
             break
         (d1, d2), ((p1, q1), (p2, q2)) = steps, values
-        m1 = 0.5 * (p1 - q1) - np.asarray(K @ d1).ravel()
-        m2 = 0.5 * (p2 - q2) - np.asarray(K @ d2).ravel()
+        if dense:
+            Kd1, Kd2, terms = K @ d1, K @ d2, K_abs @ np.abs(d1)
+        else:
+            Kd1, Kd2 = np.asarray(K @ d1).ravel(), np.asarray(K @ d2).ravel()
+            terms = np.asarray(K_abs @ np.abs(d1)).ravel()
+        m1 = 0.5 * (p1 - q1) - Kd1
+        m2 = 0.5 * (p2 - q2) - Kd2
         error = np.abs(8.0 * m1 - m2) / 6.0
-        terms = np.asarray(abs(K) @ np.abs(d1)).ravel()
         rounding = 16.0 * _EPS * (np.abs(p1) + np.abs(q1) + np.abs(p2) + np.abs(q2))
         counts = (terms > 0) & (rounding <= 1e-4 * terms)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            relative = np.where(counts, error / terms, np.inf)
+        relative = np.full(n, np.inf)
+        np.divide(error, terms, out=relative, where=counts)
         better = relative < best
         best[better], best_scale[better] = relative[better], scale
-        if not np.any((terms > 0) & ~(best <= 1e-3)):
+        if not ((terms > 0) & ~(best <= 1e-3)).any():
             break           # every row that can be judged has passed: no scale fails it
     judged = np.isfinite(best)
     if not judged.any():
