@@ -156,7 +156,7 @@ class EventSteps:
             if consumer is not None:
                 consumer(rows)
             return
-        j, crossing, reset, last, error = stop
+        j, crossing, asks, last, error = stop
         # back to the call's start, forward over the steps before row j
         self._retake(saved, rows, j, t_stop)
         if error is not None:
@@ -169,7 +169,7 @@ class EventSteps:
             self._steps(crossing.t, STEPS_PER_CALL)
         if self.failed:
             return
-        self._at_event(crossing, reset, last)
+        self._at_event(crossing, asks, last)
 
     def _retake(self, saved, rows, j, t_stop):
         """Back to ``saved`` (the call's start) and forward over the steps before
@@ -191,9 +191,10 @@ class EventSteps:
             consumer(_head(rows, j))
 
     def _scan(self, start, rows):
-        """The first row whose step holds a zero that changes the run, or where an
-        event function or ``on_event`` fails: ``(row, crossing, reset state or
-        None, terminal, error)``; ``None`` when there is none. The zeros
+        """The first row whose step holds a zero that changes the run (a terminal
+        event's last, one ``on_event`` answers, or a pause), or where an event
+        function fails: ``(row, crossing, whether on_event is asked, terminal,
+        error)``; ``None`` when there is none. The zeros
         before it are recorded and the events' values moved on to the row
         before it. The functions are evaluated at every row; only the steps
         where one changes sign (or starts at zero) are looked into."""
@@ -217,15 +218,18 @@ class EventSteps:
                 found = events.crossings(t0, u0, v0, a0, t[j], u[j], v[j], a[j], G[j])
                 for k, crossing in enumerate(found):
                     last = events.record(crossing)
-                    reset = self._answer(crossing)
-                    if last or reset is not None or self._pause_at_events:
+                    # on_event is asked at the zero, once the run has landed
+                    # there: it may change the load or the model, which the
+                    # steps taken past the zero did not see
+                    asks = self._on_event is not None
+                    if last or asks or self._pause_at_events:
                         # zeros of other functions at the same time are recorded
                         # too (on_event is not asked about them: the state it
                         # would answer for is gone)
                         for other in found[k + 1:]:
                             if other.t == crossing.t:
                                 last = events.record(other) or last
-                        return j, crossing, reset, last, None
+                        return j, crossing, asks, last, None
                     if crossing.t == t[j]:
                         counted.append(crossing.index)
             except EventError as exc:
@@ -267,25 +271,31 @@ class EventSteps:
                              f"events[{i}] at t = {t!r}: u = {u}, v = {v}")
         return u, v
 
-    def _at_event(self, crossing, reset, last):
-        """At the zero's time (landed there): reset the state if ``on_event`` gave
-        one (restarting from it), and end the run if the zero was a terminal
-        event's last allowed one."""
+    def _at_event(self, crossing, asks, last):
+        """At the zero's time (landed there): ask ``on_event`` (``asks``) and
+        restart from the state it gives, or from the current one with the
+        model as ``on_event`` left it (:meth:`_model_after_event`); end the run
+        if the zero was a terminal event's last allowed one."""
         events = self._events
         i, t = crossing.index, crossing.t
         try:
+            reset = self._answer(crossing) if asks else None
             g = events.values(t, self._vec.u, self._vec.v)
         except EventError as exc:
             self._stop_at_event(f"t = {t:.10g}: {exc}")
             return
-        if reset is not None:
+        if asks:
             try:
-                self._reset_state(*reset)
+                if reset is not None:
+                    self._reset_state(*reset)
+                else:
+                    self._model_after_event()
                 g = events.values(t, self._vec.u, self._vec.v)
             except (ModelError, EventError) as exc:
                 g[i] = 0.0
                 events.moved(t, g, [i])
-                self._stop_at_event(f"t = {t:.10g}: after on_event's reset: {exc}")
+                what = "reset" if reset is not None else "answer"
+                self._stop_at_event(f"t = {t:.10g}: after on_event's {what}: {exc}")
                 return
         # the zeros count once: at the landed (or reset) state the functions
         # with a zero recorded at t are taken as at zero, and the next step
@@ -298,6 +308,21 @@ class EventSteps:
             self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
+
+    def _model_after_event(self) -> None:
+        """After ``on_event`` returned ``None``: the state stays, and the run
+        restarts from it with the model as ``on_event`` left it (a load or a
+        parameter it switched): :meth:`model_changed`. Where the acceleration
+        jumps, the state's row is there twice, as at a load breakpoint."""
+        a_before = self._vec.a.copy()
+        self.model_changed()
+        if self._rows is not None and not np.allclose(self._vec.a, a_before, rtol=1e-12,
+                                                      atol=0.0):
+            run, vec = self._run, self._vec
+            row = Rows(self.ev.n)
+            row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0,
+                       self.total_energy, run.work, vec.global_error)
+            self._rows(row.arrays())
 
     def _stop_at_event(self, message):
         # self._run, not a local name for it: a failed refresh replaces it

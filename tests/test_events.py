@@ -245,8 +245,9 @@ def test_an_event_function_that_fails_during_the_run_stops_it_with_a_message():
     r = hfdi.integrate(ball(), "hfdi", 1.0, rtol=1e-6, events=floor_event(),
                        on_event=bad_reset)
     assert r.status == hfdi.Status.MODEL_ERROR and "on_event must return" in r.message
-    # stopped before the step that holds the zero; the zero not recorded
-    assert r.t[-1] < impact_times(1)[0] and r.t_events[0].size == 0
+    # asked at the zero, once landed there: stopped at it, the zero recorded
+    assert r.t[-1] == pytest.approx(impact_times(1)[0], abs=1e-6)
+    assert r.t_events[0].size == 1 and r.t_events[0][0] == r.t[-1]
 
 
 @pytest.mark.slow
@@ -493,3 +494,35 @@ def test_advance_until_event_counts_a_zero_at_its_start_and_goes_on():
     assert list(itg.event_count) == [0, 2]
     assert itg.t_events[1][0] == 0.0 and itg.t == itg.t_events[1][1]
     assert itg.t == pytest.approx(1.0, abs=1e-7)                  # one period later
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
+@pytest.mark.parametrize("returns_state", [False, True])
+def test_a_load_switched_by_on_event_acts_from_the_zero(scheme, returns_state):
+    """``u'' + 9u = P H(t − π/6)``: on_event switches the load on at the first
+    zero of ``u`` (returning None, or the state it was given). The steps taken
+    past the zero with the old load were kept (None: 1.03 off, SUCCESS), or
+    their replay no longer repeated them (a state: AssertionError). Exact:
+    ``u = P/9 (1 − cos 3s) − sin 3s``, ``s = t − π/6``."""
+    switched, P = [False], 5.0
+    model = hfdi.LinearSystem([1.0], [[9.0]], initial_displacement=[1.0],
+                              load=lambda t: np.array([P if switched[0] else 0.0]),
+                              load_rate=lambda t: np.zeros(1))
+
+    def on_event(t, u, v, which):
+        switched[0] = True
+        return (u, v) if returns_state else None
+
+    def zero(t, u, v):
+        return u[0]
+
+    result = hfdi.integrate(model, scheme, 3.0, rtol=1e-6, events=zero, on_event=on_event)
+    assert result.success, result.message
+    ts = np.pi / 6
+    s = result.t - ts
+    exact = np.where(s < 0, np.cos(3 * result.t), P / 9 * (1 - np.cos(3 * s)) - np.sin(3 * s))
+    assert np.abs(result.u[:, 0] - exact).max() < 50 * 1e-6
+    assert result.t_events[0][0] == pytest.approx(ts, abs=1e-6)
+    # the later zeros are the switched motion's (2π/3·… of the exact one)
+    later = ts + np.array([2 * math.atan(9 / P) / 3])
+    assert result.t_events[0][1] == pytest.approx(later[0], abs=1e-5)
