@@ -82,6 +82,7 @@ class CompiledSteps:
                 hat_load_params(ev.n), dtype=float),     # the zero load
             held=np.zeros(ev.n) if held else np.zeros(0))
         self._compiled_call = [fn, cfg, None, None]
+        self._kernels = kernels         # what the run computes with (follow_model)
         self._advance_compiled = advance_hfdi if self._hfdi else advance_affine
         self._refresh_compiled()
 

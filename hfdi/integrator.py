@@ -188,10 +188,13 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         event ends the run at its zero (``Status.TERMINATED``, not a
         failure).
     on_event : callable ``on_event(t, u, v, which) -> (u, v) or None``, optional
-        Called at every zero (``which``: the event function's index); a
-        state it returns replaces the current one there (an impact), and
-        the run restarts from it as after a load breakpoint, the energy of
-        the jump counted as work done on the system (``external_work``).
+        Called at every zero, once the run has landed on it (``which``: the
+        event function's index); a state it returns replaces the current
+        one there (an impact), and the run restarts from it as after a load
+        breakpoint, the energy of the jump counted as work done on the
+        system (``external_work``). With ``None`` the state stays and the
+        run restarts from it with the model as ``on_event`` left it (a load
+        or parameter it switched: :meth:`model_changed`).
 
     Raises
     ------
@@ -506,9 +509,13 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         through ``a_n``, HFDI through ``p_n`` in its load rate, the energy
         balance through the work). After a jump of the load at ``t_n`` (a
         co-simulation input changed at a communication point), both are
-        recomputed from the load now, the acceleration being the right limit.
+        recomputed from the load now, the acceleration being the right limit;
+        a compiled run takes the load's data from the model now (a changed
+        amplitude, say).
         """
         self._refresh(new_force=False)
+        if self._compiled_call is not None:
+            compiled_path.follow_load(self)
 
     def model_changed(self) -> None:
         """Tell the integrator that the model changed at the current time (its

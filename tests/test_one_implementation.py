@@ -117,6 +117,25 @@ def test_communication_points_breakpoints_and_short_steps_alike(scheme):
     assert_same_state(*itg)
 
 
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
+@pytest.mark.parametrize("tell", ["model_changed", "load_changed"])
+def test_a_changed_load_is_followed_alike(scheme, tell):
+    """The load's own data changed mid-run (the articulated system's pulse
+    switched off while it acts), then model_changed() or load_changed(): the
+    compiled loop takes the load the Python steps take. It kept the old pulse
+    (load_params apart from the model's params were not taken again: 0.28
+    apart at t = 0.1)."""
+    itg = [hfdi.Integrator(hfdi.models.articulated(), scheme, rtol=1e-5, t_bound=0.1,
+                           compiled=c) for c in (True, False)]
+    for one in itg:
+        assert one.advance(0.01), one.message
+        one.system.load_amplitude = 0.0
+        getattr(one, tell)()
+        assert one.advance(0.1), one.message
+    assert itg[0].compiled
+    assert_same_state(*itg)
+
+
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi", "generalized_alpha"))
 def test_a_saved_state_continues_alike_at_the_other_speed(scheme):
     """A state saved by one speed and restored into the other continues as the

@@ -463,14 +463,41 @@ def follow_model(integrator) -> None:
                  "steps in Python")
         integrator._leave_compiled(f"after the model changed: {why}")
         return
-    params = np.ascontiguousarray(kernels.params, dtype=float)
+    take_kernel_data(integrator, kernels)
+
+
+def follow_load(integrator) -> None:
+    """After ``integrator.load_changed()`` on a compiled run: the load's data
+    (and the model's) from the model now, as the Python steps' load takes it."""
+    kernels, why = kernels_of(integrator.system)
+    if not why:
+        take_kernel_data(integrator, kernels)
+
+
+def take_kernel_data(integrator, kernels) -> None:
+    """The compiled run takes the data of ``kernels`` (the model's now): in place
+    where the arrays keep their shapes (a native host holds them), else new
+    arrays; new kernel functions make the run's functions again."""
+    if any(getattr(kernels, name) is not getattr(integrator._kernels, name)
+           for name in ("force", "stiffness", "stiffness_derivative", "potential_energy",
+                        "load", "load_rate")):
+        integrator._use_compiled(kernels)
+        return
     data = integrator._data
+    params = np.ascontiguousarray(kernels.params, dtype=float)
+    load_params = params if kernels.load_params is kernels.params else None \
+        if kernels.load_params is None else np.array(kernels.load_params, dtype=float)
+    replaced = {}
     if params.shape == data.params.shape:
         data.params[:] = params
     else:
-        integrator._data = data._replace(params=params)
+        replaced["params"] = params
+    if load_params is not None:
+        if load_params.shape == data.load_params.shape:
+            data.load_params[:] = load_params
+        else:
+            replaced["load_params"] = load_params
+    if replaced:
+        integrator._data = data._replace(**replaced)
         integrator._refresh_compiled()
-    if kernels.load_params is not None and kernels.load_params is kernels.params:
-        if data.load_params.shape == params.shape:
-            integrator._data.load_params[:] = params
 
