@@ -116,9 +116,15 @@ def test_without_the_estimate_there_is_none_and_it_costs_nothing(scheme):
     # the estimate is carried beside the run: the steps are the same
     np.testing.assert_array_equal(on.t, off.t)
     np.testing.assert_array_equal(on.u, off.u)
-    # its cost: one K a step; HFDI's steps are carried by their own
-    # tangent's factors, the others' by the SDIRK step's factorisation
-    assert on.stats.njev == off.stats.njev + on.stats.accepted
+    # its cost: HFDI's steps are carried by their own tangent's factors and
+    # one f a step (K(u_n) g_u as a difference; none while g is still 0),
+    # the others' by one K and the SDIRK step's factorisation
+    if scheme == "hfdi":
+        assert on.stats.njev == off.stats.njev
+        assert off.stats.nfev + on.stats.accepted - 3 <= on.stats.nfev \
+            <= off.stats.nfev + on.stats.accepted
+    else:
+        assert on.stats.njev == off.stats.njev + on.stats.accepted
     assert on.stats.nlu == off.stats.nlu + (0 if scheme == "hfdi" else on.stats.accepted)
 
 
@@ -390,3 +396,33 @@ def test_a_fixed_step_over_a_load_jump_leaves_no_estimate(scheme):
         else:
             after = result.t > t_jump
             assert np.all(np.isnan(estimate[after]))
+
+
+def _offset_chain(offset):
+    """The damped chain with a constant force ``offset`` in ``f`` and in ``p``:
+    the same motion, with ``f`` far larger than ``K u``."""
+    model, exact = damped_chain()
+    K, C = model.stiffness(np.zeros(3)), model.damping
+    shifted = hfdi.System(model.mass, lambda u: K @ u + offset, lambda u: K,
+                          lambda u, w: np.zeros((3, 3)), damping=C,
+                          load=lambda t: np.full(3, offset), load_rate=lambda t: np.zeros(3),
+                          initial_displacement=model.initial_displacement,
+                          initial_velocity=model.initial_velocity)
+    return shifted, exact
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e10])
+def test_the_hfdi_propagator_takes_k_where_a_difference_of_f_would_round(offset):
+    """HFDI's propagator takes ``K(u_n) g_u`` as a difference of ``f``; with a
+    force 1e9 times ``K u`` that difference would be rounding (ten times the
+    product), and ``K`` is evaluated instead: the estimate tracks the error
+    either way (1.00 and 1.16–1.18 at the run's largest and at its end; with
+    the difference taken anyway at 1e10, 1.10 and 0.49)."""
+    model, exact = _offset_chain(offset)
+    result = hfdi.integrate(model, "hfdi", 5.0, rtol=1e-4)
+    assert result.success, result.message
+    worst, end = estimate_over_truth(result, exact)
+    assert 1 / 2 < worst < 2 and 1 / 2 < end < 2, (worst, end)
+    # K is evaluated once a step beside the Newton corrections only with the offset
+    extra = result.stats.njev - result.stats.newton_iterations - result.stats.first_step_trials
+    assert (extra > result.stats.accepted // 2) == (offset > 0), result.stats

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import math
 
-from ..core.arrays import (all_finite, axpy, copy, fill, lincomb, matvec, scale, scaled_into,
-                           times)
+from ..core.arrays import (all_finite, axpy, copy, fill, lincomb, matvec, max_abs, scale,
+                           scaled_into, times)
 from ..core.codes import OK
 from ..core.jit import jitable
 from ..linsolve.dense import factored_solve, getrf, getrs
 from ..linsolve.sparse import general_propagation_factor, general_propagation_solve
-from .stages import _add_matrix, b_solve, stiffness_of
+from .stages import _add_matrix, b_solve, force_into, stiffness_of
 
 __all__ = ["GAMMA", "PROPAGATOR", "PROPAGATOR_STAGES", "propagate"]
 
@@ -39,6 +39,12 @@ PROPAGATOR = (0.0, 0.0, 0.0,
               0.5 * (1.0 - GAMMA), 0.0, 0.0,
               _B1, _B2, 0.0)
 PROPAGATOR_STAGES = 3
+
+_EPS = 2.220446049250313e-16
+#: The relative size of the step of :func:`_start_stiffness_times`' difference.
+_SQRT_EPS = 1.4901161193847656e-08
+#: The rounding of that difference it accepts, as a share of its size.
+DIFFERENCE_ROUNDING = 1e-3
 
 
 @jitable
@@ -113,15 +119,15 @@ def _propagate_hfdi(fn, cfg, data, run, vec, h):
     factors in ``VECTORS.lu``), ``w = −h/3 M g_v − c K g_u``,
     ``J δd = −(S B⁻¹ w + (2h/3 K − c T[v_D] + h/3 K_n) g_u − M g_v)``, then
     ``g_u ← g_u + δd`` and ``g_v ← B⁻¹ (S δd + w)``. ``K``, ``T[v_D]``,
-    ``S`` and ``J`` are the last iterate's; ``K_n = K(u_n)`` is evaluated
-    (one ``K``). False where it cannot be."""
+    ``S`` and ``J`` are the last iterate's; ``K_n g_u`` is a difference of
+    ``f`` (:func:`_start_stiffness_times`). False where it cannot be made."""
     n = cfg.n
     c = h * h / 6.0
     g = vec.global_error
     gu, gv = g[:n], g[n:]
     ku, mv, w, y, r, tu = vec.kv, vec.residual, vec.a0, vec.v0, vec.du, vec.rhs
-    outcome, K_start = stiffness_of(fn, cfg, data, run, vec.u)
-    if outcome != OK:
+    k_start = vec.work
+    if not _start_stiffness_times(fn, cfg, data, run, vec, gu, k_start):
         return False
     matvec(vec.K_last, gu, ku)
     times(cfg.m_kind, data.Md, data.Mf, gv, mv)
@@ -132,8 +138,7 @@ def _propagate_hfdi(fn, cfg, data, run, vec, h):
     axpy(r, 2.0 * h / 3.0, ku)
     matvec(vec.T_last, gu, tu)
     axpy(r, -c, tu)
-    matvec(K_start, gu, tu)
-    axpy(r, h / 3.0, tu)
+    axpy(r, h / 3.0, k_start)
     axpy(r, -1.0, mv)
     scale(r, -1.0, r)
     factored_solve(run.tangent_kind, vec.lu, vec.pivots, vec.ints, r)
@@ -142,4 +147,33 @@ def _propagate_hfdi(fn, cfg, data, run, vec, h):
     b_solve(cfg, vec, y)
     axpy(gu, 1.0, r)
     copy(gv, y)
+    return True
+
+
+@jitable
+def _start_stiffness_times(fn, cfg, data, run, vec, gu, out):
+    """``out = K(u_n) g_u`` for the HFDI propagator: a forward difference of
+    ``f`` along ``g_u``, ``(f(u_n + s g_u) − f(u_n))/s`` with
+    ``s‖g_u‖ = √ε max(‖u_n‖, u_scale)``, one force where a whole ``K`` was
+    evaluated (docs/algorithm.md, "Global error estimate"); ``K(u_n)``
+    itself where ``f(u_n)`` is not at hand or the difference's rounding
+    exceeds :data:`DIFFERENCE_ROUNDING` of it (a force far larger than
+    ``K u``). False where neither can be evaluated."""
+    size_g = max_abs(gu)
+    if size_g == 0.0:
+        fill(out, 0.0)
+        return True
+    if run.has_force:
+        s = _SQRT_EPS * max(max_abs(vec.u), cfg.floor) / size_g
+        shifted = vec.tmp
+        lincomb(shifted, 1.0, vec.u, s, gu)
+        if force_into(fn, cfg, data, run, shifted, out) == OK:
+            rounding = 4.0 * _EPS * (max_abs(out) + max_abs(vec.f)) / s
+            lincomb(out, 1.0 / s, out, -1.0 / s, vec.f)
+            if rounding <= DIFFERENCE_ROUNDING * max_abs(out):
+                return True
+    outcome, K = stiffness_of(fn, cfg, data, run, vec.u)
+    if outcome != OK:
+        return False
+    matvec(K, gu, out)
     return True
