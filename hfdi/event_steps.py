@@ -224,8 +224,7 @@ class EventSteps:
                     asks = self._on_event is not None
                     if last or asks or self._pause_at_events:
                         # zeros of other functions at the same time are recorded
-                        # too (on_event is not asked about them: the state it
-                        # would answer for is gone)
+                        # too (on_event answers each, in turn, once landed)
                         for other in found[k + 1:]:
                             if other.t == crossing.t:
                                 last = events.record(other) or last
@@ -243,13 +242,13 @@ class EventSteps:
         events.moved(t[-1], G[-1])
         return None
 
-    def _answer(self, crossing):
-        """``on_event``'s reset state for ``crossing`` (checked), or ``None``."""
+    def _answer(self, i, t):
+        """``on_event``'s reset state for the zero of ``events[i]`` at ``t``, the
+        current (landed) state (checked), or ``None``."""
         if self._on_event is None:
             return None
-        i, t = crossing.index, crossing.t
         try:
-            answer = self._on_event(t, crossing.u.copy(), crossing.v.copy(), i)
+            answer = self._on_event(t, self._vec.u.copy(), self._vec.v.copy(), i)
         except Exception as exc:
             raise EventError(f"on_event raised {type(exc).__name__}: {exc} at the zero of "
                              f"events[{i}] at t = {t!r}") from exc
@@ -272,36 +271,41 @@ class EventSteps:
         return u, v
 
     def _at_event(self, crossing, asks, last):
-        """At the zero's time (landed there): ask ``on_event`` (``asks``) and
-        restart from the state it gives, or from the current one with the
-        model as ``on_event`` left it (:meth:`_model_after_event`); end the run
-        if the zero was a terminal event's last allowed one."""
+        """At the zero's time (landed there): ask ``on_event`` (``asks``) about
+        each zero recorded there, and restart from the state it gives, or
+        from the current one with the model as ``on_event`` left it where it
+        changed it (:meth:`_model_after_event`); end the run if the zero was a
+        terminal event's last allowed one."""
         events = self._events
         i, t = crossing.index, crossing.t
+        here = [k for k in range(len(events)) if events.t_events[k]
+                and events.t_events[k][-1] == t]
         try:
-            reset = self._answer(crossing) if asks else None
             g = events.values(t, self._vec.u, self._vec.v)
         except EventError as exc:
             self._stop_at_event(f"t = {t:.10g}: {exc}")
             return
-        if asks:
+        for k in ([i] + [k for k in here if k != i]) if asks else []:
+            what = "answer"
             try:
+                before = self._model_here()
+                reset = self._answer(k, t)
                 if reset is not None:
+                    what = "reset"
                     self._reset_state(*reset)
-                else:
+                elif not _same_model(before, self._model_here()):
                     self._model_after_event()
                 g = events.values(t, self._vec.u, self._vec.v)
             except (ModelError, EventError) as exc:
-                g[i] = 0.0
-                events.moved(t, g, [i])
-                what = "reset" if reset is not None else "answer"
-                self._stop_at_event(f"t = {t:.10g}: after on_event's {what}: {exc}")
+                g[here] = 0.0
+                events.moved(t, g, here)
+                self._stop_at_event(f"t = {t:.10g}: after on_event's {what}: {exc}"
+                                    if what == "reset" or not isinstance(exc, EventError)
+                                    else f"t = {t:.10g}: {exc}")
                 return
         # the zeros count once: at the landed (or reset) state the functions
         # with a zero recorded at t are taken as at zero, and the next step
         # starts from the side each leaves to
-        here = [k for k in range(len(events)) if events.t_events[k]
-                and events.t_events[k][-1] == t]
         g[here] = 0.0
         events.moved(t, g, here)
         if last:
@@ -309,15 +313,26 @@ class EventSteps:
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
 
+    def _model_here(self):
+        """What ``on_event`` may change of the model, seen at the current state:
+        its parameter count, ``p(t)`` and ``f(u)`` (``None`` where they cannot
+        be evaluated)."""
+        try:
+            return (getattr(self.system, "parameter_version", None),
+                    np.array(self.ev.load(self.t), dtype=float),
+                    np.array(self.ev.force(self._vec.u), dtype=float))
+        except Exception:
+            return None
+        finally:
+            self._absorb_counts()
+
     def _model_after_event(self) -> None:
-        """After ``on_event`` returned ``None``: the state stays, and the run
-        restarts from it with the model as ``on_event`` left it (a load or a
-        parameter it switched): :meth:`model_changed`. Where the acceleration
-        jumps, the state's row is there twice, as at a load breakpoint."""
-        a_before = self._vec.a.copy()
+        """After ``on_event`` returned ``None`` and changed the model here (a load
+        or a parameter it switched): the state stays, and the run restarts
+        from it with the model now (:meth:`model_changed`), the state's row
+        there twice, as at a load breakpoint."""
         self.model_changed()
-        if self._rows is not None and not np.allclose(self._vec.a, a_before, rtol=1e-12,
-                                                      atol=0.0):
+        if self._rows is not None:
             run, vec = self._run, self._vec
             row = Rows(self.ev.n)
             row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0,
@@ -367,3 +382,11 @@ class EventSteps:
             row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0,
                        energy_after, run.work, vec.global_error)
             self._rows(row.arrays())
+
+
+def _same_model(before, after) -> bool:
+    """Whether two :meth:`EventSteps._model_here` are alike (to rounding: a
+    compiled load and its Python method may differ in the last digits)."""
+    if before is None or after is None or before[0] != after[0]:
+        return False
+    return all(np.allclose(x, y, rtol=1e-12, atol=0.0) for x, y in zip(before[1:], after[1:]))

@@ -526,3 +526,25 @@ def test_a_load_switched_by_on_event_acts_from_the_zero(scheme, returns_state):
     # the later zeros are the switched motion's (2π/3·… of the exact one)
     later = ts + np.array([2 * math.atan(9 / P) / 3])
     assert result.t_events[0][1] == pytest.approx(later[0], abs=1e-5)
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
+def test_on_event_answers_every_zero_at_a_time_and_none_changes_nothing(scheme):
+    """Two functions with the same zeros: on_event answers both, in turn. An
+    on_event that returns None and changes nothing leaves no second row at
+    the zero (the run lands there: one step more a zero, within tolerance)."""
+    model = hfdi.LinearSystem([1.0], [[9.0]], initial_displacement=[1.0])
+
+    def zero(t, u, v):
+        return u[0]
+
+    asked = []
+    result = hfdi.integrate(model, scheme, 2.0, rtol=1e-5, events=[zero, zero],
+                            on_event=lambda t, u, v, which: asked.append(which))
+    assert result.success and asked == [0, 1] * 2, asked       # π/6, π/2
+    plain = hfdi.integrate(model, scheme, 2.0, rtol=1e-5, events=zero)
+    idle = hfdi.integrate(model, scheme, 2.0, rtol=1e-5, events=zero,
+                          on_event=lambda t, u, v, which: None)
+    assert np.all(np.diff(idle.t) > 0)
+    assert idle.stats.accepted <= plain.stats.accepted + 2
+    np.testing.assert_allclose(idle.u[-1], plain.u[-1], atol=1e-6)
