@@ -285,23 +285,26 @@ class EventSteps:
         except EventError as exc:
             self._stop_at_event(f"t = {t:.10g}: {exc}")
             return
+        seen = self._model_here() if asks else None
         for k in ([i] + [k for k in here if k != i]) if asks else []:
-            what = "answer"
             try:
-                before = self._model_here()
                 reset = self._answer(k, t)
+            except EventError as exc:
+                self._stop_at(t, g, here, f"t = {t:.10g}: {exc}")
+                return
+            try:
                 if reset is not None:
-                    what = "reset"
                     self._reset_state(*reset)
-                elif not _same_model(before, self._model_here()):
-                    self._model_after_event()
+                    seen = self._model_here()
+                else:
+                    now = self._model_here()
+                    if not _same_model(seen, now):
+                        self._model_after_event()
+                    seen = now
                 g = events.values(t, self._vec.u, self._vec.v)
             except (ModelError, EventError) as exc:
-                g[here] = 0.0
-                events.moved(t, g, here)
-                self._stop_at_event(f"t = {t:.10g}: after on_event's {what}: {exc}"
-                                    if what == "reset" or not isinstance(exc, EventError)
-                                    else f"t = {t:.10g}: {exc}")
+                what = "reset" if reset is not None else "answer"
+                self._stop_at(t, g, here, f"t = {t:.10g}: after on_event's {what}: {exc}")
                 return
         # the zeros count once: at the landed (or reset) state the functions
         # with a zero recorded at t are taken as at zero, and the next step
@@ -332,12 +335,24 @@ class EventSteps:
         from it with the model now (:meth:`model_changed`), the state's row
         there twice, as at a load breakpoint."""
         self.model_changed()
+        self._restart_row(self.total_energy)
+
+    def _restart_row(self, energy) -> None:
+        """The current state's row, a step of size 0 (as a restart at a load
+        breakpoint), handed on to the rows' consumer."""
         if self._rows is not None:
             run, vec = self._run, self._vec
             row = Rows(self.ev.n)
-            row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0,
-                       self.total_energy, run.work, vec.global_error)
+            row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0, energy,
+                       run.work, vec.global_error)
             self._rows(row.arrays())
+
+    def _stop_at(self, t, g, here, message):
+        """Stop at the zeros ``here`` at ``t`` (counted, the functions' values
+        ``g`` taken as at zero there) with ``message``."""
+        g[here] = 0.0
+        self._events.moved(t, g, here)
+        self._stop_at_event(message)
 
     def _stop_at_event(self, message):
         # self._run, not a local name for it: a failed refresh replaces it
@@ -376,12 +391,7 @@ class EventSteps:
         run.work += jump
         run.energy_scale = max(run.energy_scale, abs(energy_after)
                                if math.isfinite(energy_after) else 0.0)
-        if self._rows is not None:
-            # the new state's row, a step of size 0 (as a restart at a breakpoint)
-            row = Rows(ev.n)
-            row.append(State(run.t, vec.u, vec.v, vec.a, None, None), 0.0, 0, 0.0,
-                       energy_after, run.work, vec.global_error)
-            self._rows(row.arrays())
+        self._restart_row(energy_after)
 
 
 def _same_model(before, after) -> bool:

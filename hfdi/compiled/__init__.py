@@ -485,8 +485,12 @@ def take_kernel_data(integrator, kernels) -> None:
         return
     data = integrator._data
     params = np.ascontiguousarray(kernels.params, dtype=float)
-    load_params = params if kernels.load_params is kernels.params else None \
-        if kernels.load_params is None else np.array(kernels.load_params, dtype=float)
+    if kernels.load_params is kernels.params:
+        load_params = params
+    elif kernels.load_params is None:
+        load_params = None          # the zero load's: unchanged
+    else:
+        load_params = np.array(kernels.load_params, dtype=float)
     replaced = {}
     if params.shape == data.params.shape:
         data.params[:] = params

@@ -23,7 +23,7 @@ from ..core.codes import OK
 from ..core.jit import jitable
 from ..linsolve.dense import factored_solve, getrf, getrs
 from ..linsolve.sparse import general_propagation_factor, general_propagation_solve
-from .stages import _add_matrix, b_solve, force_into, stiffness_of
+from .stages import _EPS, _add_matrix, b_solve, force_into, stiffness_of
 
 __all__ = ["GAMMA", "PROPAGATOR", "PROPAGATOR_STAGES", "propagate"]
 
@@ -40,9 +40,8 @@ PROPAGATOR = (0.0, 0.0, 0.0,
               _B1, _B2, 0.0)
 PROPAGATOR_STAGES = 3
 
-_EPS = 2.220446049250313e-16
 #: The relative size of the step of :func:`_start_stiffness_times`' difference.
-_SQRT_EPS = 1.4901161193847656e-08
+_SQRT_EPS = math.sqrt(_EPS)
 #: The rounding of that difference it accepts, as a share of its size.
 DIFFERENCE_ROUNDING = 1e-3
 
