@@ -111,13 +111,23 @@ def build(problem: str, out_dir=".", fmi_version: int = 2) -> Path:
         For an unknown problem, or a model that cannot be instantiated with
         its default parameters.
     """
+    return _build(problem, out_dir, fmi_version, None)
+
+
+def _check_version(fmi_version) -> None:
+    if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
+        raise BuildError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, "
+                         f"got {fmi_version!r}")
+
+
+def _build(problem: str, out_dir, fmi_version: int, library) -> Path:
+    """:func:`build`, with the native layer already compiled at ``library``
+    (compiled here when None): it is the same for every model."""
     import hfdi
     import hfdi.models
     from pythonfmu import FmuBuilder
 
-    if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
-        raise BuildError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, "
-                         f"got {fmi_version!r}")
+    _check_version(fmi_version)
     names = hfdi.models.available()
     if problem not in names:
         raise BuildError(f"unknown problem {problem!r}; available: {', '.join(names)} "
@@ -151,7 +161,8 @@ def build(problem: str, out_dir=".", fmi_version: int = 2) -> Path:
         cls = "Hfdi" + "".join(part.capitalize() for part in problem.split("_") if part)
         script.write_text(_SCRIPT.format(problem=problem, core=core, alias=alias, cls=cls,
                                          meta=meta_text), encoding="utf-8")
-        library = compile_native(stage / "native", fmi_version)
+        if library is None:
+            library = compile_native(stage / "native", fmi_version)
         entry_source = Path(__file__).with_name("entry.py").read_text(encoding="utf-8")
         entry = f"hfdi_fmu_entry_{package_digest(None, entry_source)}"
         (stage / f"{entry}.py").write_text(entry_source, encoding="utf-8")
@@ -339,10 +350,16 @@ def build_all(out_dir=".", fmi_version: int = 2) -> dict:
         Problem name to the FMU's path, or to the :class:`BuildError` that
         stopped it.
     """
+    _check_version(fmi_version)
     results = {}
-    for name in problems():
+    with tempfile.TemporaryDirectory(prefix="hfdi_fmu_native_") as tmp:
         try:
-            results[name] = build(name, out_dir, fmi_version)
+            library = compile_native(Path(tmp), fmi_version)
         except BuildError as exc:
-            results[name] = exc
+            return {name: exc for name in problems()}
+        for name in problems():
+            try:
+                results[name] = _build(name, out_dir, fmi_version, library)
+            except BuildError as exc:
+                results[name] = exc
     return results

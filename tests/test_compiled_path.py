@@ -682,9 +682,9 @@ def test_user_model_with_compiled_load_and_dense_matrices(scheme, damping):
     model = DrivenChain(damping)
     assert hfdi.check_derivatives(model, samples=3, spread=0.1).ok(1e-7)
     compiled, python = _pair(lambda: DrivenChain(damping), scheme, controller=PER_STEP,
-                             t_bound=0.5)
+                             t_bound=0.1)
     for itg in (compiled, python):
-        assert itg.advance(0.5)
+        assert itg.advance(0.1)
     assert compiled.statistics.steps > 20
     assert compiled.statistics.steps == python.statistics.steps
     np.testing.assert_allclose(compiled.state.u, python.state.u, rtol=0, atol=1e-12)
@@ -765,11 +765,11 @@ def test_a_long_run_returns_to_python_between_calls(monkeypatch):
     """Control comes back to Python every STEPS_PER_CALL accepted steps (a
     Ctrl-C is seen there), with the same run as in one call."""
     import hfdi.integrator as hi
-    whole, _ = _pair(dumbbell, "newmark", rtol=1e-7, t_bound=0.05)
-    whole.advance(0.05)
+    whole, _ = _pair(dumbbell, "newmark", rtol=1e-7, t_bound=0.01)
+    whole.advance(0.01)
     monkeypatch.setattr(hi, "STEPS_PER_CALL", 7)
     calls = []
-    chunked, _ = _pair(dumbbell, "newmark", rtol=1e-7, t_bound=0.05)
+    chunked, _ = _pair(dumbbell, "newmark", rtol=1e-7, t_bound=0.01)
     original = chunked._advance_compiled
 
     def counting(*args):
@@ -777,7 +777,7 @@ def test_a_long_run_returns_to_python_between_calls(monkeypatch):
         return original(*args)
 
     chunked._advance_compiled = counting
-    chunked.advance(0.05)
+    chunked.advance(0.01)
     assert len(calls) >= chunked.statistics.accepted // 7 > 3
     _assert_same_state(chunked, whole)
 

@@ -516,16 +516,16 @@ def test_a_load_switched_by_on_event_acts_from_the_zero(scheme, returns_state):
     def zero(t, u, v):
         return u[0]
 
-    result = hfdi.integrate(model, scheme, 3.0, rtol=1e-6, events=zero, on_event=on_event)
+    rtol = 1e-5
+    result = hfdi.integrate(model, scheme, 1.5, rtol=rtol, events=zero, on_event=on_event)
     assert result.success, result.message
     ts = np.pi / 6
     s = result.t - ts
     exact = np.where(s < 0, np.cos(3 * result.t), P / 9 * (1 - np.cos(3 * s)) - np.sin(3 * s))
-    assert np.abs(result.u[:, 0] - exact).max() < 50 * 1e-6
-    assert result.t_events[0][0] == pytest.approx(ts, abs=1e-6)
-    # the later zeros are the switched motion's (2π/3·… of the exact one)
-    later = ts + np.array([2 * math.atan(9 / P) / 3])
-    assert result.t_events[0][1] == pytest.approx(later[0], abs=1e-5)
+    assert np.abs(result.u[:, 0] - exact).max() < 50 * rtol
+    assert result.t_events[0][0] == pytest.approx(ts, abs=10 * rtol)
+    # the next zero is the switched motion's
+    assert result.t_events[0][1] == pytest.approx(ts + 2 * math.atan(9 / P) / 3, abs=10 * rtol)
 
 
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
