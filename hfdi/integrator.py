@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from . import checks, compiled as compiled_path, run_records
-from .controller import ErrorControl, FixedStep
+from .controller import ErrorControl, FixedStep, IterationCount
 from .core import codes
 from .core.state import CUSTOM, RUN
 from .core.state import HFDI as HFDI_STAGE
@@ -309,11 +309,14 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                 f"returns NaN (unknown) from potential_energy at u0; give the model "
                 f"potential_energy or leave energy_limit=None")
         exact = isinstance(self.scheme, HFDI) and self.scheme.exact_rate(ev.has_load_rate)
+        derived = isinstance(self.scheme, HFDI) and not exact and self.scheme.derived_rate(
+            ev.has_load_rate, isinstance(c, IterationCount))
         #: the scheme's stages are HFDI's (else affine): the compiled loop's constant
         self._hfdi = HFDI_STAGES if self.scheme.stage.py_func(
             1.0, 0, self.scheme.params()).kind == HFDI_STAGE else AFFINE_STAGES
         self._cfg = run_records.config(
-            ev, c, self.scheme, exact_rate=exact, tol=self.tol, floor=self.floor,
+            ev, c, self.scheme, exact_rate=exact, derived_rate=derived, tol=self.tol,
+            floor=self.floor,
             max_iterations=self.max_iterations, estimated=self.newton_test == "error",
             energy_limit=self.energy_limit, max_steps=max_steps, t_bound=self.t_bound,
             global_error=bool(global_error))

@@ -17,13 +17,13 @@ from .stepping.global_error import PROPAGATOR_STAGES
 __all__ = ["config", "data", "vectors", "row_arrays"]
 
 
-def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, estimated,
-           energy_limit, max_steps, t_bound, global_error=True):
+def config(ev, controller, scheme, *, exact_rate, derived_rate, tol, floor, max_iterations,
+           estimated, energy_limit, max_steps, t_bound, global_error=True):
     """:data:`CONFIG` of a run of the model ``ev`` (an Evaluator)."""
     settings = controller.settings() if core_kind(controller) != CUSTOM else \
         {"controller": CUSTOM}
-    # the scheme's error constant of v holds with the model's p'; the part the
-    # paper's quotient adds (O(h³), zero for a load linear between its
+    # the scheme's error constant of v holds with the model's p' (or HFDI's
+    # derived one, O(h²)); the part the paper's quotient adds (O(h³), zero for a load linear between its
     # breakpoints) the estimate takes on its own (stepping.attempt._load_rate_error)
     values = dict(
         n=ev.n, stages=scheme.n_stages, order=scheme.order,
@@ -32,7 +32,8 @@ def config(ev, controller, scheme, *, exact_rate, tol, floor, max_iterations, es
         lagged_acceleration=scheme.lagged_acceleration,
         acceleration_lag=scheme.acceleration_lag,
         m_kind=ev.mass_kind, c_kind=ev.damping_kind, sparse=ev.n >= DENSE_BELOW,
-        exact_rate=exact_rate, tol=tol, floor=floor, max_iterations=max_iterations,
+        exact_rate=exact_rate, derived_rate=derived_rate, tol=tol, floor=floor,
+        max_iterations=max_iterations,
         estimated=estimated, energy_limit=math.inf if energy_limit is None else energy_limit,
         max_steps=max_steps, t_bound=math.inf if t_bound is None else t_bound,
         global_error=global_error,

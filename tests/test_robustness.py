@@ -480,7 +480,7 @@ INPUT_CASES = [
      lambda: hfdi.Bathe(gamma=1.0), ValueError, ["Bathe gamma", "> 0 and < 1", "got 1.0"]),
     ("hfdi-rate", "scheme", "HFDI load_rate unknown",
      lambda: hfdi.HFDI(load_rate="spline"), ValueError,
-     ["HFDI load_rate", "'auto', 'exact' or 'difference'", "'spline'"]),
+     ["HFDI load_rate", "'auto', 'exact', 'derived', 'difference'", "'spline'"]),
     # the models
     ("model-name", "models.get", "unknown model name",
      lambda: hfdi.models.get("pendulum"), ValueError,

@@ -123,6 +123,7 @@ CONFIG = Scalars("Config", [
     ("c_kind", "i8", 0),
     ("sparse", "b1", False),            # sparse tangents (Python only)
     ("exact_rate", "b1", False),        # HFDI takes the model's load rate
+    ("derived_rate", "b1", False),      # else HFDI differentiates the load in the step
     ("has_held", "b1", False),          # DATA.held is added to the load
     ("tol", "f8", 1e-8),                # Newton: Eq. 38's η, its floor, N_max
     ("floor", "f8", 1.0),

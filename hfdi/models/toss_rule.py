@@ -126,7 +126,7 @@ class TossRule(KernelModel):
         "stop_time": 0.1,
     }
     # The hat pulses have kinks, so an exact rate would not help HFDI more
-    # than the paper's difference quotient does (KernelModel: none).
+    # than the load's derivative does (KernelModel: none).
 
     def __init__(self, n_elements=6, length=0.5, width=0.030, thickness=0.002, E=210e9,
                  nu=0.3, shear_factor=5.0 / 6.0, rho=7850.0, force_amplitude=200.0,

@@ -198,7 +198,8 @@ def estimate_error(cfg, data, run, vec, h):
                 _velocity_by_quadrature(run, vec, h, before, now, end)
             return
     local_error(run, vec, h, cfg.velocity_order, cfg.velocity_defect, vec.a, vec.a_previous)
-    if cfg.velocity_defect != 0.0 and not cfg.exact_rate and run.has_previous:
+    if cfg.velocity_defect != 0.0 and not (cfg.exact_rate or cfg.derived_rate) \
+            and run.has_previous:
         _load_rate_error(cfg, data, run, vec, h)
 
 
