@@ -73,7 +73,10 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     progress : callable ``progress(t, statistics)``, optional
         Called every half second of wall-clock time with the time reached and
         the run's :class:`Statistics`, and once at the end, so that a long or
-        stalled run shows.
+        stalled run shows. Raising ``StopIteration`` ends the run where it
+        is (``Status.TERMINATED``, a success, with the steps so far), as
+        scipy's optimizers take it from their callbacks; another exception
+        propagates.
     tol : float, optional
         Newton tolerance ``η`` (Eq. 38); see :class:`Integrator`.
     error : {"local", "global"}
@@ -160,7 +163,7 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         return _integrate(integrator, system, t_end, t_eval, save_steps, progress)
 
     result = run(rtol, atol)
-    if error == "local":
+    if error == "local" or result.message.startswith(PROGRESS_STOPPED):
         return result
     # the tolerance asked for, against which every run is measured
     asked_rtol, asked_atol = result.rtol, result.atol
@@ -209,6 +212,14 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     return result
 
 
+#: The start of the message of a run that progress ended.
+PROGRESS_STOPPED = "progress raised StopIteration"
+
+
+class _ProgressStop(Exception):
+    """integrate's progress callback raised StopIteration: the run ends there."""
+
+
 def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Result:
     """One run of ``integrator`` to ``t_end`` as a :class:`Result`."""
     t0 = integrator.t0
@@ -242,7 +253,10 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
     def report(t):
         if progress is not None and time.monotonic() - clock[0] >= PROGRESS_INTERVAL:
             clock[0] = time.monotonic()
-            progress(t, integrator.statistics)
+            try:
+                progress(t, integrator.statistics)
+            except StopIteration:
+                raise _ProgressStop from None
 
     # the largest |u|, |v| and |g| (per component) of every accepted step, kept
     # or not: Result.global_error_ratio's scales and extremes
@@ -266,14 +280,25 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
                    float(arrays["external_work"][-1]), arrays["global_error"][-1]]
         report(float(t[-1]))
 
-    ok = integrator.advance(t_end, rows=record_rows)
-    if progress is not None:
-        progress(integrator.t, integrator.statistics)
+    try:
+        ok, stopped = integrator.advance(t_end, rows=record_rows), False
+    except _ProgressStop:
+        # raised between two calls of the stepping code: the rows so far are
+        # the integrator's accepted steps up to where it stands
+        ok, stopped = True, True
+    if progress is not None and not stopped:
+        try:
+            progress(integrator.t, integrator.statistics)
+        except StopIteration:
+            pass                        # the run has ended anyway
     if not save_steps and rows.size == 1 and integrator.statistics.accepted:
         rows.append(*last)
     # a terminal event exactly at t_end ends the run there too (as solve_ivp)
     status = integrator.status if not ok or integrator.terminated else Status.SUCCESS
     message = integrator.message if not ok or integrator.terminated else "reached t_end"
+    if stopped and status == Status.SUCCESS and integrator.t < t_end:
+        status = Status.TERMINATED
+        message = f"{PROGRESS_STOPPED} at t = {integrator.t:.10g}"
     rtol, atol = integrator.tolerances or (None, None)
     if status == Status.TERMINATED and t_eval is not None:
         # as solve_ivp: the output times up to where the run ended

@@ -77,6 +77,10 @@ class IntegratorState:
     #: (``None``: no events, or none known at ``current.t``).
     event_values: np.ndarray | None = None
     event_counted: np.ndarray | None = None
+    #: The zeros each event function has counted towards its ``terminal``
+    #: limit (whole numbers; ``None``: no events), so that a restored run
+    #: ends at the same zero (the record ``t_events`` is the caller's and stays).
+    event_count: np.ndarray | None = None
 
     def copy(self, copy_arrays: bool = True) -> IntegratorState:
         """A deep copy, field by field: a co-simulation step saves one before
@@ -89,7 +93,7 @@ class IntegratorState:
             new.current = self.current.copy()
             new.previous = None if self.previous is None else self.previous.copy()
             new.global_error = None if self.global_error is None else self.global_error.copy()
-            for name in ("event_values", "event_counted"):
+            for name in ("event_values", "event_counted", "event_count"):
                 value = getattr(self, name)
                 setattr(new, name, None if value is None else value.copy())
         new.statistics = _clone(self.statistics)
@@ -113,6 +117,8 @@ class IntegratorState:
         if self.event_values is not None:
             arrays["event_values"] = np.asarray(self.event_values, dtype=np.float64)
             arrays["event_counted"] = np.asarray(self.event_counted, dtype=np.float64)
+        if self.event_count is not None:
+            arrays["event_count"] = np.asarray(self.event_count, dtype=np.float64)
         header = {name: kind(getattr(self, name)) for name, kind in _STATE_SCALARS.items()}
         header.update(format=STATE_FORMAT, current=one("current", self.current),
                       previous=one("previous", self.previous),
@@ -173,6 +179,13 @@ class IntegratorState:
                 and np.isin(event_counted, (0.0, 1.0)).all()):
             raise ValueError("serialized state: event_values and event_counted must be two "
                              "float64 arrays of one length, finite, the second of 0 and 1")
+        event_count = arrays.pop("event_count", None)
+        if event_count is not None and not (
+                event_count.dtype == np.float64 and event_count.ndim == 1
+                and np.isfinite(event_count).all() and (event_count >= 0).all()
+                and (event_count == np.floor(event_count)).all()):
+            raise ValueError("serialized state: event_count must be a float64 array of whole "
+                             "numbers >= 0")
         if arrays:
             raise ValueError(f"serialized state: unexpected entries {sorted(arrays)}")
         counts = header.get("statistics")
@@ -183,7 +196,7 @@ class IntegratorState:
         scalars = {k: _field(header, k, kind) for k, kind in _STATE_SCALARS.items()}
         return cls(current=current, previous=previous, statistics=statistics,
                    global_error=global_error, event_values=event_values,
-                   event_counted=event_counted, **scalars)
+                   event_counted=event_counted, event_count=event_count, **scalars)
 
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.

@@ -24,7 +24,8 @@ class Status(enum.IntEnum):
     or more); that state is not accepted.
 
     ``TERMINATED``: a terminal event function reached its zero (its last
-    allowed one) and the run ended there, as asked; a success.
+    allowed one), or ``integrate``'s progress callback raised
+    ``StopIteration``, and the run ended there, as asked; a success.
 
     ``TOLERANCE_NOT_MET``: ``integrate(error="global")`` reached ``t_end``,
     but its last run's estimated global error is above the tolerance (or

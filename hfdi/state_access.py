@@ -45,12 +45,16 @@ class StateAccess:
             global_error=vec.global_error.copy(), **self._event_memory(run.t))
 
     def _event_memory(self, t) -> dict:
-        """The events' values and counted zeros at ``t`` (IntegratorState's fields)."""
+        """The zeros counted towards the terminal limits, and the events'
+        values and counted zeros at ``t`` (IntegratorState's fields)."""
         events = getattr(self, "_events", None)
-        if events is None or events.t != t:
+        if events is None:
             return {}
-        return {"event_values": events.g.copy(),
-                "event_counted": events.counted_zero.astype(np.float64)}
+        memory = {"event_count": events.count.astype(np.float64)}
+        if events.t == t:
+            memory.update(event_values=events.g.copy(),
+                          event_counted=events.counted_zero.astype(np.float64))
+        return memory
 
     def set_state(self, saved: IntegratorState) -> None:
         """Restore a state from :meth:`get_state`; the run then continues
@@ -107,6 +111,8 @@ class StateAccess:
         self._events.start(current.t, current.u, current.v)
         if saved.event_values is not None and saved.event_values.shape == self._events.g.shape:
             self._events.resume(current.t, saved.event_values, saved.event_counted)
+        if saved.event_count is not None and saved.event_count.shape == self._events.count.shape:
+            self._events.count[:] = saved.event_count
 
     def _restore(self, saved: IntegratorState) -> None:
         run = self._run

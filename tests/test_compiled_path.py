@@ -515,6 +515,36 @@ def test_progress_is_reported_from_the_driver(monkeypatch):
     assert [t for t, _ in seen] == sorted(t for t, _ in seen)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("error", ["local", "global"])
+def test_progress_may_stop_the_run(monkeypatch, compiled, error):
+    """progress raising StopIteration ends the run where it stands, as a
+    success with the rows so far (those of the whole run: the exception
+    propagated out of integrate, and the steps were lost); another exception
+    propagates."""
+    monkeypatch.setattr(sys.modules["hfdi.integrate"], "PROGRESS_INTERVAL", 0.0)
+    monkeypatch.setattr(sys.modules["hfdi.integrator"], "STEPS_PER_CALL", 7)
+
+    def progress(t, statistics):
+        if t > 0.002:
+            raise StopIteration
+
+    options = dict(rtol=1e-6, compiled=compiled, error=error)
+    stopped = hfdi.integrate(toss_rule(), "hfdi", 0.004, progress=progress, **options)
+    assert stopped.status == hfdi.Status.TERMINATED and stopped.success, stopped.message
+    assert "progress raised StopIteration" in stopped.message
+    assert 0.002 < stopped.t[-1] < 0.004 and stopped.runs == 1
+    whole = hfdi.integrate(toss_rule(), "hfdi", 0.004, rtol=1e-6, compiled=compiled)
+    np.testing.assert_array_equal(stopped.u, whole.u[:stopped.t.size])
+    np.testing.assert_array_equal(stopped.sol(stopped.t[-1])[0], stopped.u[-1])
+
+    def failing(t, statistics):
+        raise KeyError("from progress")
+
+    with pytest.raises(KeyError, match="from progress"):
+        hfdi.integrate(toss_rule(), "hfdi", 0.004, progress=failing, **options)
+
+
 def log_spring():
     """``V = x²/2 + log(1 + x)/10`` thrown at its singularity ``x = -1``
     (reached at t ≈ 0.17): the steps shrink until below ``min_step``."""
