@@ -484,6 +484,30 @@ def test_a_state_restored_at_a_zero_does_not_count_it_again(serialized):
         np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-8)
 
 
+@pytest.mark.parametrize("serialized", [False, True])
+def test_a_restored_state_ends_at_the_same_terminal_zero(serialized):
+    """terminal=2 on the zeros of u (π/2, 3π/2, ...): a state saved after the
+    first, restored into a new integrator (bytes too), ends at the second, as
+    the run without a restore does. The count did not travel with the state:
+    the restored run went on to the third (4.71 → 7.85)."""
+    def zero(t, u, v):
+        return u[0]
+    zero.terminal = 2
+    model = hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0])
+    first = hfdi.Integrator(model, "hfdi", rtol=1e-8, events=zero)
+    assert first.advance(2.0)
+    saved = first.get_state()
+    if serialized:
+        saved = hfdi.IntegratorState.from_bytes(saved.to_bytes())
+    restored = hfdi.Integrator(model, "hfdi", rtol=1e-8, events=zero)
+    restored.set_state(saved)
+    assert list(restored.event_count) == [1]
+    restored.advance(10.0)
+    first.advance(10.0)
+    assert restored.terminated and first.terminated
+    assert restored.t == pytest.approx(1.5 * np.pi, abs=1e-7) and restored.t == first.t
+
+
 @pytest.mark.slow
 def test_advance_until_event_counts_a_zero_at_its_start_and_goes_on():
     """A highest point at t0 (v0 = 0): counted by the first call, which goes
