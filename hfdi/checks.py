@@ -85,8 +85,10 @@ def real_array(value) -> np.ndarray | None:
         return None
 
 
-def finite_array(name: str, value, shape, *, positive: bool = False) -> np.ndarray:
-    """A float array of the given shape with finite (and, if asked, positive) entries."""
+def finite_array(name: str, value, shape, *, positive: bool = False,
+                 to_match: str = "") -> np.ndarray:
+    """A float array of the given shape with finite (and, if asked, positive)
+    entries; ``to_match`` says where the shape comes from (" to match the mass")."""
     if complex_values(value):
         raise ValueError(f"{name} must be real, got complex values {value!r:.80}")
     try:
@@ -96,7 +98,7 @@ def finite_array(name: str, value, shape, *, positive: bool = False) -> np.ndarr
                          f"got {value!r}") from None
     what = "positive finite" if positive else "finite"
     if arr.shape != tuple(shape):
-        raise ValueError(f"{name} must have shape {tuple(shape)} ({what} entries), "
+        raise ValueError(f"{name} must have shape {tuple(shape)}{to_match} ({what} entries), "
                          f"got shape {arr.shape}")
     if not np.all(np.isfinite(arr)) or (positive and not np.all(arr > 0)):
         raise ValueError(f"{name} must have {what} entries, got {arr.tolist()!r}")

@@ -370,7 +370,8 @@ def _matrices_and_start(model, who, mass, damping, initial_displacement, initial
     model.damping = None if damping is None else \
         _matching_matrix(f"{who} damping", damping, n)
     model.initial_displacement, model.initial_velocity = (
-        np.zeros(n) if value is None else checks.finite_array(f"{who} {what}", value, (n,))
+        np.zeros(n) if value is None else checks.finite_array(
+            f"{who} {what}", value, (n,), to_match=f" to match the mass of {n} DOFs")
         for what, value in (("initial_displacement", initial_displacement),
                             ("initial_velocity", initial_velocity)))
     return n
