@@ -113,7 +113,7 @@ def normalise_matrix(a, n: int, name: str):
         return None
     a = checks.square_matrix(name, a, n)
     if sp.issparse(a):
-        a = sp.csr_matrix(a, dtype=float)
+        a = sp.csr_matrix(a, dtype=float, copy=True)
         if a.nnz == 0 or (a - sp.diags(a.diagonal())).count_nonzero() == 0:
             return np.asarray(a.diagonal(), dtype=float)
         return a
@@ -121,7 +121,18 @@ def normalise_matrix(a, n: int, name: str):
         return a.copy()
     if np.count_nonzero(a - np.diag(np.diag(a))) == 0:
         return np.diag(a).copy()
-    return np.ascontiguousarray(a)
+    # a copy: a model's matrix changed in place later must not change the run's
+    return np.array(a, dtype=float, order="C")
+
+
+def _same_matrix(a, b) -> bool:
+    """Two normalised matrices equal in kind, shape and every entry."""
+    if a is None or b is None:
+        return a is None and b is None
+    if sp.issparse(a) or sp.issparse(b):
+        return sp.issparse(a) and sp.issparse(b) and a.shape == b.shape \
+            and (a != b).count_nonzero() == 0
+    return a.shape == b.shape and np.array_equal(a, b)
 
 
 def matrix_kind(a) -> int:
@@ -205,9 +216,7 @@ class Evaluator:
             checks.symmetric_definite(
                 name, matrix, semi=semi,
                 what=" (negative damping is not allowed)" if semi else "")
-        if n < DENSE_BELOW:
-            self.mass, self.damping = (a.toarray() if sp.issparse(a) else a
-                                       for a in (self.mass, self.damping))
+        self.mass, self.damping = (self._stored(a) for a in (self.mass, self.damping))
         self.extra_load = extra_load
         self.nfev = self.njev = self.ntev = self.npev = 0
         self._mass_factor = None
@@ -223,6 +232,19 @@ class Evaluator:
         #: The last fault a function of :meth:`functions` met: ``(message,
         #: mistake)``, ``mistake`` true for a :class:`ModelError`.
         self.fault = None
+
+    def _stored(self, matrix):
+        """A normalised matrix as the run keeps it: dense below the sparse size."""
+        return matrix.toarray() if self.n < DENSE_BELOW and sp.issparse(matrix) else matrix
+
+    def matrix_changed(self) -> str:
+        """The name of the model's matrix (``"mass"``, ``"damping"``) that is no
+        longer the one read at construction, or ``""``: the run reads them once."""
+        for name, mine in (("mass", self.mass), ("damping", self.damping)):
+            now = normalise_matrix(getattr(self.system, name), self.n, f"system.{name}")
+            if not _same_matrix(mine, None if now is None else self._stored(now)):
+                return name
+        return ""
 
     @property
     def mass_kind(self) -> int:

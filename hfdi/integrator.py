@@ -540,8 +540,18 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         ModelError
             When the model cannot be evaluated at the current state (the
             integrator is then left as it was).
+        ValueError
+            When the model's ``mass`` or ``damping`` changed: they are read
+            once, at construction; a new ``Integrator`` takes them (and
+            :meth:`set_state` the state reached).
         """
         run = self._run
+        changed = self.ev.matrix_changed()
+        if changed:
+            raise ValueError(
+                f"the {changed} of model {type(self.system).__name__} changed after the "
+                f"integrator was built, which reads M and C once: build a new Integrator "
+                f"for the new matrices (set_state carries the state reached over)")
         try:
             potential = self.ev.potential_energy(self._vec.u)
         except ModelError:

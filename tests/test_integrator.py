@@ -659,3 +659,29 @@ def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():
         assert itg.advance(7.5), itg.message      # u ≈ cos 7.5 > 0 on the way
         runs.append((itg.state.u.tolist(), [list(t) for t in itg.t_events]))
     assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("change", ["replaced", "in place", "damping added"])
+def test_a_changed_mass_or_damping_is_refused_not_ignored(change):
+    """M and C are read once: a mass replaced, changed in place, or a damping
+    given after the integrator was built is refused by model_changed(), by
+    name (it was ignored: the run went on with the old matrices, and an
+    in-place change reached the Python steps' M but not the compiled ones');
+    without a change model_changed() goes on as before."""
+    model = hfdi.LinearSystem(mass=np.array([[2.0, 0.5], [0.5, 1.0]]),
+                              stiffness=[[3.0, -1.0], [-1.0, 2.0]],
+                              initial_displacement=[0.1, 0.0])
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6)
+    assert itg.advance(0.5)
+    itg.model_changed()
+    kept = itg.state
+    if change == "replaced":
+        model.mass = np.array([[4.0, 0.5], [0.5, 1.0]])
+    elif change == "in place":
+        model.mass[0, 0] = 4.0
+    else:
+        model.damping = np.array([0.1, 0.1])
+    name = "damping" if change == "damping added" else "mass"
+    with pytest.raises(ValueError, match=f"the {name} of model LinearSystem changed"):
+        itg.model_changed()
+    np.testing.assert_array_equal(itg.state.u, kept.u)
