@@ -665,9 +665,8 @@ def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():
 def test_a_changed_mass_or_damping_is_refused_not_ignored(change):
     """M and C are read once: a mass replaced, changed in place, or a damping
     given after the integrator was built is refused by model_changed(), by
-    name (it was ignored: the run went on with the old matrices, and an
-    in-place change reached the Python steps' M but not the compiled ones');
-    without a change model_changed() goes on as before."""
+    name (it was ignored: the run went on with the old matrices); without a
+    change model_changed() goes on as before."""
     model = hfdi.LinearSystem(mass=np.array([[2.0, 0.5], [0.5, 1.0]]),
                               stiffness=[[3.0, -1.0], [-1.0, 2.0]],
                               initial_displacement=[0.1, 0.0])
