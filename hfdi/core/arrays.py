@@ -23,7 +23,8 @@ from .jit import jitable, primitive
 __all__ = ["NONE", "DIAGONAL", "DENSE", "SPARSE", "copy", "copy_matrix", "fill", "fill_matrix",
            "all_finite_matrix", "lincomb", "axpy", "scale", "times",
            "add_times", "divide", "divide_by", "matvec", "scaled_into", "add_scaled", "add_kind", "add_diagonal",
-           "divide_rows", "max_abs", "all_finite", "row_sum_max", "kinetic", "dot", "matmul"]
+           "divide_rows", "max_abs", "all_finite", "row_sum_max", "kinetic", "dot", "matmul",
+           "keep_larger"]
 
 #: Kinds of a matrix of the model (mass, damping).
 NONE, DIAGONAL, DENSE, SPARSE = 0, 1, 2, 3
@@ -42,6 +43,18 @@ def lincomb(out, a, x, b, y):
     by = b * y              # before out is written: out may be y
     np.multiply(x, a, out)
     out += by
+
+
+def _keep_larger_loop(out, x):
+    for i in range(out.shape[0]):
+        if abs(x[i]) > abs(out[i]):
+            out[i] = x[i]
+
+
+@primitive(_keep_larger_loop)
+def keep_larger(out, x):
+    """``out[i] = x[i]`` where ``|x[i]| > |out[i]|``."""
+    np.copyto(out, x, where=np.abs(x) > np.abs(out))
 
 
 def _copy_loop(out, x):
