@@ -20,9 +20,9 @@ import time
 import numpy as np
 
 from . import checks, compiled as compiled_path, run_records
-from .controller import ErrorControl, FixedStep, IterationCount
+from .controller import ErrorControl, FixedStep, core_kind
 from .core import codes
-from .core.state import CUSTOM, RUN
+from .core.state import COMBINED, CUSTOM, ERROR, RUN
 from .core.state import HFDI as HFDI_STAGE
 from .evaluation import Evaluator, ModelError, ModelFault, State
 from .compiled_steps import CompiledSteps
@@ -238,8 +238,8 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             why = "extra_load is given" if system.load_rate is not None else \
                 "the model has no load_rate"
             raise ValueError(f"scheme HFDI(load_rate='exact') needs the exact load rate, but "
-                             f"{why}; use HFDI(load_rate='auto') or "
-                             f"HFDI(load_rate='difference')")
+                             f"{why}; use HFDI(load_rate='auto'), 'derived' or "
+                             f"'difference'")
         self.t0 = checks.real("t0", t0)
         self.t_bound = None if t_bound is None else checks.real("t_bound", t_bound)
         if self.t_bound is not None and not self.t_bound > self.t0:
@@ -310,7 +310,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                 f"potential_energy or leave energy_limit=None")
         exact = isinstance(self.scheme, HFDI) and self.scheme.exact_rate(ev.has_load_rate)
         derived = isinstance(self.scheme, HFDI) and not exact and self.scheme.derived_rate(
-            ev.has_load_rate, isinstance(c, IterationCount))
+            ev.has_load_rate, core_kind(c) in (ERROR, COMBINED))
         #: the scheme's stages are HFDI's (else affine): the compiled loop's constant
         self._hfdi = HFDI_STAGES if self.scheme.stage.py_func(
             1.0, 0, self.scheme.params()).kind == HFDI_STAGE else AFFINE_STAGES
@@ -509,7 +509,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
 
         The current state keeps the load ``p_n`` and the acceleration ``a_n``
         computed when it was reached; the schemes read both (Newmark and Bathe
-        through ``a_n``, HFDI through ``p_n`` in its load rate, the energy
+        through ``a_n``, HFDI through ``p_n`` in ``g_n`` and the paper's load rate, the energy
         balance through the work). After a jump of the load at ``t_n`` (a
         co-simulation input changed at a communication point), both are
         recomputed from the load now, the acceleration being the right limit;

@@ -84,8 +84,8 @@ class SecondOrderSystem:
         return np.zeros(self.n_dof)
 
     #: Exact load rate ``p'(t)``; ``None`` when the model has none, in which
-    #: case HFDI differentiates the load within the step, or takes the paper's
-    #: difference quotient in its iteration-count mode (docs/algorithm.md, "Load rate").
+    #: case HFDI differentiates the load within the step under error control,
+    #: else takes the paper's difference quotient (docs/algorithm.md, "Load rate")
     load_rate: Callable | None = None
 
     def load_breakpoints(self):

@@ -15,7 +15,7 @@ class KernelModel(SecondOrderSystem):
     """A model whose ``f``, ``K``, ``T[w]`` and ``V`` are the kernels
     :attr:`KERNELS` on the data :meth:`params`, and whose load is the hat
     pulses of :meth:`load_params` (none by default). No exact load rate: HFDI
-    differentiates the load (the paper's quotient in its iteration-count mode)."""
+    differentiates the load under error control, else takes the paper's quotient."""
 
     #: ``(force, stiffness, stiffness_derivative, potential_energy)``, the kernels.
     KERNELS: tuple = ()

@@ -33,9 +33,12 @@ class HFDI(Scheme):
         attempt; third order under any smooth load); ``"difference"`` the
         paper's ``(p(t_{n+1}) − p(t_n))/h``, which makes the scheme second
         order on problems with a time-varying load. ``"auto"`` (default):
-        the exact rate when the model provides one; else the paper's
-        quotient in the paper's iteration-count mode (its tables), the
-        derived rate in the other modes (docs/algorithm.md, "Load rate").
+        the exact rate when the model provides one; else the derived rate
+        under error control, whose steps land on the load's breakpoints, and
+        the paper's quotient in the other modes (the iteration-count mode's
+        tables are the paper's; fixed steps step over a kink off their grid,
+        which the derived rate's samples near the step's end would amplify)
+        (docs/algorithm.md, "Load rate").
     """
 
     name = "hfdi"
@@ -61,11 +64,11 @@ class HFDI(Scheme):
         """Whether the step takes the model's ``p'`` (it ``has_rate``)."""
         return self.load_rate == "exact" or (self.load_rate == "auto" and has_rate)
 
-    def derived_rate(self, has_rate: bool, iteration_count: bool) -> bool:
-        """Whether the step differentiates the load itself (in the
-        ``iteration_count`` mode, by default, the paper's quotient)."""
+    def derived_rate(self, has_rate: bool, lands_on_breakpoints: bool) -> bool:
+        """Whether the step differentiates the load itself (by default where
+        the steps land on the load's breakpoints: under error control)."""
         return self.load_rate == "derived" or (self.load_rate == "auto" and not has_rate
-                                               and not iteration_count)
+                                               and lands_on_breakpoints)
 
     def __repr__(self):
         return f"HFDI(load_rate={self.load_rate!r})"

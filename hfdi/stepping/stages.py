@@ -331,8 +331,9 @@ def hfdi_setup(fn, cfg, data, run, vec, h, t_end, left):
     """What the HFDI stage keeps over its iterations (Eqs. 19–21, multiplied
     through by ``M``): ``B = 2h/3 M + h²/6 C`` (diagonal in
     ``VECTORS.b_diagonal``, or factorised), ``q0 = −M (u_n + h/3 v_n)``,
-    ``F0 = −M v_n − C u_n − h/3 g_n`` and ``p'(t_{n+1})`` (the model's, or the
-    paper's ``(p_{n+1} − p_n)/h``). An outcome code."""
+    ``F0 = −M v_n − C u_n − h/3 g_n`` and ``p'(t_{n+1})`` (the model's, the
+    derived one of :func:`_derived_load_rate`, or the paper's
+    ``(p_{n+1} − p_n)/h``). An outcome code."""
     c, c2 = h * h / 6.0, 2.0 * h / 3.0
     g_n, f_n, work = vec.rhs, vec.tmp, vec.work
     if run.has_force:
