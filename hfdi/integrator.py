@@ -38,7 +38,7 @@ from .schemes import HFDI, Scheme, get_scheme
 from .stepping import attempt as stepping
 from .stepping.loop import advance as advance_python
 from .stepping.stages import AFFINE_STAGES, HFDI_STAGES
-from .system import SecondOrderSystem, declared_u_scale
+from .system import HeldLoad, SecondOrderSystem, declared_u_scale
 
 __all__ = ["Integrator", "ROWS_PER_CALL", "STEPS_PER_CALL"]
 
@@ -309,8 +309,12 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                 f"returns NaN (unknown) from potential_energy at u0; give the model "
                 f"potential_energy or leave energy_limit=None")
         exact = isinstance(self.scheme, HFDI) and self.scheme.exact_rate(ev.has_load_rate)
+        # a load linear between its breakpoints (held inputs added) has the
+        # quotient for its exact rate: HFDI's "auto" derives none
+        linear = bool(getattr(system, "load_linear_between_breakpoints", False)) and (
+            ev.extra_load is None or isinstance(ev.extra_load, HeldLoad))
         derived = isinstance(self.scheme, HFDI) and not exact and self.scheme.derived_rate(
-            ev.has_load_rate, core_kind(c) in (ERROR, COMBINED))
+            ev.has_load_rate or linear, core_kind(c) in (ERROR, COMBINED))
         #: the scheme's stages are HFDI's (else affine): the compiled loop's constant
         self._hfdi = HFDI_STAGES if self.scheme.stage.py_func(
             1.0, 0, self.scheme.params()).kind == HFDI_STAGE else AFFINE_STAGES

@@ -88,6 +88,11 @@ class SecondOrderSystem:
     #: else takes the paper's difference quotient (docs/algorithm.md, "Load rate")
     load_rate: Callable | None = None
 
+    #: True when the load is linear between the times of :meth:`load_breakpoints`
+    #: (hat pulses, steps): the paper's quotient is then its exact rate, and
+    #: HFDI evaluates the load no more to derive one.
+    load_linear_between_breakpoints: bool = False
+
     def load_breakpoints(self):
         """Times where the load ``p`` or its rate ``p'`` jumps (a kink of a hat
         pulse, a step load), as a sequence of floats; empty by default.

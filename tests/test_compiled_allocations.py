@@ -101,12 +101,10 @@ SCRIPT = textwrap.dedent("""
         st = itg.statistics
         counts = {name: getattr(st, name) - before[name] for name in before}
         # the load at the step's end, and at Bathe's mid-step or generalized-α's
-        # t_{n+1-α_f}; these models give no load rate kernel: under error
-        # control HFDI derives the rate from two loads more, in the
-        # iteration-count mode it takes the paper's quotient
-        per_step = {"bathe": 2, "generalized_alpha": 2,
-                    "hfdi": 3 if mode == "error" else 1}.get(scheme, 1)
-        counts["load"] = counts["steps"] * per_step
+        # t_{n+1-α_f} (HFDI's rate is the paper's quotient, exact for these
+        # loads, linear between their breakpoints)
+        counts["load"] = counts["steps"] * (2 if scheme in ("bathe", "generalized_alpha")
+                                            else 1)
         expected = sum(counts[name] * kernels[name] for name in kernels)
         results.append(dict(case=[problem, scheme, mode], allocations=allocations,
                             expected=expected, steps=counts["steps"],

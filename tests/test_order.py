@@ -80,6 +80,28 @@ def test_the_default_load_rate_is_derived_where_steps_land_on_breakpoints(mode, 
     assert runs["auto"].u.shape != runs[other].u.shape or np.any(runs["auto"].u != runs[other].u)
 
 
+def test_a_load_linear_between_its_breakpoints_keeps_the_exact_quotient():
+    """The library's hat pulses are linear between their kinks: under error
+    control HFDI's default takes the quotient, their exact rate (the same run
+    as load_rate="difference", no loads spent on a derivative); a subclass
+    that replaces the load gets the derived rate."""
+    model = hfdi.models.articulated
+    runs = [hfdi.integrate(model(), hfdi.HFDI(load_rate=rate), 0.03, rtol=1e-5)
+            for rate in ("auto", "difference")]
+    assert model().load_linear_between_breakpoints
+    np.testing.assert_array_equal(runs[0].u, runs[1].u)
+    assert runs[0].stats.npev == runs[1].stats.npev
+
+    class Smooth(type(model())):
+        def load(self, t):
+            return super().load(t) * (1.0 + 0.1 * np.sin(100.0 * t))
+
+    assert not Smooth().load_linear_between_breakpoints
+    smooth = [hfdi.integrate(Smooth(), hfdi.HFDI(load_rate=rate), 0.03, rtol=1e-5)
+              for rate in ("auto", "derived")]
+    np.testing.assert_array_equal(smooth[0].u, smooth[1].u)
+
+
 def test_paper_load_rate_quotient_makes_hfdi_second_order():
     """The paper's p_t ≈ (p_{n+1} − p_n)/h is off by O(h) at t_{n+1}; multiplied by
     h²/6 it is an O(h³) local error, so a time-varying load costs one order."""

@@ -14,8 +14,8 @@ __all__ = ["KernelModel"]
 class KernelModel(SecondOrderSystem):
     """A model whose ``f``, ``K``, ``T[w]`` and ``V`` are the kernels
     :attr:`KERNELS` on the data :meth:`params`, and whose load is the hat
-    pulses of :meth:`load_params` (none by default). No exact load rate: HFDI
-    differentiates the load under error control, else takes the paper's quotient."""
+    pulses of :meth:`load_params` (none by default). No exact load rate: the paper's quotient is exact for the pulses,
+    linear between their kinks (:attr:`load_linear_between_breakpoints`)."""
 
     #: ``(force, stiffness, stiffness_derivative, potential_energy)``, the kernels.
     KERNELS: tuple = ()
@@ -45,6 +45,14 @@ class KernelModel(SecondOrderSystem):
 
     def load(self, t):
         return hat_load(float(t), self.load_params())
+
+    @property
+    def load_linear_between_breakpoints(self) -> bool:
+        """The hat pulses are linear between their kinks (unless a subclass
+        replaces the load or its breakpoints)."""
+        kind = type(self)
+        return kind.load is KernelModel.load and \
+            kind.load_breakpoints is KernelModel.load_breakpoints
 
     def load_breakpoints(self):
         """The kinks of the hat pulses: ``0``, ``t1`` and ``2 t1`` of each."""

@@ -66,7 +66,8 @@ class HFDI(Scheme):
 
     def derived_rate(self, has_rate: bool, lands_on_breakpoints: bool) -> bool:
         """Whether the step differentiates the load itself (by default where
-        the steps land on the load's breakpoints: under error control)."""
+        the steps land on the load's breakpoints, under error control, and the
+        model ``has_rate`` neither exact nor exactly the quotient)."""
         return self.load_rate == "derived" or (self.load_rate == "auto" and not has_rate
                                                and lands_on_breakpoints)
 
