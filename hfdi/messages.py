@@ -108,6 +108,11 @@ def stop_message(run, cfg, fault=None, t_limit=math.inf) -> str:
         text = _guard(run, reason, cfg.it_min_step if rule else cfg.er_min_step,
                       cfg.it_max_rejections if rule else cfg.er_max_rejections, why)
         text += (f": {why}" if reason == codes.STOP_MIN_STEP else "") + to
+        if reason == codes.STOP_MIN_STEP and not rule and run.a_outcome == codes.OK:
+            # the error test, not the corrector, shrank the steps to nothing
+            text += (f"; a jump or kink of the load near t = {run.t + h:.10g} (or a "
+                     f"singularity of the model)? A load's, declared (breakpoints=[...] or "
+                     f"the model's load_breakpoints()), is landed on instead of crossed")
     elif reason == codes.STOP_FIXED_FAILED:
         text = f"corrector failed with fixed step {h:.6g}: {why}" + (
             "" if run.first_step_pending else to)

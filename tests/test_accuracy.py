@@ -637,6 +637,22 @@ def test_an_undeclared_load_jump_is_found_by_the_error_control(scheme):
     assert abs(result.u[-1, 0] - exact) / 0.5 < 20 * rtol
 
 
+@pytest.mark.slow
+def test_steps_shrunk_to_nothing_at_an_undeclared_jump_say_how_to_declare_it():
+    """At rtol 1e-8 the structure at rest leaves v's tolerance below what any
+    step across the undeclared jump can meet: Newmark stops at min_step, its
+    message pointing at the jump's time and at breakpoints=, with which the
+    same run succeeds within rtol."""
+    model = hfdi.LinearSystem(np.array([1.0]), np.array([[4.0]]), load=step_load)
+    stopped = hfdi.integrate(model, "newmark", 1.0, rtol=1e-8)
+    assert stopped.status == hfdi.Status.STEP_BELOW_MINIMUM
+    assert "near t = 0.3" in stopped.message and "breakpoints=" in stopped.message
+    declared = hfdi.integrate(model, "newmark", 1.0, rtol=1e-8, breakpoints=[0.3])
+    assert declared.success
+    exact = 0.5 * (1.0 - np.cos(2.0 * (1.0 - 0.3)))
+    assert abs(declared.u[-1, 0] - exact) / 0.5 < 10 * 1e-8
+
+
 def test_model_breakpoints_are_landed_on_under_error_control_only():
     model = hfdi.models.articulated()
     kinks = model.load_breakpoints()

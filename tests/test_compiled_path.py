@@ -1216,9 +1216,11 @@ def test_a_system_of_numba_functions_runs_compiled(scheme):
      "load_rate"),
     pytest.param(("load",), marks=pytest.mark.slow),
     pytest.param(("potential_energy",), marks=pytest.mark.slow)])
-def test_a_system_with_a_python_function_says_which_and_runs_python(python_parts):
+def test_a_system_with_a_python_function_says_which_and_runs_python(python_parts, monkeypatch):
     """The first Python function is named (the others, numba's, are compiled
     when the Python path calls them: the slow tier)."""
+    import hfdi.compiled as hc
+    monkeypatch.setattr(hc, "_SAID", set())     # said once per process: maybe before
     model = _njit_chain(**{name: _NJIT_CHAIN[name].py_func for name in python_parts})
     said = f"System's {python_parts[0]} is a Python function"
     with pytest.raises(CompiledUnavailable, match=said):
