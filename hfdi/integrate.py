@@ -185,6 +185,10 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         again = run(asked_rtol * tighter, asked_atol * tighter)
         runs += 1
         again.rtol, again.atol = asked_rtol, asked_atol
+        if again.message.startswith(PROGRESS_STOPPED):
+            # the complete answer stays; the stopped rerun is said
+            why = f"progress stopped the rerun at rtol {float(np.min(asked_rtol)) * tighter:.3g}"
+            break
         if not again.success:
             # the complete answer stays; the failed rerun is said
             why = (f"the rerun at rtol {float(np.min(asked_rtol)) * tighter:.3g} failed "
@@ -284,8 +288,9 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
         ok, stopped = integrator.advance(t_end, rows=record_rows), False
     except _ProgressStop:
         # raised between two calls of the stepping code: the rows so far are
-        # the integrator's accepted steps up to where it stands
-        ok, stopped = True, True
+        # the integrator's accepted steps up to where it stands (a call that
+        # failed keeps its failure)
+        ok, stopped = not integrator.failed, True
     if progress is not None and not stopped:
         try:
             progress(integrator.t, integrator.statistics)
@@ -306,6 +311,11 @@ def _integrate(integrator, system, t_end, t_eval, save_steps, progress) -> Resul
         t_eval, u_eval, v_eval = t_eval[keep], u_eval[keep], v_eval[keep]
     t_events, u_events, v_events = integrator.t_events, integrator.u_events, \
         integrator.v_events
+    if stopped and t_events is not None:
+        # zeros found in steps scanned past where the run was stopped
+        kept = [np.asarray(times) <= integrator.t for times in t_events]
+        t_events, u_events, v_events = ([x[k] for x, k in zip(which, kept)]
+                                        for which in (t_events, u_events, v_events))
     return Result(**rows.arrays(), status=status, message=message,
                   t_events=t_events, u_events=u_events, v_events=v_events,
                   stats=integrator.statistics, scheme=integrator.scheme.name,

@@ -720,9 +720,10 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                 self._python_steps(t_stop, max_accepted)
         finally:
             self._run_cpu += time.process_time() - start
-        if run.status < 0 and not self._message:
-            self._message = stop_message(run, self._cfg, self.ev.fault)
-        elif self.finished and run.status >= 0:
+            # also when the rows' consumer raised (integrate's progress stop)
+            if run.status < 0 and not self._message:
+                self._message = stop_message(run, self._cfg, self.ev.fault)
+        if self.finished and run.status >= 0:
             run.status = int(Status.SUCCESS)
             self._message = f"reached t_bound = {self.t_bound!r}"
 

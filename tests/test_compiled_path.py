@@ -547,6 +547,46 @@ def test_progress_may_stop_the_run(monkeypatch, compiled, error):
 
     with pytest.raises(KeyError, match="from progress"):
         hfdi.integrate(model(), "hfdi", 10.0, progress=failing, **options)
+    # a run that failed in the call whose rows progress saw keeps its failure
+    short = hfdi.integrate(model(), "hfdi", 10.0, progress=progress, max_steps=40, **options)
+    assert short.status == hfdi.Status.MAX_STEPS and "max_steps = 40" in short.message
+
+
+def test_a_progress_stop_keeps_what_it_stopped(monkeypatch):
+    """error="global": a stop during the rerun keeps the complete first run
+    (it returned the rerun's fragment as the answer), saying so; events: no
+    zero past where the run stopped (the scan had recorded it)."""
+    monkeypatch.setattr(sys.modules["hfdi.integrate"], "PROGRESS_INTERVAL", 0.0)
+    monkeypatch.setattr(sys.modules["hfdi.integrator"], "STEPS_PER_CALL", 7)
+    import exact_problems
+    kepler, _ = exact_problems.kepler()      # its first run misses the global tolerance
+    seen = []
+
+    def second_run(t, statistics):
+        if seen and t < seen[-1]:
+            raise StopIteration              # the time went back: a rerun
+        seen.append(t)
+
+    result = hfdi.integrate(kepler, "hfdi", 4 * np.pi, rtol=1e-4, error="global",
+                            progress=second_run)
+    assert result.t[-1] == 4 * np.pi and result.runs == 2
+    assert result.status == hfdi.Status.TOLERANCE_NOT_MET
+    assert "progress stopped the rerun" in result.message
+    model = hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0])
+
+    def zero(t, u, v):
+        return u[0]
+    zero.terminal = True
+    for k in range(1, 4):
+        calls = []
+
+        def stop(t, statistics):
+            calls.append(t)
+            if len(calls) == k:
+                raise StopIteration
+
+        stopped = hfdi.integrate(model, "hfdi", 5.0, rtol=1e-8, events=zero, progress=stop)
+        assert all(np.all(times <= stopped.t[-1]) for times in stopped.t_events), k
 
 
 def log_spring():
