@@ -126,13 +126,18 @@ def normalise_matrix(a, n: int, name: str):
 
 
 def _same_matrix(a, b) -> bool:
-    """Two normalised matrices equal in kind, shape and every entry."""
+    """Two normalised matrices with the same entries (``None`` is zero; a
+    sparse, a dense and a diagonal form of one matrix are the same)."""
     if a is None or b is None:
-        return a is None and b is None
-    if sp.issparse(a) or sp.issparse(b):
-        return sp.issparse(a) and sp.issparse(b) and a.shape == b.shape \
-            and (a != b).count_nonzero() == 0
-    return a.shape == b.shape and np.array_equal(a, b)
+        other = b if a is None else a
+        return other is None or not (other.count_nonzero() if sp.issparse(other)
+                                     else np.count_nonzero(other))
+    if not (sp.issparse(a) or sp.issparse(b)) and a.ndim == b.ndim:
+        return a.shape == b.shape and np.array_equal(a, b)
+    def as_sparse(m):
+        return sp.diags(m).tocsr() if not sp.issparse(m) and m.ndim == 1 else sp.csr_matrix(m)
+    a, b = as_sparse(a), as_sparse(b)
+    return a.shape == b.shape and (a != b).count_nonzero() == 0
 
 
 def matrix_kind(a) -> int:

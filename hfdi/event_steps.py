@@ -292,6 +292,13 @@ class EventSteps:
             except EventError as exc:
                 self._stop_at(t, g, here, f"t = {t:.10g}: {exc}")
                 return
+            changed = self._matrix_changed()
+            if changed:
+                self._stop_at(t, g, here, f"t = {t:.10g}: on_event changed the model's "
+                                          f"{changed}, which the run reads once: a new "
+                                          f"Integrator takes it (set_state carries the state "
+                                          f"over)")
+                return
             try:
                 if reset is not None:
                     self._reset_state(*reset)
@@ -315,6 +322,14 @@ class EventSteps:
             self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
+
+    def _matrix_changed(self) -> str:
+        """The model's matrix on_event changed (:meth:`Evaluator.matrix_changed`),
+        or ``""``."""
+        try:
+            return self.ev.matrix_changed()
+        except ValueError as exc:            # not a matrix any more
+            return f"mass or damping ({exc})"
 
     def _model_here(self):
         """What ``on_event`` may change of the model, seen at the current state:

@@ -183,9 +183,10 @@ class IntegratorState:
         if event_count is not None and not (
                 event_count.dtype == np.float64 and event_count.ndim == 1
                 and np.isfinite(event_count).all() and (event_count >= 0).all()
-                and (event_count == np.floor(event_count)).all()):
-            raise ValueError("serialized state: event_count must be a float64 array of whole "
-                             "numbers >= 0")
+                and (event_count == np.floor(event_count)).all()
+                and (event_count <= MAX_EVENT_COUNT).all()):
+            raise ValueError(f"serialized state: event_count must be a float64 array of whole "
+                             f"numbers in [0, {MAX_EVENT_COUNT}]")
         if arrays:
             raise ValueError(f"serialized state: unexpected entries {sorted(arrays)}")
         counts = header.get("statistics")
@@ -198,6 +199,9 @@ class IntegratorState:
                    global_error=global_error, event_values=event_values,
                    event_counted=event_counted, event_count=event_count, **scalars)
 
+
+#: The largest count of an event function's zeros a state holds (exact in a float).
+MAX_EVENT_COUNT = 2 ** 53
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
 STATE_FORMAT = "hfdi-integrator-state/5"

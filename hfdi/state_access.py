@@ -9,7 +9,7 @@ import numpy as np
 
 from .core.state import RUN
 from .evaluation import ModelError, State
-from .integrator_state import IntegratorState, check_state
+from .integrator_state import MAX_EVENT_COUNT, IntegratorState, check_state
 from .result import STATISTICS_FIELDS
 
 __all__ = ["StateAccess"]
@@ -111,7 +111,7 @@ class StateAccess:
         self._events.start(current.t, current.u, current.v)
         if saved.event_values is not None and saved.event_values.shape == self._events.g.shape:
             self._events.resume(current.t, saved.event_values, saved.event_counted)
-        if saved.event_count is not None and saved.event_count.shape == self._events.count.shape:
+        if saved.event_count is not None:
             self._events.count[:] = saved.event_count
 
     def _restore(self, saved: IntegratorState) -> None:
@@ -141,6 +141,22 @@ class StateAccess:
                     scheme=repr(self.scheme), t0=self.t0, t_bound=self.t_bound,
                     kinetic_energy=self.ev.kinetic_energy)
         self._check_state_model(saved.current, saved.model_version)
+        self._check_event_count(saved.event_count)
+
+    def _check_event_count(self, count) -> None:
+        """A saved ``event_count``: one whole number ``>= 0`` per event function
+        of this integrator (its terminal limits depend on them); ignored by an
+        integrator without events."""
+        events = getattr(self, "_events", None)
+        if count is None or events is None:
+            return
+        m = len(events.count)
+        value = np.asarray(count) if isinstance(count, np.ndarray) else None
+        if value is None or value.shape != (m,) or value.dtype.kind not in "fiu" or not (
+                np.isfinite(value).all() and (value >= 0).all()
+                and (value == np.floor(value)).all() and (value <= MAX_EVENT_COUNT).all()):
+            raise ValueError(f"state: event_count must be an array of {m} whole numbers in "
+                             f"[0, {MAX_EVENT_COUNT}] (one per event function), got {count!r:.80}")
 
     def _check_state_model(self, current: State, saved_version: int) -> None:
         """The kept force ``f_n`` of a state against this model's ``f(u_n)``.

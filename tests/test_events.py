@@ -572,3 +572,46 @@ def test_on_event_answers_every_zero_at_a_time_and_none_changes_nothing(scheme):
     assert np.all(np.diff(idle.t) > 0)
     assert idle.stats.accepted <= plain.stats.accepted + 2
     np.testing.assert_allclose(idle.u[-1], plain.u[-1], atol=1e-6)
+
+
+def test_a_saved_event_count_out_of_range_is_refused():
+    """event_count is data: a count that is negative, not whole, beyond 2**53
+    (it wrapped to a negative int64: the terminal event never fired) or of
+    another length than the integrator's events is refused, in bytes and in
+    a state given directly; an integrator without events ignores it."""
+    def zero(t, u, v):
+        return u[0]
+    zero.terminal = 2
+    model = hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0])
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6, events=zero)
+    assert itg.advance(2.0)
+    saved = itg.get_state()
+    for bad in ([-3.0], [1.5], [np.nan], [2.0 ** 63], [1.0, 0.0]):
+        wrong = saved.copy()
+        wrong.event_count = np.array(bad)
+        with pytest.raises(ValueError, match="event_count"):
+            itg.set_state(wrong)
+        if len(bad) == 1:
+            with pytest.raises(ValueError, match="event_count"):
+                hfdi.IntegratorState.from_bytes(wrong.to_bytes())
+    plain = hfdi.Integrator(model, "hfdi", rtol=1e-6)
+    plain.set_state(saved)
+    assert plain.advance(3.0)
+
+
+def test_on_event_changing_the_mass_stops_the_run_there():
+    """The run reads M once: on_event changing it (alone: the event path only
+    looked for changes of p, f and the parameter count) went on with the old
+    mass, SUCCESS with the old mass's answer; with the load changed too,
+    integrate raised and the steps were lost. Now a MODEL_ERROR at the zero,
+    saying which matrix, with the steps up to it."""
+    model = hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0])
+
+    def on_event(t, u, v, which):
+        model.mass = np.array([4.0])
+
+    result = hfdi.integrate(model, "hfdi", 5.0, rtol=1e-8, events=lambda t, u, v: u[0],
+                            on_event=on_event)
+    assert result.status == hfdi.Status.MODEL_ERROR
+    assert "on_event changed the model's mass" in result.message
+    assert result.t[-1] == pytest.approx(np.pi / 2, abs=1e-7)

@@ -684,3 +684,18 @@ def test_a_changed_mass_or_damping_is_refused_not_ignored(change):
     with pytest.raises(ValueError, match=f"the {name} of model LinearSystem changed"):
         itg.model_changed()
     np.testing.assert_array_equal(itg.state.u, kept.u)
+
+
+def test_the_same_matrices_in_another_form_are_not_a_change():
+    """A damping of zeros for None, a sparse or dense form of the same mass:
+    the same model, which model_changed() takes without a word."""
+    import scipy.sparse as sp
+    model = hfdi.LinearSystem(mass=np.array([[2.0, 0.5], [0.5, 1.0]]),
+                              stiffness=[[3.0, -1.0], [-1.0, 2.0]],
+                              initial_displacement=[0.1, 0.0])
+    itg = hfdi.Integrator(model, "newmark", rtol=1e-6)
+    assert itg.advance(0.2)
+    model.damping = np.zeros(2)
+    model.mass = sp.csr_matrix(np.array([[2.0, 0.5], [0.5, 1.0]]))
+    itg.model_changed()
+    assert itg.advance(0.4)
