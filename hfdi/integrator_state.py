@@ -180,11 +180,9 @@ class IntegratorState:
             raise ValueError("serialized state: event_values and event_counted must be two "
                              "float64 arrays of one length, finite, the second of 0 and 1")
         event_count = arrays.pop("event_count", None)
-        if event_count is not None and not (
-                event_count.dtype == np.float64 and event_count.ndim == 1
-                and np.isfinite(event_count).all() and (event_count >= 0).all()
-                and (event_count == np.floor(event_count)).all()
-                and (event_count <= MAX_EVENT_COUNT).all()):
+        if event_count is not None and not (event_count.dtype == np.float64
+                                            and event_count.ndim == 1
+                                            and event_counts_valid(event_count)):
             raise ValueError(f"serialized state: event_count must be a float64 array of whole "
                              f"numbers in [0, {MAX_EVENT_COUNT}]")
         if arrays:
@@ -202,6 +200,12 @@ class IntegratorState:
 
 #: The largest count of an event function's zeros a state holds (exact in a float).
 MAX_EVENT_COUNT = 2 ** 53
+
+def event_counts_valid(count: np.ndarray) -> bool:
+    """Whether every entry is a whole number in ``[0, MAX_EVENT_COUNT]``."""
+    return bool(np.isfinite(count).all() and (count >= 0).all()
+                and (count == np.floor(count)).all() and (count <= MAX_EVENT_COUNT).all())
+
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
 STATE_FORMAT = "hfdi-integrator-state/5"

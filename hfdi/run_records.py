@@ -23,8 +23,9 @@ def config(ev, controller, scheme, *, exact_rate, derived_rate, tol, floor, max_
     settings = controller.settings() if core_kind(controller) != CUSTOM else \
         {"controller": CUSTOM}
     # the scheme's error constant of v holds with the model's p' (or HFDI's
-    # derived one, O(h²)); the part the paper's quotient adds (O(h³), zero for a load linear between its
-    # breakpoints) the estimate takes on its own (stepping.attempt._load_rate_error)
+    # derived one, O(h²)); the part the paper's quotient adds (O(h³), zero for
+    # a load linear between its breakpoints) the estimate takes on its own
+    # (stepping.attempt._load_rate_error)
     values = dict(
         n=ev.n, stages=scheme.n_stages, order=scheme.order,
         velocity_gain=scheme.velocity_gain, keeps_force=scheme.keeps_force,

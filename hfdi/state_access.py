@@ -9,7 +9,8 @@ import numpy as np
 
 from .core.state import RUN
 from .evaluation import ModelError, State
-from .integrator_state import MAX_EVENT_COUNT, IntegratorState, check_state
+from .integrator_state import (MAX_EVENT_COUNT, IntegratorState, check_state,
+                               event_counts_valid)
 from .result import STATISTICS_FIELDS
 
 __all__ = ["StateAccess"]
@@ -152,9 +153,8 @@ class StateAccess:
             return
         m = len(events.count)
         value = np.asarray(count) if isinstance(count, np.ndarray) else None
-        if value is None or value.shape != (m,) or value.dtype.kind not in "fiu" or not (
-                np.isfinite(value).all() and (value >= 0).all()
-                and (value == np.floor(value)).all() and (value <= MAX_EVENT_COUNT).all()):
+        if value is None or value.shape != (m,) or value.dtype.kind not in "fiu" \
+                or not event_counts_valid(value):
             raise ValueError(f"state: event_count must be an array of {m} whole numbers in "
                              f"[0, {MAX_EVENT_COUNT}] (one per event function), got {count!r:.80}")
 

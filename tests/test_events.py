@@ -484,16 +484,22 @@ def test_a_state_restored_at_a_zero_does_not_count_it_again(serialized):
         np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-8)
 
 
+def _second_zero_ends():
+    """``u'' + u = 0`` from ``u = 1`` and ``u``'s zeros (π/2, 3π/2, ...), the
+    second of which ends the run (``terminal = 2``)."""
+    def zero(t, u, v):
+        return u[0]
+    zero.terminal = 2
+    return hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0]), zero
+
+
 @pytest.mark.parametrize("serialized", [False, True])
 def test_a_restored_state_ends_at_the_same_terminal_zero(serialized):
     """terminal=2 on the zeros of u (π/2, 3π/2, ...): a state saved after the
     first, restored into a new integrator (bytes too), ends at the second, as
     the run without a restore does. The count did not travel with the state:
     the restored run went on to the third (4.71 → 7.85)."""
-    def zero(t, u, v):
-        return u[0]
-    zero.terminal = 2
-    model = hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0])
+    model, zero = _second_zero_ends()
     first = hfdi.Integrator(model, "hfdi", rtol=1e-8, events=zero)
     assert first.advance(2.0)
     saved = first.get_state()
@@ -579,10 +585,7 @@ def test_a_saved_event_count_out_of_range_is_refused():
     (it wrapped to a negative int64: the terminal event never fired) or of
     another length than the integrator's events is refused, in bytes and in
     a state given directly; an integrator without events ignores it."""
-    def zero(t, u, v):
-        return u[0]
-    zero.terminal = 2
-    model = hfdi.LinearSystem([1.0], [[1.0]], initial_displacement=[1.0])
+    model, zero = _second_zero_ends()
     itg = hfdi.Integrator(model, "hfdi", rtol=1e-6, events=zero)
     assert itg.advance(2.0)
     saved = itg.get_state()

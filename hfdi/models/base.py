@@ -14,8 +14,9 @@ __all__ = ["KernelModel"]
 class KernelModel(SecondOrderSystem):
     """A model whose ``f``, ``K``, ``T[w]`` and ``V`` are the kernels
     :attr:`KERNELS` on the data :meth:`params`, and whose load is the hat
-    pulses of :meth:`load_params` (none by default). No exact load rate: the paper's quotient is exact for the pulses,
-    linear between their kinks (:attr:`load_linear_between_breakpoints`)."""
+    pulses of :meth:`load_params` (none by default). No exact load rate: the
+    paper's quotient is exact for the pulses, linear between their kinks
+    (:attr:`load_linear_between_breakpoints`)."""
 
     #: ``(force, stiffness, stiffness_derivative, potential_energy)``, the kernels.
     KERNELS: tuple = ()
