@@ -20,8 +20,10 @@ demo: $(STAMP)
 	$(PY) -m validation table dumbbell
 	$(PY) -m fmu demo dumbbell --out out/fmu
 
+# the suite starts Python subprocesses (FMU hosts, CLIs, fresh imports): with
+# PYTHONDONTWRITEBYTECODE set each would compile every module from source again
 test: $(STAMP)
-	$(PY) -m pytest
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest
 
 # work-precision against IDA, Radau and BDF, and the beam's scaling (docs/performance.md);
 # benchmarks/ is not installed: run from the repository's root

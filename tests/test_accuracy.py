@@ -188,8 +188,8 @@ def _stiff_damped_pair(u0):
     return model, reference
 
 
-@pytest.mark.parametrize("scheme", SCHEMES)
-@pytest.mark.parametrize("u2", [0.0, 1e-6])
+@pytest.mark.parametrize("scheme", schemes_quick("generalized_alpha", among=SCHEMES))
+@pytest.mark.parametrize("u2", [0.0, pytest.param(1e-6, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("rtol", [1e-3, pytest.param(1e-6, marks=pytest.mark.slow)])
 def test_a_fast_damped_transient_at_the_start_does_not_stall_the_steps(scheme, u2, rtol):
     """The mean step's share after a transient resolved with steps of 1e-12
@@ -261,6 +261,7 @@ def test_the_load_scale_of_a_model_at_rest():
     assert atol_u(declared, t_bound=4.0) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=SCHEMES))
 def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
     """A stiff structure starting at rest under a sine load moves by 1.8e-7:
@@ -528,7 +529,9 @@ def test_dense_output_at_the_end_of_a_run_stopped_on_a_load_jump():
         np.testing.assert_array_equal(v, r.v[-1])
 
 
-@pytest.mark.parametrize("scheme, bound", [("newmark", 4e-5), ("bathe", 2e-5), ("hfdi", 5e-7)])
+@pytest.mark.parametrize("scheme, bound", [pytest.param("newmark", 4e-5, marks=pytest.mark.slow),
+                                           pytest.param("bathe", 2e-5, marks=pytest.mark.slow),
+                                           ("hfdi", 5e-7)])
 def test_fixed_steps_take_a_load_jump_on_their_grid_one_sided(scheme, bound):
     """A load jump at a grid point of the fixed step, declared: the step that
     ends there takes the left value, the next starts from the right one (the

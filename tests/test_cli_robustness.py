@@ -599,6 +599,7 @@ def python_sigint():
     signal.signal(signal.SIGINT, previous)
 
 
+@pytest.mark.slow
 def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path,
                                                     python_sigint):
     """A Ctrl-C that a library swallows: ``all`` stops before its next output

@@ -20,6 +20,8 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("numba")
+#: one worker counts every case (one subprocess for all, --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("allocations")
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -114,16 +116,23 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-@pytest.fixture(scope="module")
-def counted():
+@pytest.fixture(scope="session")
+def counted(request):
+    """The counts of the cases this session runs (the quick tier's only), in one subprocess."""
+    name = test_a_step_allocates_only_what_its_kernels_allocate.__name__
+    selected = [item.callspec.params["case"] for item in request.session.items
+                if getattr(item, "originalname", None) == name]
     env = dict(os.environ, NUMBA_NRT_STATS="1", PYTHONPATH=str(ROOT))
-    done = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps(CASES)], env=env,
+    done = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps(selected)], env=env,
                           capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     return {tuple(r["case"]): r for r in json.loads(done.stdout.splitlines()[-1])}
 
 
-@pytest.mark.parametrize("case", CASES, ids=["-".join(map(str, c[:3])) for c in CASES])
+#: the quick tier counts the dumbbell's steps, every scheme and mode
+@pytest.mark.parametrize("case", [pytest.param(c, marks=() if c[0] == "dumbbell"
+                                                else pytest.mark.slow) for c in CASES],
+                         ids=["-".join(map(str, c[:3])) for c in CASES])
 def test_a_step_allocates_only_what_its_kernels_allocate(counted, case):
     result = counted[tuple(case[:3])]
     assert result["status"] == "RUNNING", result

@@ -107,7 +107,7 @@ def test_without_numba_the_python_path_runs_and_says_so_once(monkeypatch):
         hfdi.Integrator(dumbbell(), "hfdi", step=1e-3, compiled=True)
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
 def test_failed_attempts_fail_alike(scheme):
     """A corrector that cannot converge in N_max = 1 correction: the fixed
     step stops the run with the same status and message; with N_max = 2 the
@@ -249,8 +249,8 @@ def _beam_run(model, scheme, compiled, t_end, u0=None):
     return itg
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
-@pytest.mark.parametrize("n_elements", [200, 1500])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
+@pytest.mark.parametrize("n_elements", [200, pytest.param(1500, marks=pytest.mark.slow)])
 def test_a_sparse_beam_with_compiled_kernels_takes_the_python_paths_steps(scheme, n_elements):
     """Above DENSE_BELOW the steps stay in Python and the model runs compiled:
     the same steps, Newton iterations and evaluations as the Python model,
@@ -515,6 +515,7 @@ def test_progress_is_reported_from_the_driver(monkeypatch):
     assert [t for t, _ in seen] == sorted(t for t, _ in seen)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("error", ["local", "global"])
 def test_progress_may_stop_the_run(monkeypatch, compiled, error):
@@ -706,6 +707,7 @@ def test_an_injected_built_in_controller_is_driven():
     _assert_same_state(driven, python)
 
 
+@pytest.mark.slow
 def test_a_redefined_load_runs_on_the_python_driver_with_its_own_load():
     """A subclass that changes the load takes the Python steps (its class's
     compiled load is the parent's), saying why."""
@@ -748,7 +750,7 @@ class DrivenChain(Chain):
                                      np.array([[0.4, -0.1, 0.0], [-0.1, 0.3, -0.1],
                                                [0.0, -0.1, 0.2]])],
                          ids=["undamped", "diagonal C", "dense C"])
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
 def test_user_model_with_compiled_load_and_dense_matrices(scheme, damping):
     """The compiled run against the Python run of the same model: its kernels and
     its Python methods are two definitions (the load's sin rounds alike in
@@ -958,7 +960,7 @@ def _faulty_kernels():
     return Faulty
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
 def test_a_kernel_value_of_a_wrong_shape_stops_the_run_with_model_error(scheme):
     """numba checks no bounds: a force kernel of shape (1,) was read past its
     end (a wrong run reported as a success); it is now MODEL_ERROR at the last
@@ -974,7 +976,7 @@ def test_a_kernel_value_of_a_wrong_shape_stops_the_run_with_model_error(scheme):
     assert good.success and good.stats.steps == plain.stats.steps
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "hfdi"]))
 def test_a_raising_kernel_is_a_failed_attempt_as_on_the_python_path(scheme):
     """An exception in a kernel escaped integrate() (no Result; advance() lost
     the driver's steps of that call); it is now a failed attempt, as a raising
@@ -1085,7 +1087,7 @@ def test_kernels_that_differ_only_away_from_the_initial_state_are_refused(scheme
     assert same.compiled      # (and a load NaN past t = 5 in both is agreement, not a mismatch)
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "hfdi"]))
 def test_kernels_are_checked_again_when_the_model_changes(scheme):
     """Kernels that agree under one set of parameters may not under the next:
     after a change (parameter_version) they are compared again, and the rest

@@ -156,6 +156,7 @@ def test_a_soft_asymmetry_beside_a_stiff_entry_is_solved_exactly():
     np.testing.assert_allclose(solve(a, b), np.linalg.solve(a, b), rtol=1e-14)
 
 
+@pytest.mark.slow
 def test_singular_and_non_finite_matrices_fail_at_both_speeds():
     for a in (np.zeros((3, 3)), np.ones((12, 12)),     # the second symmetric, rank one
               np.array([[1.0, np.nan], [np.nan, 1.0]]), np.array([[np.inf, 0.0], [0.0, 1.0]])):

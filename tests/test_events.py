@@ -153,6 +153,7 @@ def test_bouncing_ball_with_restitution(scheme):
     assert math.isclose(gravity_work, G * (H0 - u_last), rel_tol=1e-10)
 
 
+@pytest.mark.slow
 def test_both_speeds_find_the_same_events():
     """The dumbbell compiled and on the Python path: the same steps and the
     same event times, bit for bit."""
@@ -459,7 +460,7 @@ def test_advance_until_event_stops_at_each_zero(compiled):
         itg.advance(2.0, until_event=1)
 
 
-@pytest.mark.parametrize("serialized", [False, True])
+@pytest.mark.parametrize("serialized", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_a_state_restored_at_a_zero_does_not_count_it_again(serialized):
     """get_state at each stop of advance(until_event=True) and set_state at once
     (bytes too): the zero stopped at is not found again, even where its g
@@ -526,7 +527,7 @@ def test_advance_until_event_counts_a_zero_at_its_start_and_goes_on():
     assert itg.t == pytest.approx(1.0, abs=1e-7)                  # one period later
 
 
-@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
 @pytest.mark.parametrize("returns_state", [False, True])
 def test_a_load_switched_by_on_event_acts_from_the_zero(scheme, returns_state):
     """``u'' + 9u = P H(t − π/6)``: on_event switches the load on at the first

@@ -30,6 +30,10 @@ from fmu.cli import main  # noqa: E402
 from fmu.master import Unit, coupled_dumbbells, cosimulate  # noqa: E402
 from validation.experiments import EXPERIMENTS, experiment  # noqa: E402
 
+#: the FMU tests run in one worker (--dist loadgroup): the FMUs are built, and
+#: their copy of the compiled loops loaded, once per session rather than per worker
+pytestmark = pytest.mark.xdist_group("fmu")
+
 MODELS = hfdi.models.available()
 SCHEMES = ("newmark", "bathe", "hfdi")
 N = 4                                              # dumbbell DOFs
@@ -209,7 +213,7 @@ def test_input_step_moves_the_centre_of_mass_exactly(dumbbell_fmu, scheme):
     assert abs(x.mean() - exact) < 1e-9 * abs(exact)
 
 
-@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("compiled", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_a_step_past_the_stop_time_is_refused_on_both_paths(dumbbell_fmu, compiled):
     """FMI: past the stop time of fmi2SetupExperiment the FMU returns fmi2Error,
     whether its slave or its native layer would take the doStep; a master's
@@ -849,6 +853,7 @@ print("still stepping")
 """
 
 
+@pytest.mark.slow
 def test_a_freed_state_is_refused_not_a_crash(dumbbell_fmu):
     """Using an FMU state after fmi2FreeFMUstate is the master's mistake; the
     FMU answers fmi2Error and keeps working instead of touching freed memory
@@ -947,6 +952,7 @@ def test_native_and_python_fmus_agree_on_any_call_sequence(dumbbell_fmu, sequenc
 
 
 # -- the global error estimate ------------------------------------------------------------
+@pytest.mark.slow
 def test_global_error_outputs_are_the_integrators(dumbbell_fmu):
     """global_error_u and global_error_v: the largest entries of u's and v's
     halves of hfdi.Integrator.global_error, as in-process."""
@@ -989,6 +995,7 @@ def test_error_mode_global_discards_a_step_past_the_tolerance(dumbbell_fmu):
     bad.close(terminate=False)
 
 
+@pytest.mark.slow
 def test_a_state_restores_under_another_stop_time(dumbbell_fmu):
     """The integrator's error control shares the tolerance over the
     experiment (start to stop time): a state saved under one stop time is

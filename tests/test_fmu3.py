@@ -27,7 +27,7 @@ from fmu.cli import main  # noqa: E402
 from hfdi.models.impact_oscillator import exact_events  # noqa: E402
 from problems import run_in_ecos  # noqa: E402
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("fmu")]
 
 STOP = 3.0
 IMPACT_OUTPUTS = ["u[1]", "v[1]", "a[1]", "W", "dE", "internal_steps", "newton_iterations",

@@ -30,6 +30,10 @@ from fmpy.fmi1 import FMICallException  # noqa: E402
 
 from fmu.master import Unit  # noqa: E402
 
+#: the FMU tests run in one worker (--dist loadgroup): the FMUs are built, and
+#: their copy of the compiled loops loaded, once per session rather than per worker
+pytestmark = pytest.mark.xdist_group("fmu")
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).with_name("data")
 STEPS = 20                        # of 0.01, by every thread

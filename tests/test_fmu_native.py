@@ -24,6 +24,10 @@ from fmu.build import BuildError, build  # noqa: E402
 from fmu.master import CoSimulationError, Unit  # noqa: E402
 from problems import run_in_ecos  # noqa: E402
 
+#: the FMU tests run in one worker (--dist loadgroup): the FMUs are built, and
+#: their copy of the compiled loops loaded, once per session rather than per worker
+pytestmark = pytest.mark.xdist_group("fmu")
+
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = Path(__file__).with_name("data") / "fmi2_host.c"
 STEPS = 20                                   # of 0.01 in the C host
@@ -88,6 +92,7 @@ def vr_of(fmu, name):
                 if v.name == name)
 
 
+@pytest.mark.slow
 def test_the_fmu_leaves_a_c_hosts_locale_alone(fmu, host, tmp_path):
     """Python's initialization sets LC_CTYPE from the environment (here
     C.UTF-8); a host that never chose a locale keeps "C" (its parsers, its
@@ -242,6 +247,7 @@ def test_damaged_fmu_in_a_host_without_python(fmu, host, tmp_path, how):
     assert len(logged) == 1, done.stdout
 
 
+@pytest.mark.slow
 def test_cli_master_with_a_damaged_fmu_prints_one_line(fmu, tmp_path):
     broken = tmp_path / "broken.fmu"
     with zipfile.ZipFile(fmu) as old, zipfile.ZipFile(broken, "w") as new:

@@ -66,6 +66,10 @@ from fmu.build import build  # noqa: E402
 from fmu.master import Unit  # noqa: E402
 from problems import write_doc_table  # noqa: E402
 
+#: the FMU tests run in one worker (--dist loadgroup): the FMUs are built, and
+#: their copy of the compiled loops loaded, once per session rather than per worker
+pytestmark = pytest.mark.xdist_group("fmu")
+
 STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 FMI_STATUS = {"OK": "fmi2OK", "WARNING": "fmi2Warning", "DISCARD": "fmi2Discard",
               "ERROR": "fmi2Error", "FATAL": "fmi2Fatal", "PENDING": "fmi2Pending"}

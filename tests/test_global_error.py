@@ -165,8 +165,8 @@ def test_both_speeds_carry_the_same_estimate():
     compiled kernels round otherwise, which error control would amplify
     into other steps)."""
     model = dumbbell()
-    fast = hfdi.integrate(model, "hfdi", 0.5, step=1e-4, compiled=True)
-    slow = hfdi.integrate(model, "hfdi", 0.5, step=1e-4, compiled=False)
+    fast = hfdi.integrate(model, "hfdi", 0.1, step=1e-4, compiled=True)
+    slow = hfdi.integrate(model, "hfdi", 0.1, step=1e-4, compiled=False)
     np.testing.assert_allclose(fast.global_error, slow.global_error, rtol=1e-9,
                                atol=1e-12 * np.abs(slow.global_error).max())
 
@@ -257,7 +257,8 @@ LOADS = {"difference": lambda: forced_oscillator(False), "derived": lambda: forc
          "exact-rate": lambda: forced_oscillator(True), "constant": constant_load}
 
 
-@pytest.mark.parametrize("load", sorted(LOADS))
+@pytest.mark.parametrize("load", [pytest.param(name, marks=pytest.mark.slow) if name == "difference"
+                                  else name for name in sorted(LOADS)])
 def test_the_estimate_has_the_sign_of_the_error(load):
     """Signed, component by component: g/e near +1 where the error is large,
     for HFDI with a smooth load, with its exact rate, the derived one, or the
@@ -413,7 +414,7 @@ def _offset_chain(offset):
     return shifted, exact
 
 
-@pytest.mark.parametrize("offset", [0.0, 1e10])
+@pytest.mark.parametrize("offset", [pytest.param(0.0, marks=pytest.mark.slow), 1e10])
 def test_the_hfdi_propagator_takes_k_where_a_difference_of_f_would_round(offset):
     """HFDI's propagator takes ``K(u_n) g_u`` as a difference of ``f``; with a
     force 1e9 times ``K u`` that difference would be rounding (ten times the

@@ -233,7 +233,8 @@ def test_block_form_is_more_accurate_than_the_explicit_schur_complement():
         1e2 * refinement_change(block.solve)
 
 
-@pytest.mark.parametrize("scheme", ["newmark", pytest.param("hfdi", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
 def test_beam_memory_is_linear_in_the_size(scheme):
     peaks = {}
     for n_elements in (2000, 20000):

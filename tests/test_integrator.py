@@ -343,7 +343,8 @@ def test_load_changed_recomputes_the_current_load_and_acceleration():
     assert itg.get_state().previous is None
 
 
-@pytest.mark.parametrize("scheme", [pytest.param("newmark", marks=pytest.mark.slow), "hfdi"])
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
 def test_held_input_jumps_cost_fewer_steps_without_the_history_behind_them(scheme):
     """200 input jumps in 0.02 s on the dumbbell at rtol 1e-4: with the
     history kept across each jump the steps were 2,556 (HFDI) and 10,779

@@ -48,6 +48,7 @@ def test_hfdi_is_third_order_with_an_exact_load_rate():
     assert abs(slope - scheme.order) <= 0.3, (slope, errors)
 
 
+@pytest.mark.slow
 def test_hfdi_is_third_order_with_its_derived_load_rate():
     """A load without its rate, differentiated within the step (the quadratic
     through p at t_{n+1}, t_{n+1} − h/10, t_{n+1} − h/5): an O(h²) rate that
@@ -62,6 +63,7 @@ def test_hfdi_is_third_order_with_its_derived_load_rate():
     np.testing.assert_allclose(errors, exact_errors, rtol=0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode, same_as", [
     (dict(target_iterations=3), "difference"), (dict(step=0.01), "difference"),
     (dict(rtol=1e-6), "derived"), (dict(target_iterations=3, rtol=1e-5), "derived")])

@@ -27,6 +27,7 @@ def test_fractions_partition_the_run(scheme):
     assert row["ms_per_iteration"] > 0 and row["status"] == "SUCCESS"
 
 
+@pytest.mark.slow
 def test_a_costlier_model_takes_a_larger_share():
     # the toss rule's beam kernels cost far more per call than the dumbbell's
     # scalar arithmetic, with linear algebra of the same small size (measured

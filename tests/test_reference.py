@@ -113,8 +113,9 @@ def test_error_norm_is_eq_42_by_the_trapezoidal_rule():
         error_norm(t, z, z_ref[:2])
 
 
-@pytest.mark.parametrize("scheme, order", [("newmark", 2), ("bathe", 2), ("hfdi", 3),
-                                           ("generalized_alpha", 2)])
+@pytest.mark.parametrize("scheme, order", [("newmark", 2),
+                                           pytest.param("bathe", 2, marks=pytest.mark.slow),
+                                           ("hfdi", 3), ("generalized_alpha", 2)])
 def test_eps_converges_with_the_order_of_the_scheme(scheme, order):
     system = coupled_duffing(damping=0.05)
     reference = ida_dense_reference(system, 2.0)

@@ -895,6 +895,7 @@ if __name__ == "__main__":
         print(fault_table())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
 def test_a_model_that_reuses_its_output_buffers_gets_the_same_answer(scheme):
     """f, K and T written into one buffer each, returned at every call: what
@@ -961,10 +962,10 @@ def test_a_diagonal_stiffness_stays_sparse_above_the_dense_threshold():
     assert sparse.issparse(diagonal.stiffness_derivative(np.ones(n), np.ones(n)))
     given = hfdi.LinearSystem(np.ones(n), sparse.diags(k, format="csr"),
                               initial_displacement=np.ones(n))
-    a, b = (hfdi.integrate(s, "hfdi", 1.0, rtol=1e-6) for s in (diagonal, given))
+    a, b = (hfdi.integrate(s, "hfdi", 0.2, rtol=1e-6) for s in (diagonal, given))
     assert a.success and a.stats.steps == b.stats.steps
     np.testing.assert_array_equal(a.u[-1], b.u[-1])
-    np.testing.assert_allclose(a.u[-1], np.cos(np.sqrt(k)), atol=1e-3)
+    np.testing.assert_allclose(a.u[-1], np.cos(0.2 * np.sqrt(k)), atol=1e-3)
     small = hfdi.LinearSystem(np.ones(3), [1.0, 2.0, 3.0])
     np.testing.assert_array_equal(small.stiffness(np.ones(3)), np.diag([1.0, 2.0, 3.0]))
 

@@ -25,7 +25,7 @@ def _short_step_cases():
         for mode in MODES:
             for compiled in (False, True):
                 # error control on the Python path: 1.7-2.5 s each, the slow tier
-                slow = mode == "error" and not compiled and scheme != "hfdi"
+                slow = mode == "error" and not compiled
                 yield pytest.param(scheme, mode, compiled,
                                    id=f"{scheme}-{mode}-{'compiled' if compiled else 'python'}",
                                    marks=pytest.mark.slow if slow else ())
@@ -63,6 +63,7 @@ def test_a_short_step_changes_the_state_as_the_motion_does(scheme, mode, compile
     assert itg.statistics.steps <= 1.01 * direct.statistics.steps + 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_communication_points_rounding_units_past_a_breakpoint(scheme):
     """Communication points summed as a master sums them (t += h) fall 2e-17
@@ -96,6 +97,7 @@ def test_a_short_step_does_not_become_the_history():
     assert itg.get_state().previous.t > 0.1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_a_short_advance_before_the_first_step(scheme):
     """advance(1e-15) right after construction: a short step, the controller's

@@ -561,6 +561,7 @@ def _every_elementary_function():
     return [x, y, z], energy, {c: 1.7}
 
 
+@pytest.mark.slow
 def test_symengine_and_sympy_derive_the_same_model(monkeypatch):
     """An elementary energy is derived by symengine; sympy's derivation of it
     (the route of any other energy) gives the same f, K, T and V to rounding,

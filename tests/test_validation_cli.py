@@ -215,6 +215,7 @@ def test_a_table_of_every_scheme_is_in_registry_order():
     assert text.count("(paper)") == 3 * 4         # four rows under each paper scheme
 
 
+@pytest.mark.slow
 def test_the_report_says_a_scheme_is_not_in_the_paper():
     from validation.report import _comparison_summary, stability_schemes
     from validation.runs import RunRecord
