@@ -397,3 +397,37 @@ def test_articulated_accepts_zero_hinge_stiffness():
     np.testing.assert_allclose(m.internal_force(u), 0, atol=1e-6)
     K = m.stiffness(u)
     assert np.linalg.matrix_rank(K, tol=1e-6 * np.abs(K).max()) == 2
+
+
+@pytest.mark.parametrize("name", hfdi.models.available())
+def test_a_parameter_the_model_was_built_from_is_fixed_by_name(name):
+    """The masses (and the toss rule's section and material) are turned into
+    the mass matrix and the kernels' data when the model is built: assigned
+    afterwards they were kept by the model and used by nothing, a new
+    integrate ran the old structure. Now refused, naming the parameter and
+    how to get the model asked for; their arrays are read-only."""
+    model = hfdi.models.get(name)
+    fixed = type(model).FIXED_PARAMETERS
+    assert fixed and set(fixed) <= set(hfdi.models.describe(name)) | {"mass_value"}
+    for parameter in fixed:
+        value = getattr(model, parameter)
+        with pytest.raises(AttributeError, match=f"{name} {parameter} is fixed once the model "
+                                                 f"is built.*models.get\\('{name}', "
+                                                 f"{parameter}=...\\)"):
+            setattr(model, parameter, value)
+        if isinstance(value, np.ndarray):
+            with pytest.raises(ValueError, match="read-only"):
+                value[0] = 2.0 * value[0]
+
+
+def test_a_live_parameter_still_changes_the_model():
+    """The dumbbell's σ is read by its kernels at every call: a change is
+    followed, and the rest length (its stretch output) with it."""
+    model = hfdi.models.dumbbell()
+    before = hfdi.integrate(model, "hfdi", 0.05, rtol=1e-6)
+    model.sigma = 0.8
+    assert model.rest_length == pytest.approx(0.8 * math.sqrt(5.0 / 3.0))
+    after = hfdi.integrate(model, "hfdi", 0.05, rtol=1e-6)
+    again = hfdi.integrate(hfdi.models.dumbbell(sigma=0.8), "hfdi", 0.05, rtol=1e-6)
+    assert np.abs(after.u[-1] - before.u[-1]).max() > 1e-3
+    np.testing.assert_array_equal(after.u[-1], again.u[-1])

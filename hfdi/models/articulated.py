@@ -103,6 +103,7 @@ class Articulated(KernelModel):
     """
 
     name = "articulated"
+    FIXED_PARAMETERS = ("masses",)
     fmi_metadata = {
         "dofs": [["m", "x of mass {k}"], ["m", "y of mass {k}"]],
         "parameters": {
@@ -143,8 +144,12 @@ class Articulated(KernelModel):
             raise ValueError(f"articulated positions: neighbouring masses must not coincide "
                              f"(link lengths > 0), got masses {k + 1} and {k + 2} both at "
                              f"{tuple(x0[k].tolist())}")
-        self.u_scale = self.h
         self._positions_given = positions is not None
+
+    @property
+    def u_scale(self) -> float:
+        """The link length ``h``: the model's length scale (the default atol's)."""
+        return self.h
 
     def parameters(self):
         return self._given({"k_e": self.k_e, "k_f": self.k_f, "h": self.h,

@@ -20,8 +20,26 @@ class KernelModel(SecondOrderSystem):
 
     #: ``(force, stiffness, stiffness_derivative, potential_energy)``, the kernels.
     KERNELS: tuple = ()
+    #: Construction parameters that other data are derived from when the model
+    #: is built (its mass matrix, the kernels' geometry): set by the
+    #: constructor only, so that the model never runs with a value it no
+    #: longer shows (the derived data themselves, ``mass`` among them, may be
+    #: replaced, as a subclass does; Integrator.model_changed checks M and C).
+    #: Their arrays are read-only.
+    FIXED_PARAMETERS: tuple = ()
     load_rate = None
     damping = None
+
+    def __setattr__(self, name, value):
+        if name in self.FIXED_PARAMETERS and name in self.__dict__:
+            raise AttributeError(
+                f"{self.name} {name} is fixed once the model is built (the mass matrix or the "
+                f"kernels' data are derived from it): build a new model, "
+                f"hfdi.models.get({self.name!r}, {name}=...)")
+        if name in self.FIXED_PARAMETERS and isinstance(value, np.ndarray):
+            value = value.view()
+            value.flags.writeable = False
+        super().__setattr__(name, value)
 
     def load_params(self) -> np.ndarray:
         """The load's data (:func:`~hfdi.models.loads.hat_load`)."""

@@ -32,6 +32,7 @@ class Dumbbell(KernelModel):
     """
 
     name = "dumbbell"
+    FIXED_PARAMETERS = ("masses",)
     fmi_metadata = {
         "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"]],
         "parameters": {
@@ -58,8 +59,16 @@ class Dumbbell(KernelModel):
         if np.hypot(*(self.initial_displacement[2:] - self.initial_displacement[:2])) == 0:
             raise ValueError(f"dumbbell u0 must place the two masses apart (the bond length "
                              f"must be > 0), got {tuple(self.initial_displacement.tolist())}")
-        self.rest_length = self.sigma * math.sqrt(5.0 / 3.0)
-        self.u_scale = self.rest_length
+
+    @property
+    def rest_length(self) -> float:
+        """The bond's length at rest, ``σ (5/3)^½``."""
+        return self.sigma * math.sqrt(5.0 / 3.0)
+
+    @property
+    def u_scale(self) -> float:
+        """The rest length: the model's length scale (the default atol's)."""
+        return self.rest_length
 
     def parameters(self):
         return {"A": self.A, "sigma": self.sigma, "masses": tuple(self.masses)}

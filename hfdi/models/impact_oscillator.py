@@ -38,6 +38,7 @@ class ImpactOscillator(KernelModel):
     """
 
     name = "impact_oscillator"
+    FIXED_PARAMETERS = ("mass_value",)
     fmi_metadata = {
         "dofs": [["m", "displacement of the mass"]],
         "parameters": {
@@ -69,7 +70,11 @@ class ImpactOscillator(KernelModel):
         self.mass = np.array([self.mass_value])
         self.initial_displacement = np.array([u0])
         self.initial_velocity = np.array([checks.real("impact_oscillator v0", v0)])
-        self.u_scale = self.gap
+
+    @property
+    def u_scale(self) -> float:
+        """The gap: the model's length scale (the default atol's)."""
+        return self.gap
 
     def parameters(self):
         return {"mass": self.mass_value, "stiffness": self.stiffness_value, "gap": self.gap,

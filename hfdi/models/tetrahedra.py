@@ -66,6 +66,7 @@ class Tetrahedra(KernelModel):
     """
 
     name = "tetrahedra"
+    FIXED_PARAMETERS = ("masses",)
     fmi_metadata = {
         "dofs": [["m", "x of particle {k}"], ["m", "y of particle {k}"],
                  ["m", "z of particle {k}"]],

@@ -99,6 +99,8 @@ class TossRule(KernelModel):
     """
 
     name = "toss_rule"
+    FIXED_PARAMETERS = ("n_elements", "length", "width", "thickness", "E", "nu",
+                        "shear_factor", "rho")
     fmi_metadata = {
         "dofs": [["m", "axial u of node {k0}"],
                  ["m", "transverse v of node {k0}"],
