@@ -171,27 +171,40 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
             f"check_stiffness=False only if f has a kink there)")
 
 
+#: Where :func:`check_load_rate` checks ``p'`` besides ``t0``: these shares of
+#: the run's span (irrational, so as not to fall on a round breakpoint). A
+#: rate wrong only away from the start (``p = t²`` with ``p' = t``: both zero
+#: at ``t0 = 0``) gave HFDI a wrong answer, with SUCCESS.
+RATE_CHECK_SHARES = (1.0 / math.e, 1.0 / math.sqrt(2.0))
+
+
 def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
-    """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`)
+    """``p'(t)`` against forward differences of ``p`` (:func:`load_rate_error`)
     at steps of ``10^-2 … 10^-13`` times the run's span (1 where it is not
-    known) that end before the load's next breakpoint; a mismatch above 0.1 %
-    is refused, as for ``K``."""
+    known) that end before the load's next breakpoint, at ``t0`` and, where
+    the run's end is known, at :data:`RATE_CHECK_SHARES` of the span; a
+    mismatch above 0.1 % is refused, as for ``K``."""
     scale = t_bound - t0 if t_bound is not None else 1.0
+    times = [t0]
+    if t_bound is not None and math.isfinite(scale) and scale > 0:
+        times += [t0 + share * scale for share in RATE_CHECK_SHARES]
     # every breakpoint, the model's and the given ones, whether the mode
     # lands on them or not: a jump inside the differences hides a wrong rate
     points = breakpoints
-    later = points[points > t0]
-    horizon = float(later.min()) if later.size else math.inf
-    mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale,
-                                                    horizon))
-    if mismatch > 1e-3:
-        raise ModelError(
-            f"model {name!r}: load_rate does not match load at t0 = {t0:g}: p'(t0) and "
-            f"forward differences of p differ by {mismatch:.3g} of their size at the "
-            f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}. HFDI uses p' in "
-            f"its step equation, where a wrong rate gives a wrong answer (check the model "
-            f"with hfdi.check_derivatives; check_stiffness=False skips the checks of K "
-            f"and p')")
+    for t in times:
+        later = points[points > t]
+        horizon = float(later.min()) if later.size else math.inf
+        mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t, scale,
+                                                        horizon))
+        if mismatch > 1e-3:     # (NaN, not judged there, passes)
+            at = f"t0 = {t0:g}" if t == t0 else f"t = {t:g}"
+            raise ModelError(
+                f"model {name!r}: load_rate does not match load at {at}: p'(t) and "
+                f"forward differences of p differ by {mismatch:.3g} of their size at the "
+                f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}. HFDI uses p' "
+                f"in its step equation, where a wrong rate gives a wrong answer (check the "
+                f"model with hfdi.check_derivatives; check_stiffness=False skips the checks "
+                f"of K and p')")
 
 
 def default_first_step(ev, K, t0, t_bound, min_step) -> float:

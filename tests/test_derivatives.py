@@ -146,6 +146,29 @@ def test_a_load_rate_of_zero_at_an_extremum_of_the_load_is_judged_right():
             hfdi.Integrator(ramp, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=t_end)
 
 
+
+def test_a_load_rate_wrong_only_away_from_the_start_is_refused():
+    """p = t² with p' = t: both zero at t0 = 0, so the check at t0 passed and
+    HFDI ran with the wrong rate in its step equation. The rate is now also
+    checked inside the run's span (where its end is known), and the right
+    rate still passes, also with a breakpoint declared near a checked time."""
+    e0 = np.array([1.0, 0.0])
+    right = _with(load=lambda t: t * t * e0, load_rate=lambda t: 2.0 * t * e0)
+    wrong = _with(load=lambda t: t * t * e0, load_rate=lambda t: t * e0)
+    from hfdi.system import load_rate_error
+    assert load_rate_error(wrong.load, wrong.load_rate, 0.0, 3.0) < 1e-3   # unseen at t0
+    with pytest.raises(hfdi.ModelError, match=r"load_rate does not match load at t = 1\.1"):
+        hfdi.Integrator(wrong, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=3.0)
+    for t_end in (3.0, 1e-3, 100.0):
+        assert hfdi.Integrator(right, hfdi.HFDI(load_rate="exact"), rtol=1e-6,
+                               t_bound=t_end).advance(min(t_end, 0.01))
+    # a kink just after a checked time, declared: the differences stop before it
+    kinked = _with(load=lambda t: (t * t + 5.0 * max(t - 1.1037, 0.0)) * e0,
+                   load_rate=lambda t: (2.0 * t + 5.0 * (t >= 1.1037)) * e0)
+    kinked.load_breakpoints = lambda: (1.1037,)
+    assert hfdi.Integrator(kinked, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=3.0)
+
+
 def test_check_refuses_bad_arguments():
     model = coupled_duffing()
     n = model.n_dof
