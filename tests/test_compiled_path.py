@@ -1150,14 +1150,16 @@ def test_a_reason_is_said_again_in_another_situation(monkeypatch):
 @pytest.mark.slow
 def test_a_run_of_many_short_calls_keeps_only_its_rows():
     """A call of the driver ends at every breakpoint: the rows a run keeps
-    are its rows (at most about twice them), not a full buffer per call."""
+    are its rows (at most about twice them), not a full buffer per call. At
+    rtol 1e-3 the rows kept (29,000, 13 MB) are few beside a buffer per call;
+    at 1e-6 (520,000 rows) the bound below could not see that."""
     import tracemalloc
     model = toss_rule()
     hfdi.integrate(model, "hfdi", 0.012, rtol=1e-6, compiled=True)      # compiled, loaded
     breakpoints = np.linspace(0.0, 0.1, 401)[1:-1]
     tracemalloc.start()
     try:
-        result = hfdi.integrate(model, "hfdi", 0.1, rtol=1e-6, compiled=True,
+        result = hfdi.integrate(model, "hfdi", 0.1, rtol=1e-3, compiled=True,
                                 breakpoints=breakpoints)
         _, peak = tracemalloc.get_traced_memory()
     finally:

@@ -918,8 +918,8 @@ def test_a_model_that_reuses_its_output_buffers_gets_the_same_answer(scheme):
     reusing = duffing(internal_force=force, stiffness=stiffness,
                       stiffness_derivative=stiffness_derivative)
     for mode in (dict(rtol=1e-6), dict(target_iterations=3.0)):
-        a = hfdi.integrate(reusing, scheme, 5.0, **mode)
-        b = hfdi.integrate(duffing(), scheme, 5.0, **mode)
+        a = hfdi.integrate(reusing, scheme, 1.0, **mode)
+        b = hfdi.integrate(duffing(), scheme, 1.0, **mode)
         assert a.success and a.stats.steps == b.stats.steps
         np.testing.assert_array_equal(a.u, b.u)
         np.testing.assert_array_equal(a.v, b.v)
