@@ -171,40 +171,95 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
             f"check_stiffness=False only if f has a kink there)")
 
 
-#: Where :func:`check_load_rate` checks ``p'`` besides ``t0``: these shares of
-#: the run's span (irrational, so as not to fall on a round breakpoint). A
-#: rate wrong only away from the start (``p = t²`` with ``p' = t``: both zero
-#: at ``t0 = 0``) gave HFDI a wrong answer, with SUCCESS.
+#: Where :func:`check_load_rate` checks ``p'`` inside the run's span besides
+#: ``t0``: these shares of each of the first :data:`RATE_CHECK_INTERVALS`
+#: intervals between the load's breakpoints (irrational, so as not to fall on
+#: a round time). A rate wrong only away from the start (``p = t²`` with
+#: ``p' = t``, both zero at ``t0 = 0``; a pulse that is over before the span's
+#: middle) gave HFDI a wrong answer with SUCCESS, or stalled its steps.
 RATE_CHECK_SHARES = (1.0 / math.e, 1.0 / math.sqrt(2.0))
+RATE_CHECK_INTERVALS = 8
 
 
 def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
-    """``p'(t)`` against forward differences of ``p`` (:func:`load_rate_error`)
+    """``p'(t0)`` against forward differences of ``p`` (:func:`load_rate_error`)
     at steps of ``10^-2 … 10^-13`` times the run's span (1 where it is not
-    known) that end before the load's next breakpoint, at ``t0`` and, where
-    the run's end is known, at :data:`RATE_CHECK_SHARES` of the span; a
+    known) that end before the load's next breakpoint; where the run's end is
+    known, also ``p'`` inside the span (:func:`interior_rate_mismatch`). A
     mismatch above 0.1 % is refused, as for ``K``."""
     scale = t_bound - t0 if t_bound is not None else 1.0
-    times = [t0]
-    if t_bound is not None and math.isfinite(scale) and scale > 0:
-        times += [t0 + share * scale for share in RATE_CHECK_SHARES]
     # every breakpoint, the model's and the given ones, whether the mode
     # lands on them or not: a jump inside the differences hides a wrong rate
     points = breakpoints
-    for t in times:
-        later = points[points > t]
-        horizon = float(later.min()) if later.size else math.inf
-        mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t, scale,
-                                                        horizon))
-        if mismatch > 1e-3:     # (NaN, not judged there, passes)
-            at = f"t0 = {t0:g}" if t == t0 else f"t = {t:g}"
-            raise ModelError(
-                f"model {name!r}: load_rate does not match load at {at}: p'(t) and "
-                f"forward differences of p differ by {mismatch:.3g} of their size at the "
-                f"best of the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}. HFDI uses p' "
-                f"in its step equation, where a wrong rate gives a wrong answer (check the "
-                f"model with hfdi.check_derivatives; check_stiffness=False skips the checks "
-                f"of K and p')")
+    later = points[points > t0]
+    horizon = float(later.min()) if later.size else math.inf
+    mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale,
+                                                    horizon))
+    at, steps = f"t0 = {t0:g}", f"the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}"
+    if not mismatch > 1e-3 and t_bound is not None and math.isfinite(scale) and scale > 0:
+        ends = np.unique(np.concatenate(([t0], points[(points > t0) & (points < t_bound)],
+                                         [t_bound])))[:RATE_CHECK_INTERVALS + 1]
+        for a, b in zip(ends[:-1], ends[1:]):
+            for share in RATE_CHECK_SHARES:
+                t = a + share * (b - a)
+                mismatch = interior_rate_mismatch(ev.load, ev.load_rate, t, a, b)
+                if mismatch > 1e-3:
+                    at, steps = f"t = {t:g}", "central differences"
+                    break
+            if mismatch > 1e-3:
+                break
+    if mismatch > 1e-3:
+        raise ModelError(
+            f"model {name!r}: load_rate does not match load at {at}: p'(t) and "
+            f"differences of p differ by {mismatch:.3g} of their size at the best of "
+            f"{steps}. HFDI uses p' in its step equation, where a wrong rate gives a "
+            f"wrong answer (check the model with hfdi.check_derivatives; "
+            f"check_stiffness=False skips the checks of K and p')")
+
+
+def interior_rate_mismatch(load, load_rate, t, a, b) -> float:
+    """How far ``load_rate(t)`` is from central differences of ``load`` at a
+    time ``t`` inside ``(a, b)``, an interval the load is smooth in: the
+    relative distance of the vectors at the best of the steps
+    ``δ = (b − a)·10^-2 … 10^-8 / √3`` (Richardson, ``(4 D(δ/2) − D(δ))/3``, error
+    ``O(δ⁴)``) that are converged (within 1e-4 of their size of the next finer
+    step's) and whose rounding (of the whole vector ``p``, amplified by
+    ``1/δ``) is below 1e-4 of their size. 0 where nothing can be judged: a load or rate
+    that raises or is not finite there (a load defined up to a terminal
+    event), a load that varies faster than every step, or rounding above it."""
+    eps = np.finfo(float).eps
+    try:
+        rate = np.asarray(load_rate(t), dtype=float)
+        if not np.all(np.isfinite(rate)):
+            return 0.0
+        estimates = []
+        for k in range(2, 9):
+            # not a round fraction of the interval: a load periodic in a round
+            # time (sin 2πt over a span of 1e7) would difference to zero
+            delta = (b - a) * 10.0 ** -k / math.sqrt(3.0)
+            if not (a < t - delta and t + delta < b and t - delta < t < t + delta):
+                continue
+            values = [np.asarray(load(t + s * delta), dtype=float)
+                      for s in (-1.0, -0.5, 0.5, 1.0)]
+            if not all(np.all(np.isfinite(v)) for v in values):
+                return 0.0
+            coarse = (values[3] - values[0]) / (2.0 * delta)
+            fine = (values[2] - values[1]) / delta
+            rounding = 16.0 * eps * max(float(np.abs(v).max()) for v in values) / delta
+            estimates.append(((4.0 * fine - coarse) / 3.0, rounding))
+    except Exception:       # noqa: BLE001 - not judged there; the run meets it if it gets there
+        return 0.0
+    best = math.inf
+    for (coarser, _), (difference, rounding) in zip(estimates[:-1], estimates[1:]):
+        # converged against the differences' own size, not the rate's: steps
+        # far longer than the load's period give differences near zero that
+        # agree with each other and with nothing else
+        settled = max(float(np.abs(coarser).max()), float(np.abs(difference).max()))
+        size = max(float(np.abs(rate).max()), settled)
+        if settled > 0.0 and rounding <= 1e-4 * settled and \
+                float(np.abs(coarser - difference).max()) <= 1e-4 * settled:
+            best = min(best, float(np.abs(rate - difference).max()) / size)
+    return best if math.isfinite(best) else 0.0
 
 
 def default_first_step(ev, K, t0, t_bound, min_step) -> float:

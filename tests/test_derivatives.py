@@ -167,6 +167,47 @@ def test_a_load_rate_wrong_only_away_from_the_start_is_refused():
                    load_rate=lambda t: (2.0 * t + 5.0 * (t >= 1.1037)) * e0)
     kinked.load_breakpoints = lambda: (1.1037,)
     assert hfdi.Integrator(kinked, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=3.0)
+    # a pulse over before the span's middle, its end declared: checked inside
+    # its own interval (at t0 and at the span's shares it is zero, rate and all)
+    pulse = lambda t: (np.sin(np.pi * t / 0.2) ** 2 if t < 0.2 else 0.0) * e0   # noqa: E731
+    pulse_rate = lambda t: (np.pi / 0.2 * np.sin(2 * np.pi * t / 0.2) if t < 0.2    # noqa: E731
+                            else 0.0) * e0
+    for factor, refused in ((1.3, True), (1.0, False)):
+        model = _with(load=pulse, load_rate=lambda t, f=factor: f * pulse_rate(t))
+        model.load_breakpoints = lambda: (0.2,)
+        if refused:
+            with pytest.raises(hfdi.ModelError, match=r"does not match load at t = 0\.07"):
+                hfdi.Integrator(model, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=2.0)
+        else:
+            assert hfdi.Integrator(model, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=2.0)
+
+
+@pytest.mark.parametrize("case", ["defined to an event", "rounding noise", "offset",
+                                  "periodic in round time"])
+def test_the_rate_check_inside_the_span_refuses_no_right_rate(case):
+    """Right rates the check inside the span must not refuse: a load from a
+    table that ends before t_bound (the run stops at a terminal event), a
+    component that is rounding noise, a large constant beside a small
+    oscillation, a load periodic in a round time over a long span."""
+    e0 = np.array([1.0, 0.0])
+    t_bound = 10.0
+    if case == "defined to an event":
+        load = lambda t: (np.sin(t) if t <= 3.0 else np.nan) * e0          # noqa: E731
+        rate = lambda t: (np.cos(t) if t <= 3.0 else np.nan) * e0          # noqa: E731
+    elif case == "rounding noise":
+        row = np.array([0.1 + 0.2 - 0.3, 1.0])      # the first sums to ~5.6e-17
+        load = lambda t: row * np.cos(7 * t)                                   # noqa: E731
+        rate = lambda t: -7 * row * np.sin(7 * t)                              # noqa: E731
+    elif case == "offset":
+        load = lambda t: (5e8 * (1 - np.exp(-50 * t)) + np.sin(10 * t)) * e0  # noqa: E731
+        rate = lambda t: (2.5e10 * np.exp(-50 * t) + 10 * np.cos(10 * t)) * e0  # noqa: E731
+        t_bound = 5.0
+    else:
+        load = lambda t: np.sin(2 * np.pi * t) * e0                            # noqa: E731
+        rate = lambda t: 2 * np.pi * np.cos(2 * np.pi * t) * e0                # noqa: E731
+        t_bound = 1e7
+    model = _with(load=load, load_rate=rate)
+    assert hfdi.Integrator(model, hfdi.HFDI(load_rate="exact"), rtol=1e-6, t_bound=t_bound)
 
 
 def test_check_refuses_bad_arguments():

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .. import checks
-from .base import KernelModel
+from .base import KernelModel, length_scale
 from .kernels import kernel
 from .loads import hat_load_params
 from .pair import pair_derivative_add, pair_force_add, pair_stiffness_add, relative, \
@@ -146,7 +146,7 @@ class Articulated(KernelModel):
                              f"{tuple(x0[k].tolist())}")
         self._positions_given = positions is not None
 
-    @property
+    @length_scale
     def u_scale(self) -> float:
         """The link length ``h``: the model's length scale (the default atol's)."""
         return self.h

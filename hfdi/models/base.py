@@ -8,7 +8,34 @@ from ..system import SecondOrderSystem
 from .kernels import compiled_kernels
 from .loads import hat_load, hat_load_params
 
-__all__ = ["KernelModel"]
+__all__ = ["KernelModel", "length_scale"]
+
+
+def _read_only(value):
+    """``value``, an array made a read-only copy of its own (a view's base would
+    stay writeable)."""
+    if isinstance(value, np.ndarray):
+        value = value.copy()
+        value.flags.writeable = False
+    return value
+
+
+class length_scale:                                  # noqa: N801 - used as a decorator
+    """``u_scale`` computed from the model's live parameters (``rest_length``,
+    ``h``, ``gap``), unless one is assigned, as on any model."""
+
+    def __init__(self, default):
+        self.default = default
+        self.__doc__ = default.__doc__
+
+    def __get__(self, model, kind=None):
+        if model is None:
+            return self
+        given = model.__dict__.get("u_scale")
+        return self.default(model) if given is None else given
+
+    def __set__(self, model, value):
+        model.__dict__["u_scale"] = value
 
 
 class KernelModel(SecondOrderSystem):
@@ -36,10 +63,14 @@ class KernelModel(SecondOrderSystem):
                 f"{self.name} {name} is fixed once the model is built (the mass matrix or the "
                 f"kernels' data are derived from it): build a new model, "
                 f"hfdi.models.get({self.name!r}, {name}=...)")
-        if name in self.FIXED_PARAMETERS and isinstance(value, np.ndarray):
-            value = value.view()
-            value.flags.writeable = False
+        if name in self.FIXED_PARAMETERS:
+            value = _read_only(value)
         super().__setattr__(name, value)
+
+    def __setstate__(self, state):
+        """A copy or an unpickled model keeps its fixed parameters read-only."""
+        self.__dict__.update({name: _read_only(value) if name in self.FIXED_PARAMETERS
+                              else value for name, value in state.items()})
 
     def load_params(self) -> np.ndarray:
         """The load's data (:func:`~hfdi.models.loads.hat_load`)."""

@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from .. import checks
-from .base import KernelModel
+from .base import KernelModel, length_scale
 from .kernels import kernel
 
 __all__ = ["Dumbbell", "dumbbell"]
@@ -65,7 +65,7 @@ class Dumbbell(KernelModel):
         """The bond's length at rest, ``σ (5/3)^½``."""
         return self.sigma * math.sqrt(5.0 / 3.0)
 
-    @property
+    @length_scale
     def u_scale(self) -> float:
         """The rest length: the model's length scale (the default atol's)."""
         return self.rest_length

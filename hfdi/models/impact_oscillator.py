@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from .. import checks
-from .base import KernelModel
+from .base import KernelModel, length_scale
 from .kernels import kernel
 
 __all__ = ["ImpactOscillator", "impact_oscillator", "exact_events"]
@@ -38,7 +38,6 @@ class ImpactOscillator(KernelModel):
     """
 
     name = "impact_oscillator"
-    FIXED_PARAMETERS = ("mass_value",)
     fmi_metadata = {
         "dofs": [["m", "displacement of the mass"]],
         "parameters": {
@@ -55,7 +54,7 @@ class ImpactOscillator(KernelModel):
 
     def __init__(self, mass=1.0, stiffness=4.0 * math.pi ** 2, gap=0.08, restitution=0.7,
                  u0=0.0, v0=1.0):
-        self.mass_value = checks.positive("impact_oscillator mass", mass)
+        mass = checks.positive("impact_oscillator mass", mass)
         self.stiffness_value = checks.positive("impact_oscillator stiffness", stiffness)
         self.gap = checks.positive("impact_oscillator gap", gap)
         self.restitution = checks.real("impact_oscillator restitution", restitution)
@@ -67,14 +66,20 @@ class ImpactOscillator(KernelModel):
             raise ValueError(f"impact_oscillator u0 must be above the stop (> -gap = "
                              f"{-self.gap!r}), got {u0!r}")
         self.n_dof = 1
-        self.mass = np.array([self.mass_value])
+        self.mass = np.array([mass])
         self.initial_displacement = np.array([u0])
         self.initial_velocity = np.array([checks.real("impact_oscillator v0", v0)])
 
-    @property
+    @length_scale
     def u_scale(self) -> float:
         """The gap: the model's length scale (the default atol's)."""
         return self.gap
+
+    @property
+    def mass_value(self) -> float:
+        """The parameter ``mass``: the mass matrix's one entry (an assigned
+        ``mass`` is the model's, its parameters and its exact events too)."""
+        return float(np.asarray(self.mass, dtype=float).ravel()[0])
 
     def parameters(self):
         return {"mass": self.mass_value, "stiffness": self.stiffness_value, "gap": self.gap,
