@@ -459,3 +459,14 @@ def test_a_live_parameter_still_changes_the_model():
     again = hfdi.integrate(hfdi.models.dumbbell(sigma=0.8), "hfdi", 0.05, rtol=1e-6)
     assert np.abs(after.u[-1] - before.u[-1]).max() > 1e-3
     np.testing.assert_array_equal(after.u[-1], again.u[-1])
+
+
+def test_the_toss_rules_geometry_is_read_only():
+    """element_length was the kernels' own h_e: an edit changed h_e, not 1/h_e
+    nor the mass, a structure of no parameters."""
+    model = hfdi.models.toss_rule()
+    before = model.params().copy()
+    for array in (model.element_length, model.node_coordinates):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 1.0
+    np.testing.assert_array_equal(model.params(), before)

@@ -164,8 +164,12 @@ class TossRule(KernelModel):
         # per element so the kernels hold for any initial polygon.
         self._S = dxy[:, 1] / h
         self._C = dxy[:, 0] / h
-        self._h = h
+        self._h = h.copy()
         self._inv_h = 1.0 / h
+        # the geometry shown is what the kernels' data were made from: read-only
+        # (an edit of element_length changed h_e in the kernels, not 1/h_e nor M)
+        self.node_coordinates.flags.writeable = False
+        self.element_length.flags.writeable = False
 
         # Element DOFs: element e joins nodes e and e+1, DOFs 3e .. 3e+5.
         self._dofs = 3 * np.arange(n_el)[:, None] + np.arange(6)[None, :]
