@@ -217,22 +217,24 @@ def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
             f"check_stiffness=False skips the checks of K and p')")
 
 
-def interior_rate_mismatch(load, load_rate, t, a, b) -> float:
+def interior_rate_mismatch(load, load_rate, t, a, b, accept=1e-3) -> float:
     """How far ``load_rate(t)`` is from central differences of ``load`` at a
     time ``t`` inside ``(a, b)``, an interval the load is smooth in: the
-    relative distance of the vectors at the best of the steps
-    ``δ = (b − a)·10^-2 … 10^-8 / √3`` (Richardson, ``(4 D(δ/2) − D(δ))/3``, error
-    ``O(δ⁴)``) that are converged (within 1e-4 of their size of the next finer
-    step's) and whose rounding (of the whole vector ``p``, amplified by
-    ``1/δ``) is below 1e-4 of their size. 0 where nothing can be judged: a load or rate
-    that raises or is not finite there (a load defined up to a terminal
-    event), a load that varies faster than every step, or rounding above it."""
+    relative distance of the vectors at the steps ``δ = (b − a)·10^-2 …
+    10^-8 / √3`` (Richardson, ``(4 D(δ/2) − D(δ))/3``, error ``O(δ⁴)``) that
+    are converged (within 1e-4 of their size of the next coarser step's) and
+    whose rounding (of the whole vector ``p``, amplified by ``1/δ``) is below
+    1e-4 of their size: the first such distance within ``accept`` (no finer
+    step is taken), else the smallest. 0 where nothing can be judged: a load
+    or rate that raises or is not finite there (a load defined up to a
+    terminal event), a load that varies faster than every step, or rounding
+    above it."""
     eps = np.finfo(float).eps
+    best, coarser = math.inf, None
     try:
         rate = np.asarray(load_rate(t), dtype=float)
         if not np.all(np.isfinite(rate)):
             return 0.0
-        estimates = []
         for k in range(2, 9):
             # not a round fraction of the interval: a load periodic in a round
             # time (sin 2πt over a span of 1e7) would difference to zero
@@ -246,19 +248,21 @@ def interior_rate_mismatch(load, load_rate, t, a, b) -> float:
             coarse = (values[3] - values[0]) / (2.0 * delta)
             fine = (values[2] - values[1]) / delta
             rounding = 16.0 * eps * max(float(np.abs(v).max()) for v in values) / delta
-            estimates.append(((4.0 * fine - coarse) / 3.0, rounding))
+            difference = (4.0 * fine - coarse) / 3.0
+            if coarser is not None:
+                # converged against the differences' own size, not the rate's:
+                # steps far longer than the load's period give differences
+                # near zero that agree with each other and with nothing else
+                settled = max(float(np.abs(coarser).max()), float(np.abs(difference).max()))
+                size = max(float(np.abs(rate).max()), settled)
+                if settled > 0.0 and rounding <= 1e-4 * settled and \
+                        float(np.abs(coarser - difference).max()) <= 1e-4 * settled:
+                    best = min(best, float(np.abs(rate - difference).max()) / size)
+                    if best <= accept:
+                        return best
+            coarser = difference
     except Exception:       # noqa: BLE001 - not judged there; the run meets it if it gets there
         return 0.0
-    best = math.inf
-    for (coarser, _), (difference, rounding) in zip(estimates[:-1], estimates[1:]):
-        # converged against the differences' own size, not the rate's: steps
-        # far longer than the load's period give differences near zero that
-        # agree with each other and with nothing else
-        settled = max(float(np.abs(coarser).max()), float(np.abs(difference).max()))
-        size = max(float(np.abs(rate).max()), settled)
-        if settled > 0.0 and rounding <= 1e-4 * settled and \
-                float(np.abs(coarser - difference).max()) <= 1e-4 * settled:
-            best = min(best, float(np.abs(rate - difference).max()) / size)
     return best if math.isfinite(best) else 0.0
 
 
