@@ -179,6 +179,8 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
 #: middle) gave HFDI a wrong answer with SUCCESS, or stalled its steps.
 RATE_CHECK_SHARES = (1.0 / math.e, 1.0 / math.sqrt(2.0))
 RATE_CHECK_INTERVALS = 8
+#: The relative mismatch of ``p'`` and the differences of ``p`` refused, as for ``K``.
+RATE_MISMATCH = 1e-3
 
 
 def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
@@ -196,19 +198,18 @@ def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
     mismatch = call("load", lambda: load_rate_error(ev.load, ev.load_rate, t0, scale,
                                                     horizon))
     at, steps = f"t0 = {t0:g}", f"the steps {scale * 1e-2:.3g} … {scale * 1e-13:.3g}"
-    if not mismatch > 1e-3 and t_bound is not None and math.isfinite(scale) and scale > 0:
+    if not mismatch > RATE_MISMATCH and t_bound is not None and math.isfinite(scale) \
+            and scale > 0:
         ends = np.unique(np.concatenate(([t0], points[(points > t0) & (points < t_bound)],
                                          [t_bound])))[:RATE_CHECK_INTERVALS + 1]
-        for a, b in zip(ends[:-1], ends[1:]):
-            for share in RATE_CHECK_SHARES:
-                t = a + share * (b - a)
-                mismatch = interior_rate_mismatch(ev.load, ev.load_rate, t, a, b)
-                if mismatch > 1e-3:
-                    at, steps = f"t = {t:g}", "central differences"
-                    break
-            if mismatch > 1e-3:
+        inside = ((a + share * (b - a), a, b) for a, b in zip(ends[:-1], ends[1:])
+                  for share in RATE_CHECK_SHARES)
+        for t, a, b in inside:
+            mismatch = interior_rate_mismatch(ev.load, ev.load_rate, t, a, b)
+            if mismatch > RATE_MISMATCH:
+                at, steps = f"t = {t:g}", "central differences"
                 break
-    if mismatch > 1e-3:
+    if mismatch > RATE_MISMATCH:
         raise ModelError(
             f"model {name!r}: load_rate does not match load at {at}: p'(t) and "
             f"differences of p differ by {mismatch:.3g} of their size at the best of "
@@ -217,7 +218,7 @@ def check_load_rate(ev, call, name, t0, t_bound, breakpoints):
             f"check_stiffness=False skips the checks of K and p')")
 
 
-def interior_rate_mismatch(load, load_rate, t, a, b, accept=1e-3) -> float:
+def interior_rate_mismatch(load, load_rate, t, a, b, accept=RATE_MISMATCH) -> float:
     """How far ``load_rate(t)`` is from central differences of ``load`` at a
     time ``t`` inside ``(a, b)``, an interval the load is smooth in: the
     relative distance of the vectors at the steps ``δ = (b − a)·10^-2 …

@@ -262,7 +262,7 @@ def test_the_load_scale_of_a_model_at_rest():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=SCHEMES))
+@pytest.mark.parametrize("scheme", SCHEMES)
 def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
     """A stiff structure starting at rest under a sine load moves by 1.8e-7:
     with u's scale 1 (no u_scale given) the default atol let its error reach

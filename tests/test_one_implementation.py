@@ -98,7 +98,7 @@ def test_a_run_is_the_same_at_both_speeds(model, scheme, mode):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "bathe"))
+@pytest.mark.parametrize("scheme", SCHEMES)
 def test_communication_points_breakpoints_and_short_steps_alike(scheme):
     """advance() to points a master sums (short steps past the articulated
     system's load breakpoint among them), then a changed model: the two
@@ -139,7 +139,7 @@ def test_a_changed_load_is_followed_alike(scheme, tell):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "generalized_alpha"))
+@pytest.mark.parametrize("scheme", SCHEMES)
 def test_a_saved_state_continues_alike_at_the_other_speed(scheme):
     """A state saved by one speed and restored into the other continues as the
     first would have."""

@@ -58,12 +58,12 @@ class KernelModel(SecondOrderSystem):
     damping = None
 
     def __setattr__(self, name, value):
-        if name in self.FIXED_PARAMETERS and name in self.__dict__:
-            raise AttributeError(
-                f"{self.name} {name} is fixed once the model is built (the mass matrix or the "
-                f"kernels' data are derived from it): build a new model, "
-                f"hfdi.models.get({self.name!r}, {name}=...)")
         if name in self.FIXED_PARAMETERS:
+            if name in self.__dict__:
+                raise AttributeError(
+                    f"{self.name} {name} is fixed once the model is built (the mass matrix "
+                    f"or the kernels' data are derived from it): build a new model, "
+                    f"hfdi.models.get({self.name!r}, {name}=...)")
             value = _read_only(value)
         super().__setattr__(name, value)
 
