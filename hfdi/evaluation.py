@@ -10,6 +10,7 @@ instead of raising, as compiled kernels signal it.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import numbers
 from dataclasses import dataclass
@@ -140,6 +141,26 @@ def _same_matrix(a, b) -> bool:
     return a.shape == b.shape and (a != b).count_nonzero() == 0
 
 
+def matrices_digest(*matrices) -> str:
+    """A digest of normalised matrices' entries, the same for a sparse, a dense
+    and a diagonal form of one matrix (``None`` is zero): what a state records
+    of the ``M`` and ``C`` it was computed with."""
+    digest = hashlib.sha256()
+    for m in matrices:
+        if m is None:
+            digest.update(b"zero;")
+            continue
+        csr = sp.csr_matrix(sp.diags(m) if not sp.issparse(m) and m.ndim == 1 else m,
+                            dtype=float, copy=True)
+        csr.eliminate_zeros()
+        csr.sort_indices()
+        for part in (np.asarray(csr.shape, np.int64), csr.indptr.astype(np.int64),
+                     csr.indices.astype(np.int64), csr.data + 0.0):
+            digest.update(part.tobytes())
+        digest.update(b";")
+    return digest.hexdigest()[:32]
+
+
 def matrix_kind(a) -> int:
     """The kind (:mod:`hfdi.core.arrays`) of a normalised matrix."""
     if a is None:
@@ -226,6 +247,7 @@ class Evaluator:
         self.nfev = self.njev = self.ntev = self.npev = 0
         self._mass_factor = None
         self._mass_floor = None
+        self._matrices = None
         self._vector_shape = (n,)
         self._matrix_shape = (n, n)
         #: Compiled f, K and T called instead of the model's methods
@@ -241,6 +263,13 @@ class Evaluator:
     def _stored(self, matrix):
         """A normalised matrix as the run keeps it: dense below the sparse size."""
         return matrix.toarray() if self.n < DENSE_BELOW and sp.issparse(matrix) else matrix
+
+    @property
+    def matrices(self) -> str:
+        """:func:`matrices_digest` of the ``M`` and ``C`` read at construction."""
+        if self._matrices is None:
+            self._matrices = matrices_digest(self.mass, self.damping)
+        return self._matrices
 
     def matrix_changed(self) -> str:
         """The name of the model's matrix (``"mass"``, ``"damping"``) that is no

@@ -68,6 +68,9 @@ class IntegratorState:
     #: The model's ``parameter_version`` the state was computed with (-1: a
     #: model that does not count parameter changes).
     model_version: int = -1
+    #: A digest of the ``M`` and ``C`` the state's acceleration was computed
+    #: with (:func:`hfdi.evaluation.matrices_digest`; ``""``: not recorded).
+    matrices: str = ""
     #: The global error estimate of ``(u, v)`` at ``current.t`` (2N; NaN:
     #: lost, see :attr:`Integrator.global_error`); ``None`` is zero.
     global_error: np.ndarray | None = None
@@ -208,7 +211,7 @@ def event_counts_valid(count: np.ndarray) -> bool:
 
 
 #: Format of :meth:`IntegratorState.to_bytes`; a version bump makes old bytes unreadable.
-STATE_FORMAT = "hfdi-integrator-state/5"
+STATE_FORMAT = "hfdi-integrator-state/6"
 _STATE_ARRAYS = ("u", "v", "a", "f", "p")
 #: The fields of plain types, by name (the annotations are strings here).
 _STATE_SCALARS = {f.name: {"float": float, "bool": bool, "int": int, "str": str}[f.type]

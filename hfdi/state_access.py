@@ -43,6 +43,7 @@ class StateAccess:
             newton_guard=run.newton_guard, controller=repr(self.controller), n_dof=self.ev.n,
             scheme=repr(self.scheme),
             model_version=-1 if self._model_version is None else int(self._model_version),
+            matrices=self.ev.matrices,
             global_error=vec.global_error.copy(), **self._event_memory(run.t))
 
     def _event_memory(self, t) -> dict:
@@ -61,8 +62,10 @@ class StateAccess:
         """Restore a state from :meth:`get_state`; the run then continues
         exactly as it did from that point. For a model that counts the
         changes of its parameters (``parameter_version``), a state saved
-        under another version is refreshed as by :meth:`model_changed`
-        (``f``, ``a`` and ``V`` recomputed, the step history dropped).
+        under another version, and a state saved with another mass or
+        damping matrix (``IntegratorState.matrices``), is refreshed as by
+        :meth:`model_changed` (``f``, ``a`` and ``V`` recomputed, the step
+        history dropped).
 
         Raises
         ------
@@ -85,7 +88,10 @@ class StateAccess:
         # version; under others they are recomputed (Newmark and Bathe keep no
         # f_n to tell by), and a failure there puts back what was (kept only
         # then: a copy of the state costs a third of a restore)
-        refresh = now is not None and saved.model_version != now
+        # and a state of a model with other M or C (a new integrator for changed
+        # matrices, as model_changed asks) has an acceleration of those
+        refresh = (now is not None and saved.model_version != now
+                   or saved.matrices not in ("", self.ev.matrices))
         before = (RUN.copy(self._run), self._message, self._model_version,
                   self.get_state()) if refresh else None
         self._model_version = now

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 import hfdi
 from core_records import predict
 from hfdi.evaluation import State
-from problems import coupled_duffing
+from problems import coupled_duffing, schemes_quick
 from strategies import PROPERTY, spring_chains
 
 DUMBBELL = hfdi.models.dumbbell()
@@ -622,6 +622,42 @@ def test_rows_join_single_steps_and_driver_blocks_in_order():
     np.testing.assert_array_equal(got["external_work"], 100.0 * ks)
     np.testing.assert_array_equal(got["global_error"], 1e-3 * np.repeat(ks[:, None], 2 * n, 1))
     assert all(arr.flags.c_contiguous and arr.flags.owndata for arr in got.values())
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
+def test_a_state_taken_to_other_matrices_gets_their_acceleration(scheme):
+    """model_changed asks for a new Integrator when M or C change, and
+    set_state to carry the state over; the saved acceleration is of the old
+    matrices (Newmark and Bathe step from it), so set_state recomputes it
+    with the new ones. The run then goes on as a run started at the restored
+    ``(t, u, v)`` of the new model."""
+    def _scaled(mass, damping, u0, v0):
+        """The coupled Duffing pair with the masses, damping and start given."""
+        m = coupled_duffing(damping=damping, load=lambda t: np.array([np.sin(3 * t), 0.0]))
+        m.mass, m.initial_displacement, m.initial_velocity = (np.array(mass, dtype=float),
+                                                              np.array(u0), np.array(v0))
+        return m
+
+    first = hfdi.Integrator(_scaled([1.0, 1.0], 0.05, (0.3, 0.0), (0.0, 0.0)), scheme,
+                            rtol=1e-5, compiled=False)
+    assert first.advance(1.0), first.message
+    saved = hfdi.IntegratorState.from_bytes(first.get_state().to_bytes())
+    new = _scaled([2.0, 0.5], 0.4, (0.3, 0.0), (0.0, 0.0))
+    carried = hfdi.Integrator(new, scheme, rtol=1e-5, compiled=False)
+    carried.set_state(saved)
+    s = carried.state
+    expected = (s.p - new.internal_force(s.u) - 0.4 * s.v) / np.array([2.0, 0.5])
+    np.testing.assert_allclose(s.a, expected, rtol=1e-12, atol=1e-12)
+    assert np.abs(saved.current.a - expected).max() > 0.1       # the old one was far off
+    started = hfdi.Integrator(_scaled([2.0, 0.5], 0.4, s.u, s.v), scheme, t0=s.t,
+                              rtol=1e-5, compiled=False)
+    for itg in (carried, started):
+        assert itg.advance(2.0), itg.message
+    np.testing.assert_allclose(carried.state.u, started.state.u, rtol=0, atol=1e-4)
+    same = hfdi.Integrator(_scaled([1.0, 1.0], 0.05, (0.3, 0.0), (0.0, 0.0)), scheme,
+                           rtol=1e-5, compiled=False)
+    same.set_state(saved)                          # the same matrices: restored exactly
+    assert same.get_state().to_bytes() == saved.to_bytes()
 
 
 def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():

@@ -144,7 +144,6 @@ class Articulated(KernelModel):
             raise ValueError(f"articulated positions: neighbouring masses must not coincide "
                              f"(link lengths > 0), got masses {k + 1} and {k + 2} both at "
                              f"{tuple(x0[k].tolist())}")
-        self._positions_given = positions is not None
 
     @length_scale
     def u_scale(self) -> float:
@@ -154,7 +153,8 @@ class Articulated(KernelModel):
     def parameters(self):
         return self._given({"k_e": self.k_e, "k_f": self.k_f, "h": self.h,
                             "load_amplitude": self.load_amplitude, "load_time": self.load_time,
-                            "masses": tuple(self.masses.tolist())}, (3, 2))
+                            "masses": tuple(self.masses.tolist())}, (3, 2),
+                           [[0.0, 0.0], [self.h, 0.0], [2.0 * self.h, 0.0]])
 
     def params(self):
         """The kernels' data ``(k_e, k_f, h)``."""

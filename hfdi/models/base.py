@@ -65,6 +65,12 @@ class KernelModel(SecondOrderSystem):
                     f"or the kernels' data are derived from it): build a new model, "
                     f"hfdi.models.get({self.name!r}, {name}=...)")
             value = _read_only(value)
+        elif isinstance(getattr(type(self), name, None), property) and \
+                getattr(type(self), name).fset is None:
+            raise AttributeError(
+                f"{self.name} {name} is derived from the model's parameters and cannot be "
+                f"assigned: build a model with other parameters, hfdi.models.get({self.name!r}, "
+                f"...)")
         super().__setattr__(name, value)
 
     def __setstate__(self, state):
@@ -109,11 +115,14 @@ class KernelModel(SecondOrderSystem):
         pulses = self.load_params()
         return tuple(sorted({x for t1 in map(float, pulses[4::3]) for x in (0.0, t1, 2.0 * t1)}))
 
-    def _given(self, params, shape):
-        """``params`` with the positions and the initial velocities where given."""
-        if self._positions_given:
-            params["positions"] = tuple(map(tuple, self.initial_displacement.reshape(shape)
-                                            .tolist()))
+    def _given(self, params, shape, default_positions, positions=None):
+        """``params`` with the positions (default: the initial ones) and the
+        initial velocities where they are not the defaults the parameters
+        give (the straight chain of the current ``h``, say), so that
+        ``get(name, **model.parameters())`` builds the model as it is."""
+        positions = self.initial_displacement if positions is None else positions
+        if not np.array_equal(np.ravel(positions), np.ravel(default_positions)):
+            params["positions"] = tuple(map(tuple, np.reshape(positions, shape).tolist()))
         if np.any(self.initial_velocity):
             params["v0"] = tuple(self.initial_velocity.tolist())
         return params

@@ -16,6 +16,11 @@ from .kernels import kernel
 __all__ = ["Dumbbell", "dumbbell"]
 
 
+#: The paper's start: the masses 1 apart on the x axis, moving up at 10 and 5.
+DEFAULT_U0 = (0.0, 0.0, 1.0, 0.0)
+DEFAULT_V0 = (0.0, 10.0, 0.0, 5.0)
+
+
 class Dumbbell(KernelModel):
     """Two particles in the plane, ``u = (x1, y1, x2, y2)``, joined by
     ``V(r) = A[(σ/r)⁵ − (σ/r)³]``.
@@ -48,7 +53,7 @@ class Dumbbell(KernelModel):
     }
 
     def __init__(self, A=1e6, sigma=math.sqrt(3.0 / 5.0), masses=(1.0, 1.0),
-                 u0=(0.0, 0.0, 1.0, 0.0), v0=(0.0, 10.0, 0.0, 5.0)):
+                 u0=DEFAULT_U0, v0=DEFAULT_V0):
         self.A = checks.positive("dumbbell A", A)
         self.sigma = checks.positive("dumbbell sigma", sigma)
         self.masses = checks.finite_array("dumbbell masses", masses, (2,), positive=True)
@@ -71,7 +76,12 @@ class Dumbbell(KernelModel):
         return self.rest_length
 
     def parameters(self):
-        return {"A": self.A, "sigma": self.sigma, "masses": tuple(self.masses)}
+        params = {"A": self.A, "sigma": self.sigma, "masses": tuple(self.masses.tolist())}
+        for name, value, default in (("u0", self.initial_displacement, DEFAULT_U0),
+                                     ("v0", self.initial_velocity, DEFAULT_V0)):
+            if not np.array_equal(value, default):
+                params[name] = tuple(np.asarray(value, dtype=float).tolist())
+        return params
 
     def params(self):
         """The kernels' data ``(A, σ)``."""

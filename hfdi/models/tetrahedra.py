@@ -98,6 +98,7 @@ class Tetrahedra(KernelModel):
         self.n_dof = 12
         self.mass = np.repeat(masses, 3)
         self.initial_displacement = x0.ravel().copy()
+        self._built_positions = x0         # the rest lengths' geometry
         self.initial_velocity = (np.zeros(12) if v0 is None else
                                  checks.finite_array("tetrahedra v0", v0, (12,)))
         self.rest_length = self.distances(self.initial_displacement)
@@ -106,7 +107,6 @@ class Tetrahedra(KernelModel):
             raise ValueError(f"tetrahedra positions must be four distinct points (every rest "
                              f"length > 0), got particles {PAIRS_I[k] + 1} and {PAIRS_J[k] + 1} "
                              f"both at {tuple(x0[PAIRS_I[k]].tolist())}")
-        self._positions_given = positions is not None
 
     @property
     def spring_constant(self):
@@ -116,7 +116,8 @@ class Tetrahedra(KernelModel):
     def parameters(self):
         return self._given({"k_stiff": self.k_stiff, "k_soft": self.k_soft,
                             "load_amplitude": self.load_amplitude, "load_time": self.load_time,
-                            "masses": tuple(self.masses.tolist())}, (4, 3))
+                            "masses": tuple(self.masses.tolist())}, (4, 3), PAPER_POSITIONS,
+                           self._built_positions)
 
     def params(self):
         """The kernels' data: ``(r0³, k/3, −2k, k, r0)``, six entries each in the

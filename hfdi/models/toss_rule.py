@@ -90,8 +90,9 @@ class TossRule(KernelModel):
 
     Attributes
     ----------
-    EA, GA, EJ : float
-        Axial, shear and flexural rigidities.
+    area, inertia, G, EA, GA, EJ : float
+        The section's ``A`` and ``J``, the shear modulus and the axial, shear
+        and flexural rigidities; read-only, derived from the parameters.
     node_coordinates : ndarray (N_el + 1, 2)
         Initial node positions.
     element_length : ndarray (N_el,)
@@ -146,12 +147,6 @@ class TossRule(KernelModel):
         self.moment_amplitude = checks.real("toss rule moment_amplitude", moment_amplitude)
         self.load_time = checks.positive("toss rule load_time", load_time)
 
-        self.area = self.width * self.thickness
-        self.inertia = self.width * self.thickness ** 3 / 12.0
-        self.G = self.E / (2.0 * (1.0 + self.nu))
-        self.EA = self.E * self.area
-        self.GA = self.shear_factor * self.G * self.area
-        self.EJ = self.E * self.inertia
 
         n_nodes = n_el + 1
         self.n_dof = 3 * n_nodes
@@ -186,6 +181,38 @@ class TossRule(KernelModel):
         self._build_pattern()
 
     # -- set-up ------------------------------------------------------------
+    # The section's data follow from the fixed parameters: read-only, so that
+    # an assignment cannot leave the kernels or the mass on other values.
+    @property
+    def area(self) -> float:
+        """``A = width·thickness``."""
+        return self.width * self.thickness
+
+    @property
+    def inertia(self) -> float:
+        """``J = width·thickness³/12``."""
+        return self.width * self.thickness ** 3 / 12.0
+
+    @property
+    def G(self) -> float:                               # noqa: N802 - the symbol's name
+        """``G = E/(2(1+ν))``."""
+        return self.E / (2.0 * (1.0 + self.nu))
+
+    @property
+    def EA(self) -> float:                              # noqa: N802
+        """Axial rigidity ``E A``."""
+        return self.E * self.area
+
+    @property
+    def GA(self) -> float:                              # noqa: N802
+        """Shear rigidity ``shear_factor·G·A``."""
+        return self.shear_factor * self.G * self.area
+
+    @property
+    def EJ(self) -> float:                              # noqa: N802
+        """Flexural rigidity ``E J``."""
+        return self.E * self.inertia
+
     def _build_pattern(self):
         """The fixed CSR pattern of the banded tangent: every coupling of each
         element's six DOFs, sorted; a template of the result, and where each
