@@ -354,11 +354,9 @@ class ErrorControl(Controller):
                  order: int | None = None, per_step=False, span=None, safety=0.9, grow=5.0,
                  shrink=0.2, **limits):
         self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
-        self.atol = None if atol is None else _tolerance("atol", atol, 0.0, math.inf)
-        if atol is not None and np.any(np.asarray(self.atol) <= 0.0):
-            # a weight atol + rtol·|u| of zero would fail every step at u = 0
-            raise ValueError(f"atol must be > 0 (a finite number or one per degree of freedom), "
-                             f"got {atol!r}")
+        # atol > 0: a weight atol + rtol·|u| of zero would fail every step at u = 0
+        self.atol = None if atol is None else _tolerance("atol", atol, 0.0, math.inf,
+                                                         open_low=True)
         self.u_scale = None if u_scale is None else checks.positive("u_scale", u_scale)
         self.v_scale = None if v_scale is None else checks.positive("v_scale", v_scale)
         self.order = None if order is None else checks.integer("order", order, 1)
@@ -550,18 +548,21 @@ def _exact(value) -> str:
             f"sha256 {digest}>")
 
 
-def _tolerance(name, value, low, high):
-    """A tolerance as a float or a 1-D float array, every entry in ``[low, high)``."""
+def _tolerance(name, value, low, high, open_low=False):
+    """A tolerance as a float or a 1-D float array, every entry in ``[low, high)``
+    (``(low, high)`` with ``open_low``)."""
+    interval = f"{'(' if open_low else '['}{low:g}, {high:g})"
     if isinstance(value, (str, bytes)) or np.asarray(value).dtype.kind not in "iuf":
         raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
-                         f"of freedom) in [{low:g}, {high:g}), got {value!r}")
+                         f"of freedom) in {interval}, got {value!r}")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
-                         f"of freedom) in [{low:g}, {high:g}), got {value!r}") from None
+                         f"of freedom) in {interval}, got {value!r}") from None
     if np.iscomplexobj(np.asarray(value)) or arr.ndim > 1 or arr.size == 0 or \
-            not np.all(np.isfinite(arr)) or np.any(arr < low) or np.any(arr >= high):
+            not np.all(np.isfinite(arr)) or np.any(arr < low) or np.any(arr >= high) or \
+            open_low and np.any(arr == low):
         raise ValueError(f"{name} must be a finite number or a 1-D array of them (one per "
-                         f"degree of freedom) in [{low:g}, {high:g}), got {value!r}")
+                         f"degree of freedom) in {interval}, got {value!r}")
     return float(arr) if arr.ndim == 0 else arr.copy()

@@ -224,9 +224,7 @@ class Evaluator:
     def __init__(self, system: SecondOrderSystem, extra_load=None):
         if not isinstance(system, SecondOrderSystem):
             raise TypeError(f"system must be a hfdi.SecondOrderSystem, got {type(system).__name__}")
-        n = int(system.n_dof)
-        if n < 1:
-            raise ValueError(f"system.n_dof must be >= 1, got {system.n_dof}")
+        n = checks.integer("system.n_dof", system.n_dof, 1)
         self.system = system
         self.n = n
         self.mass = normalise_matrix(system.mass, n, "system.mass")

@@ -229,8 +229,8 @@ class EventSteps:
                             if other.t == crossing.t:
                                 last = events.record(other) or last
                         return j, crossing, asks, last, None
-                    if crossing.t == t[j]:
-                        counted.append(crossing.index)
+                    if crossing.t == t[j] or G[j][crossing.index] == 0:
+                        counted.append(crossing.index)      # held to the step's end
             except EventError as exc:
                 events.rollback(before)
                 return j, None, None, False, exc
@@ -383,6 +383,7 @@ class EventSteps:
         before = self.get_state()
         potential_before = run.potential
         kinetic_before = ev.kinetic_energy(vec.v)
+        jumped = not (np.array_equal(vec.u, u) and np.array_equal(vec.v, v))
         vec.u[:], vec.v[:] = u, v
         try:
             potential = float(ev.potential_energy(vec.u))
@@ -397,6 +398,12 @@ class EventSteps:
         finally:
             self._absorb_counts()
         run = self._run                      # _refresh may have replaced it
+        if jumped:
+            # the error carried to the zero moves the zero's time too, and a
+            # jump of the state turns that into an error of its own (the
+            # saltation term), which needs the reset's derivative: not known
+            # for a Python on_event, so the estimate is lost from here
+            vec.global_error[:] = np.nan
         kinetic_after = ev.kinetic_energy(vec.v)
         energy_after = potential + kinetic_after
         jump = kinetic_after - kinetic_before

@@ -10,7 +10,10 @@ Hermite of ``u`` and the cubic of ``v``) by Brent's bracketing method to
 within ``4ε`` of ``t``, as ``solve_ivp`` does. Several zeros in one step are
 taken in time order. A zero exactly at ``t0`` counts when ``g`` then leaves
 zero in the event's direction (as ``solve_ivp``); a zero exactly at a step
-end counts once, in the step that reaches it. A change of sign and back
+end counts once, in the step that reaches it. A zero held over an interval
+(``max(t − 1, 0)``) is one zero: counted where ``g`` reaches it, or, when
+the run starts on it, where ``g`` leaves it in the event's direction; both
+found by bisection (Brent's method needs a change of sign). A change of sign and back
 within one step is not seen (as in every method that samples ``g`` at step
 ends): a step no longer than the time ``g`` stays on one side is the user's
 to ask for (``max_step``).
@@ -264,9 +267,17 @@ class Events:
         found = [Crossing(float(t0), i, u0.copy(), v0.copy()) for i in at_start]
         for i in np.flatnonzero(active):
             if left_g[i] == 0:
-                continue           # still at the zero at the probe: not left yet
-            if g1[i] == 0:
-                t_root = t1
+                # still at the zero at the probe, left by the step's end: a zero
+                # held over a while (a clipped depth, max(t − 1, 0)); counted
+                # where g leaves it, unless it was counted where g reached it
+                if self.counted_zero[i]:
+                    continue
+                t_root = self._edge(i, left_t[i], t1, lambda g: g == 0, state)
+            elif g1[i] == 0:
+                # the first zero on the way, not the step's end: g may reach
+                # zero before t1 and stay there
+                side = math.copysign(1.0, left_g[i])
+                t_root = self._edge(i, left_t[i], t1, lambda g: side * g > 0, state)
             else:
                 t_root = self._root(i, left_t[i], t1, left_g[i], g1[i], state)
             if t_root == t0:
@@ -292,6 +303,22 @@ class Events:
             return self.value(i, t, *map(_read_only, state(t)))
         return brentq(g, t0, t1, xtol=ROOT_TOLERANCE, rtol=ROOT_TOLERANCE)
 
+    def _edge(self, i, lo, hi, as_at_lo, state):
+        """The first time in ``(lo, hi]`` where ``g_i`` is no longer as at
+        ``lo`` (``as_at_lo(g)``, true at ``lo`` and false at ``hi``), to
+        :data:`ROOT_TOLERANCE`: bisection, for a zero held over an interval,
+        where Brent's method has no change of sign to follow. ``hi`` exactly
+        when ``g`` is as at ``lo`` until then."""
+        while hi - lo > ROOT_TOLERANCE * (1.0 + abs(hi)):
+            mid = lo + 0.5 * (hi - lo)
+            if not lo < mid < hi:
+                break
+            if as_at_lo(self.value(i, mid, *map(_read_only, state(mid)))):
+                lo = mid
+            else:
+                hi = mid
+        return hi
+
     def record(self, crossing: Crossing) -> bool:
         """Count ``crossing``; whether it is a terminal event's last allowed zero."""
         i = crossing.index
@@ -305,9 +332,13 @@ class Events:
         """``t`` is the current time: ``g`` there, and the events whose zero was
         counted exactly there (added to those counted before at the same
         ``t``: a restart at a load breakpoint keeps ``t``, ``u`` and ``v``)."""
+        g = np.array(g, dtype=float)
         if t != self.t:
-            self.counted_zero[:] = False
-        self.g = np.array(g, dtype=float)
+            # a counted zero that g stays at is the same zero: leaving it is
+            # no new crossing (the steps between look at every zero, so g
+            # was at zero at each of their ends)
+            self.counted_zero &= (self.g == 0) & (g == 0)
+        self.g = g
         for i in counted:
             self.counted_zero[i] = True
         self.t = float(t)

@@ -207,9 +207,9 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
         result.message = (f"{ended}, but the estimated global error is {ratio:.3g} times "
                           f"the tolerance (the run at rtol {last:.3g}; {why})"
                           if math.isfinite(ratio) else
-                          f"{ended}, but the global error estimate was lost (the "
-                          f"stiffness failed or the propagator's matrix was singular) in the "
-                          f"run at rtol {last:.3g}")
+                          f"{ended}, but the global error estimate was lost (on_event "
+                          f"reset the state, the stiffness failed or the propagator's matrix "
+                          f"was singular) in the run at rtol {last:.3g}")
     else:
         result.message = (f"{ended}; estimated global error {ratio:.3g} of the "
                           f"tolerance (the run at rtol {last:.3g}, {runs} run(s))")

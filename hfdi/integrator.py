@@ -247,7 +247,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         span = None if self.t_bound is None else self.t_bound - self.t0
         max_steps = checks.integer("max_steps", max_steps, 1, MAX_COUNT)
         self.energy_limit = optional_positive("energy_limit", energy_limit)
-        u_scale = float(getattr(system, "u_scale", 1.0) or 1.0)
+        u_scale = declared_u_scale(system) or 1.0
         self.controller = c = make_controller(
             controller, rtol, atol, target_iterations, step, span, min_step, max_step,
             max_halvings, first_step_trials, self.scheme, self.t0, self.t_bound,

@@ -107,6 +107,13 @@ def make_controller(controller, rtol, atol, target, step, span, min_step, max_st
         elif default_min:
             hint = " (the default; give min_step for so small a max_step)"
         raise ValueError(f"min_step must be < max_step = {max_step}, got {min_step}{hint}")
+    if step is None and given_max is not None and span is not None and \
+            span / max_step > max_steps * (1.0 + 1e-9):
+        # the run could only end at MAX_STEPS, after all of them
+        raise ValueError(f"max_step = {given_max!r} needs at least {math.ceil(span / max_step)} "
+                         f"steps from t0 = {t0:g} to t_bound = {t_bound:g}, more than "
+                         f"max_steps = {max_steps}; allowed: max_step >= "
+                         f"{span / max_steps:.6g}, or a larger max_steps")
     limits = dict(min_step=min_step, max_step=max_step, max_rejections=max_halvings,
                   first_step_trials=first_step_trials)
     if step is not None:
@@ -207,21 +214,29 @@ def newton_tolerance(tol, controller):
             rtol = getattr(controller, "error", controller).rtol
             tol = min(tol, max(1e-12, 1e-3 * float(np.min(rtol))))
     try:
-        return checks.real("tol", tol, low=0.0, high=1.0)
+        return checks.real("tol", tol, low=TOL_RANGE[0], high=TOL_RANGE[1],
+                           low_closed=True)
     except ValueError:
-        raise ValueError(f"tol must be in (0, 1), got {tol!r}") from None
+        raise ValueError(f"tol must be in [{TOL_RANGE[0]:g}, {TOL_RANGE[1]:g}) (Newton's "
+                         f"relative tolerance; below about 10ε no correction can meet it), "
+                         f"got {tol!r}") from None
+
+
+#: Newton's tolerance ``tol``: from ten times the machine epsilon up to 1.
+TOL_RANGE = (10.0 * float(np.finfo(float).eps), 1.0)
 
 
 def breakpoints_of(system, extra):
     """The sorted load breakpoints of the model and of ``extra``."""
     own = system.load_breakpoints() if hasattr(system, "load_breakpoints") \
         else ()
-    try:
-        times = np.concatenate([np.asarray(own, dtype=float).ravel(),
-                                np.asarray(() if extra is None else extra,
-                                           dtype=float).ravel()])
-    except (TypeError, ValueError):
-        raise ValueError(f"breakpoints must be an array of times, got {extra!r}") from None
+    arrays = []
+    for name, given in (("the model's load_breakpoints()", own), ("breakpoints", extra)):
+        try:
+            arrays.append(np.asarray(() if given is None else given, dtype=float).ravel())
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be an array of times, got {given!r}") from None
+    times = np.concatenate(arrays)
     if not np.all(np.isfinite(times)):
         raise ValueError(f"breakpoints must be finite, got {times!r}")
     return np.unique(times)

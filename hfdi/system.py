@@ -136,8 +136,19 @@ def declared_u_scale(system) -> float | None:
     if "u_scale" in vars(system) or any("u_scale" in vars(k) for k in type(system).__mro__
                                         if k is not SecondOrderSystem):
         value = getattr(system, "u_scale", None)
-        return float(value) if value else None
+        return None if value is None else checked_u_scale(value)
     return None
+
+
+def checked_u_scale(value) -> float:
+    """A model's ``u_scale``: a finite number > 0 (a NaN made the default
+    atol NaN, and a run took 70 times the steps or none passed; 0 or a
+    negative one was taken silently)."""
+    try:
+        return checks.positive("system.u_scale", value)
+    except ValueError:
+        raise ValueError(f"system.u_scale must be a finite number > 0 (the model's length "
+                         f"scale, the default atol's), got {value!r}") from None
 
 
 class System(SecondOrderSystem):

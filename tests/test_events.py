@@ -619,3 +619,67 @@ def test_on_event_changing_the_mass_stops_the_run_there():
     assert result.status == hfdi.Status.MODEL_ERROR
     assert "on_event changed the model's mass" in result.message
     assert result.t[-1] == pytest.approx(np.pi / 2, abs=1e-7)
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
+def test_a_zero_held_from_the_start_counts_where_g_leaves_it(scheme):
+    """A function at zero over a while from the start, then leaving it (a
+    clipped penetration depth): the zero counts where g leaves it. It was
+    skipped whenever g was still zero at the probe just after a step's
+    start, so the event was never found (a terminal one ran to t_end)."""
+    def depth(t, u, v):                     # u = cos 3t falls below cos 0.2 at t = 0.2/3
+        return max(math.cos(0.2) - u[0], 0.0)
+
+    def clipped(t, u, v):
+        return max(t - 2.345, 0.0)
+
+    depth.direction, depth.terminal = 1, True
+    rtol = 1e-8 if scheme == "hfdi" else 1e-6          # a second-order scheme's steps
+    result = hfdi.integrate(oscillator(), scheme, 0.5, rtol=rtol, events=depth)
+    assert result.status == hfdi.Status.TERMINATED
+    assert result.t_events[0][0] == pytest.approx(0.2 / W, abs=100 * rtol)
+    for direction in (1, 0):
+        clipped.direction = direction
+        found = hfdi.integrate(oscillator(), scheme, 3.0, rtol=1e-4, events=clipped).t_events
+        assert len(found[0]) == 1 and found[0][0] == pytest.approx(2.345, abs=1e-12)
+    clipped.direction = -1                  # leaving upwards is no falling zero
+    assert len(hfdi.integrate(oscillator(), scheme, 3.0, rtol=1e-4,
+                              events=clipped).t_events[0]) == 0
+    itg = hfdi.Integrator(oscillator(), scheme, rtol=rtol, events=depth)
+    itg.advance(0.5, until_event=True)
+    assert itg.t == pytest.approx(0.2 / W, abs=100 * rtol)
+
+
+def test_a_zero_reached_and_held_counts_once_where_it_is_reached():
+    """g rises to zero at t = 3, stays there until 5, then goes on rising:
+    one rising zero, at 3 (it was put at the end of the step that reached
+    zero, and leaving it would have counted again)."""
+    def ramp(t, u, v):
+        return min(t - 3.0, 0.0) + max(t - 5.0, 0.0)
+
+    for direction in (1, 0):
+        ramp.direction = direction
+        found = hfdi.integrate(oscillator(), "hfdi", 8.0, rtol=1e-6, events=ramp).t_events
+        assert len(found[0]) == 1 and found[0][0] == pytest.approx(3.0, abs=1e-12)
+    ramp.terminal = True
+    result = hfdi.integrate(oscillator(), "hfdi", 8.0, rtol=1e-6, events=ramp)
+    assert result.status == hfdi.Status.TERMINATED and result.t[-1] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("first_step", [None, 0.5, 1e-3])
+def test_a_threshold_left_within_rounding_of_the_start_is_found(first_step):
+    """g = u − 1 with u = 1 − t²/2: g stays exactly 0 for t below √(2ε),
+    which the probe after the start fell in for a short first step: the
+    zero was found or not depending on the step size. Found now, at t0 or
+    where g first differs from zero."""
+    model = hfdi.LinearSystem(mass=[1.0], stiffness=[[0.0]], load=lambda t: np.array([-1.0]),
+                              initial_displacement=[1.0])
+
+    def leave(t, u, v):
+        return u[0] - 1.0
+
+    leave.direction, leave.terminal = -1, True
+    result = hfdi.integrate(model, "hfdi", 2.0, rtol=1e-6, first_step=first_step,
+                            events=leave)
+    assert result.status == hfdi.Status.TERMINATED
+    assert len(result.t_events[0]) == 1 and result.t_events[0][0] <= 1e-7

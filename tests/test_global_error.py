@@ -429,3 +429,56 @@ def test_the_hfdi_propagator_takes_k_where_a_difference_of_f_would_round(offset)
     # K is evaluated once a step beside the Newton corrections only with the offset
     extra = result.stats.njev - result.stats.newton_iterations - result.stats.first_step_trials
     assert (extra > result.stats.accepted // 2) == (offset > 0), result.stats
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", ["hfdi", "newmark"])
+def test_events_that_switch_the_load_keep_the_estimate_and_resets_end_it(scheme):
+    """u'' + 4u = F·H(t − t_e), the load switched on by on_event at the zero
+    of u − 0.3 (falling), in closed form: the estimate stays within 3× of
+    the true error after the switch (D R = I: the saltation term is small).
+    A reset of the state (restitution) ends it: carried unchanged it was 200
+    times below the true error, and error="global" reported success at 4.4
+    times its tolerance; now NaN from the reset on, and the global mode says
+    the estimate was lost."""
+    F = 8.0
+    t_e = math.acos(0.3) / 2.0
+    switched = {"on": False}
+    model = hfdi.LinearSystem(mass=[1.0], stiffness=[[4.0]], initial_displacement=[1.0],
+                              load=lambda t: np.array([F if switched["on"] else 0.0]))
+
+    def crossing(t, u, v):
+        return u[0] - 0.3
+
+    def switch_on(t, u, v, i):
+        switched["on"] = True
+
+    crossing.direction = -1
+    result = hfdi.integrate(model, scheme, 6.0, rtol=1e-6, events=crossing, on_event=switch_on)
+    assert result.success and result.t_events[0][0] == pytest.approx(t_e, abs=1e-6)
+    s = result.t - t_e
+    A, B = 0.3 - F / 4.0, -math.sin(2.0 * t_e)
+    u = np.where(s < 0, np.cos(2 * result.t), F / 4 + A * np.cos(2 * s) + B * np.sin(2 * s))
+    v = np.where(s < 0, -2 * np.sin(2 * result.t), 2 * (B * np.cos(2 * s) - A * np.sin(2 * s)))
+    late = s > 1.0
+    true = np.abs(np.column_stack([result.u[:, 0] - u, result.v[:, 0] - v])[late]).max(axis=0)
+    estimate = np.abs(result.global_error[late]).max(axis=0)
+    assert np.all(estimate < 3 * true) and np.all(estimate > true / 3), (estimate, true)
+
+    def floor(t, u, v):
+        return u[0] + 0.5
+
+    floor.direction = -1
+    bounce = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]], initial_displacement=[1.0])
+    result = hfdi.integrate(bounce, scheme, 10.0, rtol=1e-6, events=floor,
+                            on_event=lambda t, u, v, i: (np.array([-0.5]), -0.99 * v))
+    first = int(np.searchsorted(result.t, result.t_events[0][0]))
+    assert result.success and len(result.t_events[0]) >= 2
+    assert np.all(np.isfinite(result.global_error[:first]))
+    assert np.all(np.isnan(result.global_error[first + 1:]))
+    same = hfdi.integrate(bounce, scheme, 10.0, rtol=1e-6, events=floor,
+                          on_event=lambda t, u, v, i: (u, v))   # no jump: kept
+    assert np.all(np.isfinite(same.global_error))
+    checked = hfdi.integrate(bounce, scheme, 10.0, rtol=1e-6, events=floor, error="global",
+                             on_event=lambda t, u, v, i: (np.array([-0.5]), -0.99 * v))
+    assert checked.status == hfdi.Status.TOLERANCE_NOT_MET and "lost" in checked.message

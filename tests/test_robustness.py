@@ -7,6 +7,7 @@ The cases are tables (``INPUT_CASES``, ``FAULT_CASES``) so that the same cases
 fill the tables of ``docs/robustness.md``: ``python tests/test_robustness.py
 --write`` runs them all and writes the messages they actually get there.
 """
+import copy
 import dataclasses
 import math
 import pathlib
@@ -110,6 +111,24 @@ def _counted(terminal):
         return t - 0.3
     g.terminal = terminal
     return g
+
+
+def _with_u_scale(value):
+    model = copy.deepcopy(DUFFING)
+    model.u_scale = value
+    return model
+
+
+def _with_n_dof(value):
+    model = copy.deepcopy(DUFFING)
+    model.n_dof = value
+    return model
+
+
+def _with_breakpoints(value):
+    model = copy.deepcopy(DUFFING)
+    model.load_breakpoints = lambda: value
+    return model
 
 
 def _raises_after(t_fail):
@@ -248,11 +267,14 @@ INPUT_CASES = [
      lambda: run(DUMBBELL, target_iterations=math.inf), ValueError,
      ["target_iterations", "finite number in [1, 100]", "got inf"]),
     ("tol-zero", "integrate", "tol = 0",
-     lambda: run(DUMBBELL, tol=0.0), ValueError, ["tol", "(0, 1)", "got 0.0"]),
+     lambda: run(DUMBBELL, tol=0.0), ValueError, ["tol", "[2.22045e-15, 1)", "got 0.0"]),
+    ("tol-below-eps", "integrate", "tol below ten machine epsilons",
+     lambda: run(DUMBBELL, tol=1e-300), ValueError,
+     ["tol must be in [2.22045e-15, 1)", "Newton's relative tolerance", "got 1e-300"]),
     ("tol-one", "integrate", "tol = 1",
-     lambda: run(DUMBBELL, tol=1.0), ValueError, ["tol", "(0, 1)", "got 1.0"]),
+     lambda: run(DUMBBELL, tol=1.0), ValueError, ["tol", "[2.22045e-15, 1)", "got 1.0"]),
     ("tol-nan", "integrate", "tol not finite",
-     lambda: run(DUMBBELL, tol=math.nan), ValueError, ["tol", "(0, 1)", "got nan"]),
+     lambda: run(DUMBBELL, tol=math.nan), ValueError, ["tol", "[2.22045e-15, 1)", "got nan"]),
     ("step-zero", "integrate", "step = 0",
      lambda: run(DUMBBELL, step=0.0), ValueError, ["step", "> 0", "got 0.0"]),
     ("step-negative", "integrate", "step < 0",
@@ -273,7 +295,22 @@ INPUT_CASES = [
      ["rtol must be a number or an array of numbers", "got '1e-6'"]),
     ("atol-zero", "integrate", "atol = 0",
      lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, rtol=1e-6, atol=0.0), ValueError,
-     ["atol must be > 0", "got 0.0"]),
+     ["atol must be", "in (0, inf)", "got 0.0"]),
+    ("atol-negative", "integrate", "atol < 0",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, rtol=1e-6, atol=-1.0), ValueError,
+     ["atol must be", "in (0, inf)", "got -1.0"]),
+    ("max-step-too-small", "integrate", "max_step so small that max_steps cannot reach t_end",
+     lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, max_step=1e-3, max_steps=100), ValueError,
+     ["max_step = 0.001", "1000 steps", "max_steps = 100", "max_step >= 0.01"]),
+    ("u-scale", "integrate", "a model's u_scale not a finite number > 0",
+     lambda: run(_with_u_scale(math.nan)), ValueError,
+     ["system.u_scale must be a finite number > 0", "got nan"]),
+    ("n-dof", "integrate", "a model's n_dof not an integer",
+     lambda: run(_with_n_dof("2")), ValueError,
+     ["system.n_dof must be an integer >= 1", "got '2'"]),
+    ("model-breakpoints", "integrate", "a model's load_breakpoints() not times",
+     lambda: run(_with_breakpoints("x")), ValueError,
+     ["the model's load_breakpoints() must be an array of times", "got 'x'"]),
     ("atol-shape", "integrate", "atol per DOF of the wrong size",
      lambda: hfdi.integrate(DUMBBELL, "hfdi", 1.0, atol=[1e-6, 1e-6]), ValueError,
      ["atol given per degree of freedom must have shape (4,)", "or (8,)", "got (2,)"]),
