@@ -360,7 +360,8 @@ class HfdiSlave(Fmi2Slave):
             ("rtol", "1", "relative tolerance of the local error of u and v (error "
                           "control), in [1e-13, 0.1); 0: the master's tolerance of "
                           "fmi2SetupExperiment when it defines one, else none"),
-            ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in (0, 1); "
+            ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in "
+                               "[2.2e-15, 1); "
                                "0: automatic (1e-8, below rtol/1000 under error control)"),
             ("initial_step", "s", "first trial step size; 0: automatic (1/omega_max)"),
             ("max_step", "s", "largest internal step size; 0: no limit"),
@@ -652,8 +653,10 @@ class HfdiSlave(Fmi2Slave):
             errors.append(f"parameter rtol = {rtol!r} must be 0 (the master's tolerance or "
                           f"none) or a finite number in [{low:g}, {high:g})")
         tol = params["tolerance"]
-        if not (_finite_number(tol) and 0.0 <= tol < 1.0):
-            errors.append(f"parameter tolerance = {tol!r} must lie in (0, 1) (0: automatic)")
+        low, high = hfdi.controller.TOL_RANGE
+        if not (_finite_number(tol) and (tol == 0.0 or low <= tol < high)):
+            errors.append(f"parameter tolerance = {tol!r} must be 0 (automatic) or lie in "
+                          f"[{low:g}, {high:g})")
         for name, zero in (("initial_step", "automatic"), ("max_step", "no limit")):
             value = params[name]
             if not (_finite_number(value) and value >= 0.0):

@@ -41,6 +41,9 @@ DEFAULT_RTOL = 1e-4
 #: Allowed relative tolerances: above 0.1 the estimate's asymptotics mean
 #: nothing; below 1e-13 rounding errors of the step dominate the estimate.
 RTOL_RANGE = (1e-13, 0.1)
+#: Allowed Newton tolerances ``tol`` (relative): below ten machine epsilons
+#: no correction can meet one.
+TOL_RANGE = (10.0 * float(np.finfo(float).eps), 1.0)
 
 
 @dataclass

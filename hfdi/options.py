@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from . import checks
-from .controller import (DEFAULT_RTOL, Combined, Controller, ErrorControl, FixedStep,
+from .controller import (DEFAULT_RTOL, TOL_RANGE, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .evaluation import brief
 
@@ -221,9 +221,6 @@ def newton_tolerance(tol, controller):
                          f"relative tolerance; below about 10ε no correction can meet it), "
                          f"got {tol!r}") from None
 
-
-#: Newton's tolerance ``tol``: from ten times the machine epsilon up to 1.
-TOL_RANGE = (10.0 * float(np.finfo(float).eps), 1.0)
 
 
 def breakpoints_of(system, extra):

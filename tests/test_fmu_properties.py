@@ -603,11 +603,13 @@ DOCUMENTED = [
      "not UTF-8"),
     ("target-nan", "`target_iterations` = NaN", _exit_with({"target_iterations": NAN}),
      "ERROR", "target_iterations = nan"),
-    ("target-huge", "`target_iterations` = 1e6 with `tolerance` = 1e-300 (a step's Newton "
+    ("target-huge", "`target_iterations` = 1e6 with `tolerance` = 1e-14 (a step's Newton "
      "solve would run 2e6 corrections)",
-     _exit_with({"target_iterations": 1e6, "tolerance": 1e-300}), "ERROR", "in [1, 100]"),
+     _exit_with({"target_iterations": 1e6, "tolerance": 1e-14}), "ERROR", "in [1, 100]"),
     ("tolerance", "`tolerance` = 1.5", _exit_with({"tolerance": 1.5}), "ERROR",
      "tolerance = 1.5"),
+    ("tolerance-tiny", "`tolerance` = 1e-300, below ten machine epsilons",
+     _exit_with({"tolerance": 1e-300}), "ERROR", "tolerance = 1e-300"),
     ("initial-step", "`initial_step` = -1", _exit_with({"initial_step": -1.0}), "ERROR",
      "initial_step = -1.0"),
     ("max-step-inf", "`max_step` = inf", _exit_with({"max_step": INF}), "ERROR",
