@@ -142,10 +142,15 @@ class EventSteps:
         saved = self.get_state()
         blocks = []
         self._rows = blocks.append
+        # at most a call of the stepping code that fills no row array: taken
+        # again exactly, and rewinding costs at most that; fewer where the
+        # zeros that stop the run (on_event, a pause) came close together: a
+        # zero every 20 steps cost a whole call taken and rewound each (15 ms
+        # a zero), now about twice the steps between them
+        most = (ROWS_PER_CALL - 2) // 2
+        chunk = min(getattr(self, "_event_chunk", most), most)
         try:
-            # at most a call of the stepping code that fills no row array:
-            # taken again exactly, and rewinding costs at most that
-            self._steps(t_stop, min(max_accepted, (ROWS_PER_CALL - 2) // 2))
+            self._steps(t_stop, min(max_accepted, chunk))
         finally:
             self._rows = consumer
         rows = _joined(blocks, self.ev.n)
@@ -153,10 +158,12 @@ class EventSteps:
             return
         stop = self._scan(start, rows)
         if stop is None:
+            self._event_chunk = min(2 * chunk, most)
             if consumer is not None:
                 consumer(rows)
             return
         j, crossing, asks, last, error = stop
+        self._event_chunk = max(EVENT_CHUNK_MIN, 2 * (j + 1))
         # back to the call's start, forward over the steps before row j
         self._retake(saved, rows, j, t_stop)
         if error is not None:
@@ -414,6 +421,11 @@ class EventSteps:
         run.energy_scale = max(run.energy_scale, abs(energy_after)
                                if math.isfinite(energy_after) else 0.0)
         self._restart_row(energy_after)
+
+
+#: The fewest accepted steps a call of the stepping code takes between the
+#: zeros that stop a run (the calls' own cost bounds it from below).
+EVENT_CHUNK_MIN = 16
 
 
 def _same_model(before, after) -> bool:
