@@ -361,7 +361,7 @@ class HfdiSlave(Fmi2Slave):
                           "control), in [1e-13, 0.1); 0: the master's tolerance of "
                           "fmi2SetupExperiment when it defines one, else none"),
             ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in "
-                               "[2.2e-15, 1); "
+                               f"[{self._hfdi.controller.TOL_RANGE[0]:g}, 1); "
                                "0: automatic (1e-8, below rtol/1000 under error control)"),
             ("initial_step", "s", "first trial step size; 0: automatic (1/omega_max)"),
             ("max_step", "s", "largest internal step size; 0: no limit"),

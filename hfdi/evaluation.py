@@ -153,6 +153,9 @@ def matrices_digest(*matrices) -> str:
         csr = sp.csr_matrix(sp.diags(m) if not sp.issparse(m) and m.ndim == 1 else m,
                             dtype=float, copy=True)
         csr.eliminate_zeros()
+        if csr.nnz == 0:
+            digest.update(b"zero;")
+            continue
         csr.sort_indices()
         for part in (np.asarray(csr.shape, np.int64), csr.indptr.astype(np.int64),
                      csr.indices.astype(np.int64), csr.data + 0.0):

@@ -48,10 +48,11 @@ class EventError(ValueError):
 class Crossing:
     """One zero of event function ``index`` at ``t``, the state ``u``, ``v`` there."""
 
-    __slots__ = ("t", "index", "u", "v")
+    __slots__ = ("t", "index", "u", "v", "reached")
 
-    def __init__(self, t, index, u, v):
-        self.t, self.index, self.u, self.v = t, index, u, v
+    def __init__(self, t, index, u, v, reached=False):
+        # reached: where g reached a zero it may stay at (not where it left one)
+        self.t, self.index, self.u, self.v, self.reached = t, index, u, v, reached
 
     def __repr__(self):
         return f"Crossing(t={self.t!r}, index={self.index})"
@@ -145,6 +146,10 @@ class Events:
         #: was counted
         self.g = np.full(m, math.nan)
         self.counted_zero = np.zeros(m, dtype=bool)
+        #: a zero counted where g reached it, g at zero at every step end since:
+        #: leaving it is no new crossing
+        self.held = np.zeros(m, dtype=bool)
+        self._reached = np.zeros(m, dtype=bool)
         self.t = math.nan
 
     def __len__(self):
@@ -215,14 +220,22 @@ class Events:
         """The values at the initial (or a restored) state; no zero counted there yet."""
         self.g = self.values(t, u, v)
         self.counted_zero[:] = False
+        self.held[:] = False
         self.t = float(t)
 
     def resume(self, t, g, counted) -> None:
         """At a restored state: the values ``g`` the run held at ``t`` and the
-        zeros ``counted`` (nonzero entries) there."""
+        zeros ``counted`` there (:meth:`counted_codes`)."""
         self.g = np.array(g, dtype=float)
-        self.counted_zero = np.asarray(counted) != 0
+        codes = np.asarray(counted)
+        self.counted_zero = (codes == 1) | (codes == 3)
+        self.held = codes >= 2
         self.t = float(t)
+
+    def counted_codes(self) -> np.ndarray:
+        """Per function, 1 for a zero counted at the current time, 2 for a held
+        one counted where reached (3: both), as a state keeps them."""
+        return self.counted_zero + 2.0 * self.held
 
     def active(self, left, right):
         """Which functions cross zero between the values ``left`` and ``right``
@@ -266,27 +279,39 @@ class Events:
         active &= ~((left_g == 0) & (g1 == 0))
         found = [Crossing(float(t0), i, u0.copy(), v0.copy()) for i in at_start]
         for i in np.flatnonzero(active):
+            reached = False
             if left_g[i] == 0:
                 # still at the zero at the probe, left by the step's end: a zero
                 # held over a while (a clipped depth, max(t − 1, 0)); counted
                 # where g leaves it, unless it was counted where g reached it
-                if self.counted_zero[i]:
+                if self.held[i]:
                     continue
-                t_root = self._edge(i, left_t[i], t1, lambda g: g == 0, state)
+                t_root, g_left = self._edge(i, left_t[i], t1, g1[i], lambda g: g == 0,
+                                            state)
+                if g_left * g1[i] < 0:
+                    # left to the other side first: the crossing is on the way back
+                    t_root = self._root(i, t_root, t1, g_left, g1[i], state)
             elif g1[i] == 0:
                 # the first zero on the way, not the step's end: g may reach
                 # zero before t1 and stay there
                 side = math.copysign(1.0, left_g[i])
-                t_root = self._edge(i, left_t[i], t1, lambda g: side * g > 0, state)
+                t_root = self._edge(i, left_t[i], t1, g1[i], lambda g: side * g > 0, state)[0]
+                reached = True
             else:
                 t_root = self._root(i, left_t[i], t1, left_g[i], g1[i], state)
+                if self.value(i, t_root, *map(_read_only, state(t_root))) == 0.0:
+                    # Brent may stop anywhere on a zero held inside the step
+                    side = math.copysign(1.0, left_g[i])
+                    t_root = self._edge(i, left_t[i], t_root, 0.0, lambda g: side * g > 0,
+                                        state)[0]
+                    reached = True
             if t_root == t0:
                 u, v = u0.copy(), v0.copy()
             elif t_root == t1:
                 u, v = u1.copy(), v1.copy()
             else:
                 u, v = state(t_root)
-            found.append(Crossing(float(t_root), int(i), u, v))
+            found.append(Crossing(float(t_root), int(i), u, v, reached))
         found.sort(key=lambda c: (c.t, c.index))
         return found
 
@@ -303,26 +328,29 @@ class Events:
             return self.value(i, t, *map(_read_only, state(t)))
         return brentq(g, t0, t1, xtol=ROOT_TOLERANCE, rtol=ROOT_TOLERANCE)
 
-    def _edge(self, i, lo, hi, as_at_lo, state):
+    def _edge(self, i, lo, hi, g_hi, as_at_lo, state):
         """The first time in ``(lo, hi]`` where ``g_i`` is no longer as at
-        ``lo`` (``as_at_lo(g)``, true at ``lo`` and false at ``hi``), to
-        :data:`ROOT_TOLERANCE`: bisection, for a zero held over an interval,
-        where Brent's method has no change of sign to follow. ``hi`` exactly
-        when ``g`` is as at ``lo`` until then."""
+        ``lo`` (``as_at_lo(g)``, true at ``lo`` and false at ``hi``, where
+        ``g`` is ``g_hi``), to :data:`ROOT_TOLERANCE`, and ``g`` there:
+        bisection, for a zero held over an interval, where Brent's method has
+        no change of sign to follow. ``hi`` exactly when ``g`` is as at
+        ``lo`` until then."""
         while hi - lo > ROOT_TOLERANCE * (1.0 + abs(hi)):
             mid = lo + 0.5 * (hi - lo)
             if not lo < mid < hi:
                 break
-            if as_at_lo(self.value(i, mid, *map(_read_only, state(mid)))):
+            g_mid = self.value(i, mid, *map(_read_only, state(mid)))
+            if as_at_lo(g_mid):
                 lo = mid
             else:
-                hi = mid
-        return hi
+                hi, g_hi = mid, g_mid
+        return hi, g_hi
 
     def record(self, crossing: Crossing) -> bool:
         """Count ``crossing``; whether it is a terminal event's last allowed zero."""
         i = crossing.index
         self.count[i] += 1
+        self._reached[i] = crossing.reached
         self.t_events[i].append(crossing.t)
         self.u_events[i].append(crossing.u)
         self.v_events[i].append(crossing.v)
@@ -334,28 +362,31 @@ class Events:
         ``t``: a restart at a load breakpoint keeps ``t``, ``u`` and ``v``)."""
         g = np.array(g, dtype=float)
         if t != self.t:
-            # a counted zero that g stays at is the same zero: leaving it is
-            # no new crossing (the steps between look at every zero, so g
-            # was at zero at each of their ends)
-            self.counted_zero &= (self.g == 0) & (g == 0)
+            self.counted_zero[:] = False
+            # a zero counted where g reached it, and g still at it: the same
+            # zero, whose leaving is no new crossing (the steps between look
+            # at every zero, so g was at zero at each of their ends)
+            self.held &= (self.g == 0) & (g == 0)
         self.g = g
         for i in counted:
             self.counted_zero[i] = True
+            self.held[i] = self._reached[i]
         self.t = float(t)
 
     def snapshot(self):
         """What :meth:`rollback` returns to."""
         return (self.count.copy(), [len(x) for x in self.t_events], self.g.copy(),
-                self.counted_zero.copy(), self.t)
+                self.counted_zero.copy(), self.held.copy(), self._reached.copy(), self.t)
 
     def rollback(self, snapshot) -> None:
         """Forget what was recorded and moved since ``snapshot``."""
-        count, sizes, g, counted, t = snapshot
+        count, sizes, g, counted, held, reached, t = snapshot
         self.count[:] = count
         for lists in (self.t_events, self.u_events, self.v_events):
             for i, size in enumerate(sizes):
                 del lists[i][size:]
         self.g, self.counted_zero, self.t = g.copy(), counted.copy(), t
+        self.held, self._reached = held.copy(), reached.copy()
 
     def arrays(self, name, n):
         """Per function, the zeros' times (``name`` ``"t"``: arrays (k,)) or

@@ -76,8 +76,9 @@ class IntegratorState:
     global_error: np.ndarray | None = None
     #: The event functions' values at ``current.t`` as the run holds them (a
     #: zero counted there is held at 0), and which zeros were counted exactly
-    #: there (1.0) — so that a restored run does not count them again
-    #: (``None``: no events, or none known at ``current.t``).
+    #: there (1.0) or counted where reached and held since (2.0; both: 3.0)
+    #: — so that a restored run does not count them again (``None``: no
+    #: events, or none known at ``current.t``).
     event_values: np.ndarray | None = None
     event_counted: np.ndarray | None = None
     #: The zeros each event function has counted towards its ``terminal``
@@ -179,9 +180,9 @@ class IntegratorState:
                 event_values.dtype == event_counted.dtype == np.float64
                 and event_values.ndim == 1 and event_values.shape == event_counted.shape
                 and np.isfinite(event_values).all()
-                and np.isin(event_counted, (0.0, 1.0)).all()):
+                and np.isin(event_counted, (0.0, 1.0, 2.0, 3.0)).all()):
             raise ValueError("serialized state: event_values and event_counted must be two "
-                             "float64 arrays of one length, finite, the second of 0 and 1")
+                             "float64 arrays of one length, finite, the second of 0 … 3")
         event_count = arrays.pop("event_count", None)
         if event_count is not None and not (event_count.dtype == np.float64
                                             and event_count.ndim == 1

@@ -55,7 +55,7 @@ class StateAccess:
         memory = {"event_count": events.count.astype(np.float64)}
         if events.t == t:
             memory.update(event_values=events.g.copy(),
-                          event_counted=events.counted_zero.astype(np.float64))
+                          event_counted=events.counted_codes())
         return memory
 
     def set_state(self, saved: IntegratorState) -> None:

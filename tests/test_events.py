@@ -683,3 +683,51 @@ def test_a_threshold_left_within_rounding_of_the_start_is_found(first_step):
                             events=leave)
     assert result.status == hfdi.Status.TERMINATED
     assert len(result.t_events[0]) == 1 and result.t_events[0][0] <= 1e-7
+
+
+def test_a_held_zero_left_again_after_a_reset_is_a_new_zero():
+    """A clipped depth max(−u, 0) of a bouncing ball: zero through each
+    flight, left at each impact. The zero counted where g left it (an
+    impact), reset, and held through the flight was taken as one zero with
+    the next impact, and the ball fell through the floor after the first."""
+    def depth(t, u, v):
+        return max(-u[0], 0.0)
+
+    depth.direction = 1
+    result = hfdi.integrate(ball(), "hfdi", 2.0, rtol=1e-8, events=depth,
+                            on_event=lambda t, u, v, i: (u, -E * v))
+    exact = impact_times(4)
+    np.testing.assert_allclose(result.t_events[0], exact[exact < 2.0], atol=1e-7)
+    assert result.u[:, 0].min() > -1e-6
+
+
+def test_a_held_zero_inside_one_step_is_where_g_reaches_it():
+    """g = min(t − 1.5, 0) + max(t − 3, 0) crosses inside one step: Brent's
+    method stopped anywhere on the held zero (2.4 for 1.5); a dead zone of
+    u = cos t (±0.02) met at 7.8586 for arccos 0.02 + 2π = 7.83398."""
+    def ramp(t, u, v):
+        return min(t - 1.5, 0.0) + max(t - 3.0, 0.0)
+
+    found = hfdi.integrate(oscillator(), "hfdi", 4.0, step=4.0, events=ramp).t_events
+    assert found[0] == pytest.approx([1.5], abs=1e-12)
+    cosine = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]], initial_displacement=[1.0])
+
+    def dead_zone(t, u, v):
+        return max(u[0] - 0.02, 0.0) + min(u[0] + 0.02, 0.0)
+
+    dead_zone.direction = -1
+    found = hfdi.integrate(cosine, "hfdi", 9.0, rtol=1e-4, events=dead_zone).t_events[0]
+    exact = math.acos(0.02) + np.array([0.0, 2 * math.pi])
+    np.testing.assert_allclose(found, exact, atol=1e-4)
+
+
+@pytest.mark.parametrize("step", [2.5, 0.3])
+def test_a_held_zero_left_against_the_direction_crosses_on_the_way_back(step):
+    """g = 0 before t = 1, (t − 1)(t − 2) after, rising only: g leaves zero
+    downwards at 1 and rises through it at 2. One step over both reported 1."""
+    def late(t, u, v):
+        return 0.0 if t < 1.0 else (t - 1.0) * (t - 2.0)
+
+    late.direction = 1
+    found = hfdi.integrate(oscillator(), "hfdi", 2.5, step=step, events=late).t_events
+    assert found[0] == pytest.approx([2.0], abs=1e-12)

@@ -658,6 +658,8 @@ def test_a_state_taken_to_other_matrices_gets_their_acceleration(scheme):
                            rtol=1e-5, compiled=False)
     same.set_state(saved)                          # the same matrices: restored exactly
     assert same.get_state().to_bytes() == saved.to_bytes()
+    from hfdi.evaluation import matrices_digest
+    assert matrices_digest(np.ones(2), None) == matrices_digest(np.eye(2), np.zeros((2, 2)))
 
 
 def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():
