@@ -24,7 +24,7 @@ import numpy as np
 
 from . import run_records
 from .evaluation import ModelError, State
-from .events import EventError, Events
+from .events import Crossing, EventError, Events
 from .messages import Status
 from .result import Rows
 
@@ -235,6 +235,8 @@ class EventSteps:
                         for other in found[k + 1:]:
                             if other.t == crossing.t:
                                 last = events.record(other) or last
+                        # and the later ones are looked for at the landing
+                        self._pending = [c for c in found[k + 1:] if c.t != crossing.t]
                         return j, crossing, asks, last, None
                     if crossing.t == t[j] or G[j][crossing.index] == 0:
                         counted.append(crossing.index)      # held to the step's end
@@ -292,6 +294,23 @@ class EventSteps:
         except EventError as exc:
             self._stop_at_event(f"t = {t:.10g}: {exc}")
             return
+        # a zero the step held just after this one (ulps later: g = u and
+        # g = atan(5u) + u³) that the landed state is already past would
+        # never be seen again: counted here, with this one
+        pending, self._pending = getattr(self, "_pending", []), []
+        for other in pending:
+            k = other.index
+            start = events.g[k]
+            # g at the step's start (the events stand there), the crossing of
+            # it found in the step (in its direction): passed at the landing?
+            # (from a held zero: left it, the way the crossing goes)
+            passed = g[k] * start <= 0 if start != 0 else \
+                g[k] != 0 and not events.held[k] and events.direction[k] * g[k] >= 0
+            if k in here or not passed:
+                continue
+            last = events.record(Crossing(t, k, self._vec.u.copy(), self._vec.v.copy())) \
+                or last
+            here.append(k)
         seen = self._model_here() if asks else None
         for k in ([i] + [k for k in here if k != i]) if asks else []:
             try:

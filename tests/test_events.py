@@ -731,3 +731,38 @@ def test_a_held_zero_left_against_the_direction_crosses_on_the_way_back(step):
     late.direction = 1
     found = hfdi.integrate(oscillator(), "hfdi", 2.5, step=step, events=late).t_events
     assert found[0] == pytest.approx([2.0], abs=1e-12)
+
+
+@pytest.mark.parametrize("stops", [False, True])
+def test_zeros_ulps_apart_are_both_counted_when_the_first_stops_the_run(stops):
+    """g = u and g = atan(5u) + u³ share their zeros, which the root finder
+    puts ulps apart; with an on_event (even one that changes nothing) the
+    run lands at the first and the landed state was already past the
+    second: 9 and 10 zeros instead of 10 and 10. Held zeros alike:
+    max(u, 0) leaves zero where min(u, 0) reaches it."""
+    cosine = hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]], initial_displacement=[1.0])
+
+    def plain(t, u, v):
+        return u[0]
+
+    def bent(t, u, v):
+        return math.atan(5.0 * u[0]) + u[0] ** 3
+
+    answer = (lambda t, u, v, i: None) if stops else None
+    exact = np.pi / 2 + np.pi * np.arange(10)
+    found = hfdi.integrate(cosine, "hfdi", 30.0, rtol=1e-7, events=[plain, bent],
+                           on_event=answer).t_events
+    for times in found:
+        np.testing.assert_allclose(times, exact, atol=1e-6)
+
+    def above(t, u, v):
+        return max(u[0], 0.0)
+
+    def below(t, u, v):
+        return min(u[0], 0.0)
+
+    above.direction = below.direction = 1
+    found = hfdi.integrate(cosine, "hfdi", 12.0, rtol=1e-9, events=[above, below],
+                           on_event=answer).t_events
+    for times in found:
+        np.testing.assert_allclose(times, [1.5 * np.pi, 3.5 * np.pi], atol=1e-8)
