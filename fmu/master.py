@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import threading
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -37,6 +38,13 @@ _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
 class CoSimulationError(RuntimeError):
     """The master could not continue (a step kept failing down to the smallest step)."""
+
+
+#: fmpy validates the model description with libxml2's schema parser, which
+#: is not thread-safe: units built in several threads at once failed with
+#: "xmlSchemaPValAttrNodeValue ... not a built-in type". The parsing is
+#: serialized; the instantiations stay concurrent.
+_PARSE_LOCK = threading.Lock()
 
 
 class Unit:
@@ -63,7 +71,8 @@ class Unit:
     """
 
     def __init__(self, fmu, name="unit", *, unzip_dir=None, logger=None):
-        self.model_description = md = read_model_description(str(fmu))
+        with _PARSE_LOCK:
+            self.model_description = md = read_model_description(str(fmu))
         self._own_dir = unzip_dir is None
         self.unzip_dir = extract(str(fmu)) if unzip_dir is None else str(unzip_dir)
         self.variables = {v.name: v for v in md.modelVariables}
