@@ -162,7 +162,7 @@ class EventSteps:
             if consumer is not None:
                 consumer(rows)
             return
-        j, crossing, asks, last, error = stop
+        j, crossing, asks, last, error, later = stop
         self._event_chunk = max(EVENT_CHUNK_MIN, 2 * (j + 1))
         # back to the call's start, forward over the steps before row j
         self._retake(saved, rows, j, t_stop)
@@ -176,7 +176,7 @@ class EventSteps:
             self._steps(crossing.t, STEPS_PER_CALL)
         if self.failed:
             return
-        self._at_event(crossing, asks, last)
+        self._at_event(crossing, asks, last, later)
 
     def _retake(self, saved, rows, j, t_stop):
         """Back to ``saved`` (the call's start) and forward over the steps before
@@ -201,7 +201,7 @@ class EventSteps:
         """The first row whose step holds a zero that changes the run (a terminal
         event's last, one ``on_event`` answers, or a pause), or where an event
         function fails: ``(row, crossing, whether on_event is asked, terminal,
-        error)``; ``None`` when there is none. The zeros
+        error, the step's later zeros)``; ``None`` when there is none. The zeros
         before it are recorded and the events' values moved on to the row
         before it. The functions are evaluated at every row; only the steps
         where one changes sign (or starts at zero) are looked into."""
@@ -236,18 +236,18 @@ class EventSteps:
                             if other.t == crossing.t:
                                 last = events.record(other) or last
                         # and the later ones are looked for at the landing
-                        self._pending = [c for c in found[k + 1:] if c.t != crossing.t]
-                        return j, crossing, asks, last, None
+                        later = [c for c in found[k + 1:] if c.t != crossing.t]
+                        return j, crossing, asks, last, None, later
                     if crossing.t == t[j] or G[j][crossing.index] == 0:
                         counted.append(crossing.index)      # held to the step's end
             except EventError as exc:
                 events.rollback(before)
-                return j, None, None, False, exc
+                return j, None, None, False, exc, []
             events.moved(t[j], G[j], counted)
         if failed < t.size:
             if failed:
                 events.moved(t[failed - 1], G[failed - 1])
-            return failed, None, None, False, error
+            return failed, None, None, False, error, []
         events.moved(t[-1], G[-1])
         return None
 
@@ -279,7 +279,7 @@ class EventSteps:
                              f"events[{i}] at t = {t!r}: u = {u}, v = {v}")
         return u, v
 
-    def _at_event(self, crossing, asks, last):
+    def _at_event(self, crossing, asks, last, later):
         """At the zero's time (landed there): ask ``on_event`` (``asks``) about
         each zero recorded there, and restart from the state it gives, or
         from the current one with the model as ``on_event`` left it where it
@@ -297,8 +297,7 @@ class EventSteps:
         # a zero the step held just after this one (ulps later: g = u and
         # g = atan(5u) + u³) that the landed state is already past would
         # never be seen again: counted here, with this one
-        pending, self._pending = getattr(self, "_pending", []), []
-        for other in pending:
+        for other in later:
             k = other.index
             start = events.g[k]
             # g at the step's start (the events stand there), the crossing of

@@ -11,9 +11,10 @@ within ``4ε`` of ``t``, as ``solve_ivp`` does. Several zeros in one step are
 taken in time order. A zero exactly at ``t0`` counts when ``g`` then leaves
 zero in the event's direction (as ``solve_ivp``); a zero exactly at a step
 end counts once, in the step that reaches it. A zero held over an interval
-(``max(t − 1, 0)``) is one zero: counted where ``g`` reaches it, or, when
-the run starts on it, where ``g`` leaves it in the event's direction; both
-found by bisection (Brent's method needs a change of sign). A change of sign and back
+(``max(t − 1, 0)``) is one zero: counted where ``g`` reaches it, or, where
+it was not counted there (a run that starts on it, or the event's
+direction did not take it), where ``g`` leaves it in the event's
+direction; both found by bisection (Brent's method needs a change of sign). A change of sign and back
 within one step is not seen (as in every method that samples ``g`` at step
 ends): a step no longer than the time ``g`` stays on one side is the user's
 to ask for (``max_step``).
