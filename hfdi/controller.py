@@ -326,7 +326,10 @@ class ErrorControl(Controller):
         ``v``'s.
     atol : float or array_like (N,) or (2N,), optional
         Absolute tolerance, ``> 0``, laid out as ``rtol``; in the units of
-        ``u`` (and of ``v`` for the second half of a (2N,) array). Default
+        ``u`` (and of ``v`` for the second half of a (2N,) array). An
+        infinite entry leaves its component uncontrolled (not every entry):
+        ``inf`` for ``v``'s half controls the error of ``u`` alone
+        (docs/accuracy.md, "Controlling u alone"). Default
         ``1e-3 · min(rtol) · (U, V)``, ``U`` and ``V`` the scales of ``u``
         and ``v`` (:func:`hfdi.options.state_scales`); an integrator fills
         it in from its model.
@@ -359,7 +362,7 @@ class ErrorControl(Controller):
         self.rtol = _tolerance("rtol", rtol, *RTOL_RANGE)
         # atol > 0: a weight atol + rtol·|u| of zero would fail every step at u = 0
         self.atol = None if atol is None else _tolerance("atol", atol, 0.0, math.inf,
-                                                         open_low=True)
+                                                         open_low=True, infinite_ok=True)
         self.u_scale = None if u_scale is None else checks.positive("u_scale", u_scale)
         self.v_scale = None if v_scale is None else checks.positive("v_scale", v_scale)
         self.order = None if order is None else checks.integer("order", order, 1)
@@ -551,10 +554,12 @@ def _exact(value) -> str:
             f"sha256 {digest}>")
 
 
-def _tolerance(name, value, low, high, open_low=False):
+def _tolerance(name, value, low, high, open_low=False, infinite_ok=False):
     """A tolerance as a float or a 1-D float array, every entry in ``[low, high)``
-    (``(low, high)`` with ``open_low``)."""
-    interval = f"{'(' if open_low else '['}{low:g}, {high:g})"
+    (``(low, high)`` with ``open_low``); with ``infinite_ok`` (``high``
+    infinite) entries may be infinite, all but one at least: an array that
+    leaves some components uncontrolled."""
+    interval = f"{'(' if open_low else '['}{low:g}, {high:g}{']' if infinite_ok else ')'}"
     if isinstance(value, (str, bytes)) or np.asarray(value).dtype.kind not in "iuf":
         raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
                          f"of freedom) in {interval}, got {value!r}")
@@ -563,9 +568,17 @@ def _tolerance(name, value, low, high, open_low=False):
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
                          f"of freedom) in {interval}, got {value!r}") from None
+    infinite = infinite_ok and arr.ndim == 1 and np.any(arr == math.inf)
+    if infinite and np.all(arr == math.inf):
+        raise ValueError(f"{name} must leave some component controlled: an infinite entry "
+                         f"is a component whose error is not controlled, and every entry of "
+                         f"{name} is infinite")
+    finite = arr[arr != math.inf] if infinite else arr
     if np.iscomplexobj(np.asarray(value)) or arr.ndim > 1 or arr.size == 0 or \
-            not np.all(np.isfinite(arr)) or np.any(arr < low) or np.any(arr >= high) or \
-            open_low and np.any(arr == low):
-        raise ValueError(f"{name} must be a finite number or a 1-D array of them (one per "
-                         f"degree of freedom) in {interval}, got {value!r}")
+            not np.all(np.isfinite(finite)) or np.any(finite < low) or \
+            np.any(finite >= high) or open_low and np.any(finite == low):
+        what = ("a finite number or a 1-D array of numbers, inf for a component not "
+                "controlled" if infinite_ok else "a finite number or a 1-D array of them")
+        raise ValueError(f"{name} must be {what} (one per degree of freedom) in {interval}, "
+                         f"got {value!r}")
     return float(arr) if arr.ndim == 0 else arr.copy()

@@ -54,8 +54,9 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
     system : SecondOrderSystem
     scheme : {"newmark", "bathe", "hfdi"} or Scheme
     t_end : float
-    rtol, atol : float or array_like (N,), optional
-        Tolerances of the local error of ``u``; see :class:`Integrator`.
+    rtol, atol : float or array_like (N,) or (2N,), optional
+        Tolerances of the error of ``(u, v)``; an infinite ``atol`` entry
+        leaves its component uncontrolled; see :class:`Integrator`.
     target_iterations : float, optional
         ``N̄`` per (sub-)step; see :class:`Integrator`.
     step : float, optional

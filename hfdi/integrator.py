@@ -83,10 +83,12 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         far), so that the error of the answer follows it
         (:class:`~hfdi.controller.ErrorControl`; docs/accuracy.md).
     atol : float or array_like (N,) or (2N,), optional
-        Absolute tolerance, ``> 0``. Default ``1e-3 · rtol · U`` for ``u`` and
-        ``1e-3 · rtol · V`` for ``v``, the scales of the initial state, or of
-        a model at rest its declared ``u_scale`` or the displacement its load
-        drives (:func:`hfdi.options.state_scales`).
+        Absolute tolerance, ``> 0``; ``inf`` leaves a component uncontrolled
+        (``inf`` for ``v``'s half of a (2N,) array controls ``u`` alone:
+        docs/accuracy.md, "Controlling u alone"). Default ``1e-3 · rtol · U``
+        for ``u`` and ``1e-3 · rtol · V`` for ``v``, the scales of the
+        initial state, or of a model at rest its declared ``u_scale`` or the
+        displacement its load drives (:func:`hfdi.options.state_scales`).
     target_iterations : float, optional
         Target Newton iteration count ``N̄`` per (sub-)step (Eq. 39), in
         ``[1, 100]``. For Bathe the step's target is ``2 N̄``, as the paper's

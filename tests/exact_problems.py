@@ -6,7 +6,9 @@ accuracy tests: each gives a model and a function ``exact(t) -> (u, v)``.
 - :func:`duffing`: the undamped Duffing oscillator ``u'' + α u + β u³ = 0``,
   exact by Jacobi's elliptic function ``cn``;
 - :func:`kepler`: the two-body problem on an ellipse, exact by Kepler's
-  equation solved by Newton's method to round-off.
+  equation solved by Newton's method to round-off;
+- :func:`stiff_and_slow`: two undamped modes, a slow one of unit amplitude
+  and a stiff one barely excited, coupled by a rotation; exact by its modes.
 
 Duffing and Kepler are :class:`~hfdi.models.symbolic.EnergyModel`s (they run
 compiled, as a user's energy does); ``python=True`` gives the same physics as
@@ -48,6 +50,28 @@ def damped_chain():
         return y.real[:, :3], y.real[:, 3:]
 
     exact.matrix, exact.start = A, y0
+
+    return model, exact
+
+
+def stiff_and_slow(omega=1e3, stiff_amplitude=1e-7):
+    """``u'' + K u = 0`` with ``K = Q diag(1, ω²) Qᵀ``, ``Q`` a rotation: the
+    slow mode starts at amplitude 1, the stiff one at ``stiff_amplitude``, both
+    at rest. A scheme that does not resolve ``ω`` errs in ``v`` by up to the
+    stiff mode's velocity amplitude ``ω·stiff_amplitude`` (HFDI damps the
+    mode, Newmark shifts its phase), in ``u`` by its ``stiff_amplitude``."""
+    c, s = np.cos(0.6), np.sin(0.6)
+    Q = np.array([[c, -s], [s, c]])
+    frequencies = np.array([1.0, omega])
+    K = Q @ np.diag(frequencies ** 2) @ Q.T
+    q0 = np.array([1.0, stiff_amplitude])
+    model = hfdi.LinearSystem(np.ones(2), K, initial_displacement=Q @ q0,
+                              initial_velocity=np.zeros(2))
+
+    def exact(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        phase = np.outer(t, frequencies)
+        return (q0 * np.cos(phase)) @ Q.T, (-q0 * frequencies * np.sin(phase)) @ Q.T
 
     return model, exact
 

@@ -239,6 +239,65 @@ def test_state_scales_of_the_default_atol():
     assert state_scales(np.zeros(2), np.zeros(2), None, 2.0, None) == (1.0, 0.5)
 
 
+def test_controlling_u_alone_follows_rtol_past_a_stiff_mode_it_does_not_resolve():
+    """A barely excited stiff mode (ω = 1000, amplitude 1e-7): a scheme that
+    does not resolve it errs in ``v`` by about its velocity amplitude 1e-4
+    at any step, an error that does not accumulate but that the (u, v) rule,
+    spending a share h̄/τ of the tolerance per step, must resolve (5,789 HFDI
+    steps at rtol 1e-3, u's error 0.012 rtol). With ``atol`` infinite for
+    ``v`` only ``u`` is controlled: its error follows rtol (0.36–0.49 rtol,
+    slope 0.9–1.1) in 78–470 steps, the global error estimate of ``u`` is
+    within 3 times of it, and ``v`` errs by no more than the stiff mode's
+    velocity amplitude beyond the tolerance."""
+    model, exact = exact_problems.stiff_and_slow(omega=1e3, stiff_amplitude=1e-7)
+    rtols = np.array([1e-3, 1e-4, 1e-5])
+    errors, steps = [], []
+    for rtol in rtols:
+        atol = np.r_[np.full(2, 1e-3 * rtol), np.full(2, np.inf)]
+        result = hfdi.integrate(model, "hfdi", 10.0, rtol=rtol, atol=atol)
+        assert result.success, result.message
+        u, v = exact(result.t)
+        errors.append(relative_error(result, exact))
+        steps.append(result.stats.steps)
+        assert errors[-1] < 10.0 * rtol, errors[-1] / rtol
+        assert 1.0 / 3.0 < result.global_error_ratio / (errors[-1] / rtol) < 3.0
+        velocity_error = np.abs(result.v - v).max() / np.abs(v).max()
+        assert velocity_error < 1e3 * 1e-7 + 10.0 * rtol, velocity_error
+    slope = np.polyfit(np.log(rtols), np.log(errors), 1)[0]
+    assert 0.9 <= slope <= 1.1, (slope, np.array(errors) / rtols)
+    both = hfdi.integrate(model, "hfdi", 10.0, rtol=1e-3)
+    assert both.success, both.message
+    assert both.stats.steps > 20 * steps[0], (both.stats.steps, steps[0])
+    assert relative_error(both, exact) < 0.1 * errors[0]
+
+
+def test_an_infinite_atol_leaves_its_component_uncontrolled():
+    """The error norm is the RMS over the controlled components, at both
+    speeds alike; an atol infinite everywhere, or a tolerance infinite where
+    it cannot be, is refused by name."""
+    from hfdi.core.estimate import weighted_rms
+    from hfdi.core.jit import twin
+    n = 3
+    rng = np.random.default_rng(5)
+    error, u0, v0, u1, v1 = (rng.normal(size=k) for k in (2 * n, n, n, n, n))
+    rtol = np.full(2 * n, 1e-4)
+    atol = np.r_[np.full(n, 1e-6), np.full(n, np.inf)]
+    norms = []
+    for norm in (weighted_rms, twin(weighted_rms)):
+        norms.append(norm(error, u0, v0, u1, v1, rtol, atol, 0.0, 0.0, 0.5, np.empty(2 * n)))
+    scale = (1e-6 + 1e-4 * np.maximum(np.abs(u0), np.abs(u1))) * 0.5
+    assert norms[0] == norms[1] == pytest.approx(np.sqrt(np.mean((error[:n] / scale) ** 2)),
+                                                 rel=1e-14)
+    control = ErrorControl(1e-4, atol)
+    control.prepare(n, 3)
+    assert np.array_equal(control.atol, atol)
+    for bad in (np.full(2 * n, np.inf), math.inf, np.r_[np.full(n, -1.0), np.full(n, np.inf)]):
+        with pytest.raises(ValueError, match="atol"):
+            ErrorControl(1e-4, bad)
+    with pytest.raises(ValueError, match="rtol"):
+        ErrorControl(np.r_[np.full(n, 1e-4), np.full(n, np.inf)])
+
+
 def test_the_load_scale_of_a_model_at_rest():
     """U = p/(k + 2m/τ²) over the span of the error control (t_bound or
     error_span), from the model's own load (an extra_load, an FMU's input,

@@ -282,7 +282,7 @@ def test_consistent_sparse_mass_matches_dense(scheme, n):
     (dict(rtol=0.5), r"rtol must be a finite number or a 1-D array"),
     (dict(rtol=[1e-6, 1e-6]), r"rtol given per degree of freedom must have shape \(4,\)"),
     (dict(atol=np.ones(8) * 1e-9, rtol=np.ones(5) * 1e-6), r"or \(8,\) \(u, then v\)"),
-    (dict(rtol=1e-6, atol=0.0), r"atol must be .* in \(0, inf\)"),
+    (dict(rtol=1e-6, atol=0.0), r"atol must be .* in \(0, inf\]"),
     (dict(target_iterations=3.0, atol=1e-6), "atol needs error control"),
     (dict(target_iterations=0.5), r"target_iterations must be a finite number in \[1, 100\]"),
     (dict(target_iterations=math.nan), "target_iterations"),

@@ -97,6 +97,19 @@ def test_a_run_is_the_same_at_both_speeds(model, scheme, mode):
     assert_same_result(compiled, python)
 
 
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "newmark"))
+def test_controlling_u_alone_is_the_same_at_both_speeds(scheme):
+    """An atol infinite for v (only u controlled, docs/accuracy.md): the same
+    run at both speeds."""
+    model = hfdi.models.get("dumbbell")
+    n = model.n_dof
+    atol = np.r_[np.full(n, 1e-9), np.full(n, np.inf)]
+    compiled, python = [hfdi.integrate(model, scheme, 2.0, rtol=1e-6, atol=atol, max_steps=60,
+                                       compiled=c) for c in (True, False)]
+    assert compiled.stats.steps >= 30
+    assert_same_result(compiled, python)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_communication_points_breakpoints_and_short_steps_alike(scheme):

@@ -109,7 +109,12 @@ def local_error(run, vec, h, velocity_order, defect, a, a_previous):
 
 def _ratio_loop(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction):
     n = u0.shape[0]
+    controlled = 0
     for i in range(2 * n):
+        if atol[i] == math.inf:
+            ratio[i] = 0.0
+            continue
+        controlled += 1
         if error[i] == 0.0:
             ratio[i] = 0.0
             continue
@@ -119,6 +124,7 @@ def _ratio_loop(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, frac
             scale = (atol[i] + rtol[i] * max(abs(v0[i - n]), abs(v1[i - n]))) * fraction \
                 + noise_v
         ratio[i] = error[i] / scale
+    return controlled
 
 
 @primitive(_ratio_loop)
@@ -130,7 +136,9 @@ def _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction)
     scale[n:] += noise_v
     with np.errstate(divide="ignore", invalid="ignore"):
         np.divide(error, scale, out=ratio)
-    ratio[error == 0.0] = 0.0
+    uncontrolled = atol == math.inf
+    ratio[(error == 0.0) | uncontrolled] = 0.0
+    return ratio.shape[0] - int(np.count_nonzero(uncontrolled))
 
 
 @jitable
@@ -139,9 +147,13 @@ def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction, 
     ``y = (u, v)``, ``noise`` being ``noise_u`` for ``u`` and ``noise_v`` for
     ``v`` (:func:`displacement_noise`, :func:`velocity_noise`); entries of
     ``e`` that are 0 count 0 (``ratio`` (2N,) is scratch). ``fraction`` is
-    the share of the tolerance the step may spend (:func:`error_fraction`)."""
-    _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction)
-    return math.sqrt(dot(ratio, ratio) / ratio.shape[0])
+    the share of the tolerance the step may spend (:func:`error_fraction`).
+    A component whose ``atol`` is infinite is not controlled: it counts
+    neither in the sum nor in the number of components (the RMS is over
+    those controlled, so that controlling ``u`` alone holds ``u`` to the
+    same tolerance)."""
+    controlled = _ratio(ratio, error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction)
+    return math.sqrt(dot(ratio, ratio) / controlled)
 
 
 #: The share of the tolerance is never below ``1/(SHARE_FLOOR_STEPS·(n + 1))``
