@@ -197,11 +197,30 @@ def _build(problem: str, out_dir, fmi_version: int, library) -> Path:
         return _assemble(Path(draft), library, entry, config, out_dir / name, fmi_version)
 
 
+#: The packages the bundled code imports (numba and llvmlite compiled runs
+#: only, sympy and symengine symbolic models only).
+BUNDLE_PACKAGES = ("numpy", "scipy", "numba", "llvmlite", "sympy", "symengine")
+
+
 def _packages_path(stage: Path) -> list:
-    """The build interpreter's ``sys.path`` (its packages: numpy, scipy), for
-    hosts without a Python of their own."""
-    return [p for p in sys.path if p and Path(p).is_dir()
-            and Path(p).resolve() != stage.resolve()]
+    """The folders the build interpreter takes :data:`BUNDLE_PACKAGES` from,
+    for hosts without a Python of their own: those folders only, never the
+    rest of its ``sys.path`` (the build's current directory, ``PYTHONPATH``
+    entries), whose modules a host would otherwise import in their place."""
+    import importlib.util
+
+    folders = []
+    for name in BUNDLE_PACKAGES:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            continue
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        folder = str(Path(list(spec.submodule_search_locations)[0]).resolve().parent)
+        if folder not in folders and Path(folder).resolve() != stage.resolve():
+            folders.append(folder)
+    return folders
 
 
 def _python_library() -> str:

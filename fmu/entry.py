@@ -375,11 +375,15 @@ def instantiate(resources: str, instance_name: str, guid: str, visible: bool,
         raise ValueError(f"the GUID {guid!r} is not this FMU's ({config['guid']}): the model "
                          f"description and the binary do not belong together")
     # the build interpreter's packages (numpy, scipy) for a host that has no
-    # Python of its own
+    # Python of its own, whose path this FMU's interpreter is: ahead of the
+    # site folders of that interpreter's installation (which may hold other
+    # versions), after its standard library
     if own_interpreter:
-        for entry in extra_path:
-            if entry not in sys.path:
-                sys.path.append(entry)
+        site_at = next((i for i, entry in enumerate(sys.path)
+                        if os.path.basename(entry.rstrip(os.sep)) in ("site-packages",
+                                                                       "dist-packages")),
+                       len(sys.path))
+        sys.path[site_at:site_at] = [entry for entry in extra_path if entry not in sys.path]
     version = config.get("fmi_version", 2)
     if version not in (2, 3):
         raise ValueError(f"the FMU's resources are damaged: {path} names FMI version "
