@@ -81,6 +81,8 @@ class EventSteps:
                              f"{type(self.controller).__name__} steps on its own")
         self._events = Events(events)
         self._on_event = on_event
+        # the zeros on_event answered in a row, each within ZENO_INTERVAL of the last
+        self._answered_t, self._answered_in_a_row = math.nan, 0
         state = self.state
         self._events.start(state.t, state.u, state.v)
 
@@ -338,6 +340,14 @@ class EventSteps:
                 what = "reset" if reset is not None else "answer"
                 self._stop_at(t, g, here, f"t = {t:.10g}: after on_event's {what}: {exc}")
                 return
+        if asks and self._accumulating(t):
+            self._stop_at(t, g, here, (
+                f"t = {t:.10g}: the zeros on_event answers accumulate ({ZENO_ZEROS} in a row, "
+                f"each within {ZENO_INTERVAL:g} of the run's time scale of the last; the "
+                f"last, of events[{i}]): a Zeno point, past which steps cannot follow the "
+                f"model (a bouncing contact comes to rest there; a model that holds the "
+                f"contact, or a terminal event before it, goes on)"))
+            return
         # the zeros count once: at the landed (or reset) state the functions
         # with a zero recorded at t are taken as at zero, and the next step
         # starts from the side each leaves to
@@ -347,6 +357,23 @@ class EventSteps:
             self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
+
+    def _accumulating(self, t) -> bool:
+        """Whether the zeros ``on_event`` answered, this one at ``t`` the last,
+        are :data:`ZENO_ZEROS` in a row each within :data:`ZENO_INTERVAL` of
+        the run's time scale (``max(|t|, t_bound − t0)``) after the one before:
+        the impacts of a ball bouncing to rest shorten geometrically, and
+        past their accumulation point no step resolves them (the ball fell
+        through the floor with SUCCESS, or a ball held on it by a force made
+        a zero each 1e-9 s for hours)."""
+        span = self.t_bound - self.t0 if self.t_bound is not None else 0.0
+        scale = max(abs(t), abs(span), abs(t - self.t0))
+        if t - self._answered_t <= ZENO_INTERVAL * scale:
+            self._answered_in_a_row += 1
+        else:
+            self._answered_in_a_row = 1
+        self._answered_t = t
+        return self._answered_in_a_row >= ZENO_ZEROS
 
     def _matrix_changed(self) -> str:
         """The model's matrix on_event changed (:meth:`Evaluator.matrix_changed`),
@@ -440,6 +467,14 @@ class EventSteps:
                                if math.isfinite(energy_after) else 0.0)
         self._restart_row(energy_after)
 
+
+#: Zeros answered by ``on_event`` in a row, each within ``ZENO_INTERVAL`` times
+#: the run's time scale of the one before, that stop the run as a Zeno point
+#: (:meth:`EventSteps._accumulating`): a bouncing ball with restitution 0.7
+#: makes its 40th impact 1e-6 of its fall's time after the 39th and fell
+#: through the floor at about the 52nd.
+ZENO_ZEROS = 10
+ZENO_INTERVAL = 1e-6
 
 #: The fewest accepted steps a call of the stepping code takes between the
 #: zeros that stop a run (the calls' own cost bounds it from below).

@@ -153,6 +153,27 @@ def test_bouncing_ball_with_restitution(scheme):
     assert math.isclose(gravity_work, G * (H0 - u_last), rel_tol=1e-10)
 
 
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "bathe"))
+def test_impacts_accumulating_to_rest_stop_the_run_at_their_zeno_point(scheme):
+    """The ball bouncing to rest: its impacts accumulate at t∞ = t1 + 2 e v1 /
+    (G (1 − e)) (closed form), past which no step resolves them (it fell
+    through the floor with SUCCESS). The run stops there, a failure saying
+    so, with every impact before it at its closed-form time and the ball
+    never below the floor."""
+    t1 = math.sqrt(2 * H0 / G)
+    t_zeno = t1 + 2 * E * (G * t1) / (G * (1 - E))
+    r = hfdi.integrate(ball(), scheme, 2 * t_zeno, rtol=1e-6, events=floor_event(),
+                       on_event=bounce)
+    assert r.status == hfdi.Status.MODEL_ERROR and "accumulate" in r.message, r.message
+    assert t_zeno - 1e-3 < r.t[-1] <= t_zeno
+    assert r.u.min() > -1e-12
+    count = r.t_events[0].size
+    assert count >= hfdi.event_steps.ZENO_ZEROS
+    exact = impact_times(count)
+    # to rounding of the times (their spacing shrinks to 1e-6 of the time)
+    np.testing.assert_allclose(r.t_events[0], exact, rtol=0, atol=1e-9)
+
+
 @pytest.mark.slow
 def test_both_speeds_find_the_same_events():
     """The dumbbell compiled and on the Python path: the same steps and the
