@@ -152,6 +152,21 @@ def test_tolerances_give_error_control_as_in_process(dumbbell_fmu, how, in_proce
     u.close()
 
 
+def test_a_call_that_logs_a_warning_returns_fmi2warning(dumbbell_fmu):
+    """FMI pairs a logged warning with the status fmi2Warning: a master
+    tolerance below the range is clipped, said at logStatusWarning, and
+    fmi2SetupExperiment returns fmi2Warning (it returned fmi2OK); one in
+    range returns fmi2OK."""
+    path, unzip = dumbbell_fmu
+    for tolerance, expected in ((1e-20, 1), (1e-6, 0)):
+        unit = Unit(path, f"warn{expected}", unzip_dir=unzip)
+        status = unit.fmu.fmi2SetupExperiment(unit.fmu.component, 1, tolerance, 0.0, 0, 0.0)
+        assert status == expected, (tolerance, unit.messages[-2:])
+        warned = [m for m in unit.messages if "outside" in str(m)]
+        assert bool(warned) == bool(expected), unit.messages
+        unit.close()
+
+
 @pytest.mark.parametrize("name", [m for m in MODELS if m != "dumbbell"])
 def test_other_models_reproduce_integrator_advance(fmus, name):
     model = hfdi.models.get(name)

@@ -341,16 +341,19 @@ static int release(Instance* inst, PyGILState gil, const char* function,
     return status;
 }
 
-/* Pass on the slave's queued log messages (Adapter.take_log). */
-static void drain_log(Instance* inst)
+/* Pass on the slave's queued log messages (Adapter.take_log): ST_WARNING when
+ * one of them was a warning (the call that logged it returns fmi2Warning, as
+ * the standard pairs them), else ST_OK. */
+static int drain_log(Instance* inst)
 {
-    if (!inst->adapter) return;
+    int warned = ST_OK;
+    if (!inst->adapter) return warned;
     PyObject* take = p_PyObject_GetAttrString(inst->adapter, "take_log");
     PyObject* items = take ? p_PyObject_CallObject(take, NULL) : NULL;
     if (take) p_Py_DecRef(take);
     if (!items) {
         p_PyErr_Clear();
-        return;
+        return warned;
     }
     Py_ssize_t_ n = p_PyList_Size(items);
     if (n < 0) p_PyErr_Clear();
@@ -363,10 +366,12 @@ static void drain_log(Instance* inst)
             p_PyErr_Clear();
             continue;
         }
+        if (status == ST_WARNING) warned = ST_WARNING;
         if (status == ST_OK && !inst->logging_on) continue;
         if (inst->emit) inst->emit(inst, (int)status, category, message);
     }
     p_Py_DecRef(items);
+    return warned;
 }
 
 /* The calls of the slave that only read its state: the gate stays armed. */
@@ -414,7 +419,7 @@ static PyObject* invoke(Instance* inst, const char* method, PyObject* args, int*
         gate[GATE_READABLE] = readable;
     }
     if (!result) *status = report_exception(inst, method);
-    drain_log(inst);
+    if (drain_log(inst) == ST_WARNING && result && *status == ST_OK) *status = ST_WARNING;
     return result;
 }
 
