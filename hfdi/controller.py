@@ -569,6 +569,10 @@ def _tolerance(name, value, low, high, open_low=False, infinite_ok=False):
         raise ValueError(f"{name} must be a number or an array of numbers (one per degree "
                          f"of freedom) in {interval}, got {value!r}") from None
     infinite = infinite_ok and arr.ndim == 1 and np.any(arr == math.inf)
+    if infinite_ok and arr.ndim == 0 and arr == math.inf:
+        raise ValueError(f"{name} = inf would leave every component uncontrolled: an "
+                         f"infinite entry is accepted inside an array, for the components "
+                         f"not controlled (the others in (0, inf))")
     if infinite and np.all(arr == math.inf):
         raise ValueError(f"{name} must leave some component controlled: an infinite entry "
                          f"is a component whose error is not controlled, and every entry of "

@@ -81,8 +81,13 @@ class EventSteps:
                              f"{type(self.controller).__name__} steps on its own")
         self._events = Events(events)
         self._on_event = on_event
-        # the zeros on_event answered in a row, each within ZENO_INTERVAL of the last
-        self._answered_t, self._answered_in_a_row = math.nan, 0
+        # per function: its last zero on_event answered, its longest interval
+        # between them (from t0 to the first), and how many came in a row
+        # within ZENO_INTERVAL of that (_accumulating)
+        count = len(self._events.count)
+        self._answered_t = np.full(count, math.nan)
+        self._answered_gap = np.zeros(count)
+        self._answered_in_a_row = np.zeros(count, dtype=int)
         state = self.state
         self._events.start(state.t, state.u, state.v)
 
@@ -313,6 +318,7 @@ class EventSteps:
                 or last
             here.append(k)
         seen = self._model_here() if asks else None
+        jumped = False
         for k in ([i] + [k for k in here if k != i]) if asks else []:
             try:
                 reset = self._answer(k, t)
@@ -328,7 +334,7 @@ class EventSteps:
                 return
             try:
                 if reset is not None:
-                    self._reset_state(*reset)
+                    jumped = self._reset_state(*reset) or jumped
                     seen = self._model_here()
                 else:
                     now = self._model_here()
@@ -340,40 +346,51 @@ class EventSteps:
                 what = "reset" if reset is not None else "answer"
                 self._stop_at(t, g, here, f"t = {t:.10g}: after on_event's {what}: {exc}")
                 return
-        if asks and self._accumulating(t):
+        accumulating = [k for k in here if self._accumulating(k, t)] if asks else []
+        if accumulating:
             self._stop_at(t, g, here, (
-                f"t = {t:.10g}: the zeros on_event answers accumulate ({ZENO_ZEROS} in a row, "
-                f"each within {ZENO_INTERVAL:g} of the run's time scale of the last; the "
-                f"last, of events[{i}]): a Zeno point, past which steps cannot follow the "
-                f"model (a bouncing contact comes to rest there; a model that holds the "
-                f"contact, or a terminal event before it, goes on)"))
+                f"t = {t:.10g}: the zeros of events[{accumulating[0]}] that on_event answers "
+                f"accumulate ({ZENO_ZEROS} in a row, each within {ZENO_INTERVAL:g} times "
+                f"its longest interval between zeros of the last): a Zeno point, past which "
+                f"steps cannot follow the model (a bouncing contact comes to rest there; a "
+                f"model that holds the contact, or a terminal event before it, goes on)"))
             return
         # the zeros count once: at the landed (or reset) state the functions
         # with a zero recorded at t are taken as at zero, and the next step
         # starts from the side each leaves to
         g[here] = 0.0
         events.moved(t, g, here)
+        if jumped:
+            # a state the reset moved holds no zero over a while: g left at 0
+            # by it (to rounding: a floor at u = 100, the rebound's first
+            # ulps) is looked at afresh, and the ball left on the floor's
+            # wrong side crossed it again (it fell through with SUCCESS)
+            events.held[here] = False
         if last:
             self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
 
-    def _accumulating(self, t) -> bool:
-        """Whether the zeros ``on_event`` answered, this one at ``t`` the last,
-        are :data:`ZENO_ZEROS` in a row each within :data:`ZENO_INTERVAL` of
-        the run's time scale (``max(|t|, t_bound − t0)``) after the one before:
-        the impacts of a ball bouncing to rest shorten geometrically, and
-        past their accumulation point no step resolves them (the ball fell
-        through the floor with SUCCESS, or a ball held on it by a force made
-        a zero each 1e-9 s for hours)."""
-        span = self.t_bound - self.t0 if self.t_bound is not None else 0.0
-        scale = max(abs(t), abs(span), abs(t - self.t0))
-        if t - self._answered_t <= ZENO_INTERVAL * scale:
-            self._answered_in_a_row += 1
+    def _accumulating(self, k, t) -> bool:
+        """Whether the zeros of ``events[k]`` that ``on_event`` answered, this one
+        at ``t`` the last, are :data:`ZENO_ZEROS` in a row, each within
+        :data:`ZENO_INTERVAL` times the function's longest interval between
+        them (the first from ``t0``) after the one before: the impacts of a
+        ball bouncing to rest shorten geometrically, and past their
+        accumulation point no step resolves them (the ball fell through the
+        floor with SUCCESS; a ball held on it by a force made a zero each
+        1e-9 s for hours). Per function, and against its own intervals: the
+        zeros of several contacts that close together, or a function's zeros
+        late in a long run, are not an accumulation."""
+        last = self._answered_t[k]
+        gap = t - (self.t0 if math.isnan(last) else last)
+        self._answered_gap[k] = max(self._answered_gap[k], gap)
+        if not math.isnan(last) and gap <= ZENO_INTERVAL * self._answered_gap[k]:
+            self._answered_in_a_row[k] += 1
         else:
-            self._answered_in_a_row = 1
-        self._answered_t = t
-        return self._answered_in_a_row >= ZENO_ZEROS
+            self._answered_in_a_row[k] = 1
+        self._answered_t[k] = t
+        return self._answered_in_a_row[k] >= ZENO_ZEROS
 
     def _matrix_changed(self) -> str:
         """The model's matrix on_event changed (:meth:`Evaluator.matrix_changed`),
@@ -426,11 +443,12 @@ class EventSteps:
         self._run.status = int(Status.MODEL_ERROR)
         self._message = message
 
-    def _reset_state(self, u, v) -> None:
+    def _reset_state(self, u, v) -> bool:
         """The current state becomes ``(t, u, v)`` with ``f``, ``p`` and ``a``
         from the model; the energy the jump adds is work done on the system;
         the next step starts afresh (:class:`ModelError` when the model
-        fails at the new state; the integrator is then left at the old one)."""
+        fails at the new state; the integrator is then left at the old one).
+        Whether the state changed."""
         run, vec, ev = self._run, self._vec, self.ev
         before = self.get_state()
         potential_before = run.potential
@@ -466,13 +484,13 @@ class EventSteps:
         run.energy_scale = max(run.energy_scale, abs(energy_after)
                                if math.isfinite(energy_after) else 0.0)
         self._restart_row(energy_after)
+        return jumped
 
 
-#: Zeros answered by ``on_event`` in a row, each within ``ZENO_INTERVAL`` times
-#: the run's time scale of the one before, that stop the run as a Zeno point
-#: (:meth:`EventSteps._accumulating`): a bouncing ball with restitution 0.7
-#: makes its 40th impact 1e-6 of its fall's time after the 39th and fell
-#: through the floor at about the 52nd.
+#: Zeros of one function answered by ``on_event`` in a row, each within
+#: ``ZENO_INTERVAL`` times the function's longest interval between its zeros
+#: after the one before, that stop the run as a Zeno point
+#: (:meth:`EventSteps._accumulating`; a run that needs more may raise them).
 ZENO_ZEROS = 10
 ZENO_INTERVAL = 1e-6
 

@@ -271,6 +271,35 @@ def test_controlling_u_alone_follows_rtol_past_a_stiff_mode_it_does_not_resolve(
     assert relative_error(both, exact) < 0.1 * errors[0]
 
 
+_FIRST_STEP_LIMIT = pytest.mark.xfail(strict=True, reason=(
+    "known limit (docs/accuracy.md, 'Controlling u alone'): the first step is sized by u "
+    "alone, 300 times longer than under (u, v); its v error, which the estimate does not "
+    "add (as for any first step), feeds u, and the estimate is 0.14-0.40 of the truth"))
+
+
+@pytest.mark.parametrize("scheme", [
+    pytest.param(s, marks=[pytest.mark.slow] + ([_FIRST_STEP_LIMIT] if s != "hfdi" else []))
+    if s != "hfdi" else s for s in hfdi.SCHEMES])
+def test_controlling_u_alone_keeps_the_global_estimate_of_u(scheme):
+    """A forced, damped Duffing oscillator, u alone controlled at rtol 1e-5,
+    against DOP853 at rtol 1e-13: the estimated global error of u within 3
+    times of the true one (HFDI: 0.92–1.0)."""
+    model = hfdi.System(mass=[1.0], damping=[[0.3]], internal_force=lambda u: u + u ** 3,
+                        stiffness=lambda u: np.array([[1.0 + 3.0 * u[0] ** 2]]),
+                        stiffness_derivative=lambda u, w: np.array([[6.0 * u[0] * w[0]]]),
+                        load=lambda t: np.array([0.5 * np.cos(1.2 * t)]),
+                        initial_displacement=[1.0])
+    reference = solve_ivp(lambda t, y: [y[1], 0.5 * np.cos(1.2 * t) - 0.3 * y[1] - y[0]
+                                        - y[0] ** 3], (0.0, 20.0), [1.0, 0.0],
+                          method="DOP853", rtol=1e-13, atol=1e-14, dense_output=True)
+    rtol, atol_u = 1e-5, 1e-8
+    result = hfdi.integrate(model, scheme, 20.0, rtol=rtol, atol=[atol_u, np.inf])
+    assert result.success, result.message
+    exact = reference.sol(result.t)[0]
+    true = (np.abs(result.u[:, 0] - exact) / (atol_u + rtol * np.abs(exact).max())).max()
+    assert 1.0 / 3.0 < result.global_error_ratio / true < 3.0, (result.global_error_ratio, true)
+
+
 def test_an_infinite_atol_leaves_its_component_uncontrolled():
     """The error norm is the RMS over the controlled components, at both
     speeds alike; an atol infinite everywhere, or a tolerance infinite where
@@ -294,6 +323,8 @@ def test_an_infinite_atol_leaves_its_component_uncontrolled():
     for bad in (np.full(2 * n, np.inf), math.inf, np.r_[np.full(n, -1.0), np.full(n, np.inf)]):
         with pytest.raises(ValueError, match="atol"):
             ErrorControl(1e-4, bad)
+    with pytest.raises(ValueError, match="accepted inside an array"):
+        ErrorControl(1e-4, math.inf)
     with pytest.raises(ValueError, match="rtol"):
         ErrorControl(np.r_[np.full(n, 1e-4), np.full(n, np.inf)])
 

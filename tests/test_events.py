@@ -174,6 +174,59 @@ def test_impacts_accumulating_to_rest_stop_the_run_at_their_zeno_point(scheme):
     np.testing.assert_allclose(r.t_events[0], exact, rtol=0, atol=1e-9)
 
 
+def test_a_floor_away_from_zero_is_not_fallen_through():
+    """The floor at u = 100: after a rebound's reset g = u − 100 read exactly
+    0 at the probe just after it (the first ulps of motion are below the
+    rounding of u), was taken as a zero held over a while, and the ball's
+    fall below the floor was skipped: SUCCESS at −81 below it. It bounces as
+    on a floor at 0, to its Zeno point."""
+    floor_at = 100.0
+    model = hfdi.LinearSystem(mass=[1.0], stiffness=[[0.0]], load=lambda t: np.array([-G]),
+                              initial_displacement=[floor_at + H0], initial_velocity=[0.0])
+
+    def floor(t, u, v):
+        return u[0] - floor_at
+    floor.direction = -1
+    t1 = math.sqrt(2 * H0 / G)
+    t_zeno = t1 + 2 * E * (G * t1) / (G * (1 - E))
+    r = hfdi.integrate(model, "hfdi", 2 * t_zeno, rtol=1e-8, events=floor,
+                       on_event=lambda t, u, v, which: (np.array([floor_at]), -E * v))
+    assert r.status == hfdi.Status.MODEL_ERROR and "accumulate" in r.message, r.message
+    assert t_zeno - 1e-3 < r.t[-1] <= t_zeno
+    assert r.u.min() >= floor_at - 1e-12
+
+
+def test_regular_or_nearly_simultaneous_zeros_are_no_zeno_point():
+    """Zeros that do not accumulate: a regular oscillation's every 0.079 s
+    late in a run (t0 = 1e5; a threshold on the run's time scale took ten of
+    them for a Zeno point), and twelve balls landing within 1e-9 s of each
+    other, one function each (one count over all functions took them for
+    one)."""
+    w = 40.0
+    wave = hfdi.LinearSystem(mass=[1.0], stiffness=[[w * w]], initial_displacement=[1.0])
+    crossing = lambda t, u, v: u[0]
+    r = hfdi.integrate(wave, "hfdi", 1e5 + 2.0, t0=1e5, rtol=1e-6, events=crossing,
+                       on_event=lambda t, u, v, which: None)
+    assert r.success and r.t_events[0].size >= 20, r.message
+    heights = H0 + 1e-9 * np.arange(12)
+    balls = hfdi.LinearSystem(mass=np.ones(12), stiffness=np.zeros((12, 12)),
+                              load=lambda t: np.full(12, -G), initial_displacement=heights)
+    floors = []
+    for k in range(12):
+        def floor(t, u, v, k=k):
+            return u[k]
+        floor.direction = -1
+        floors.append(floor)
+
+    def bounce_one(t, u, v, which):
+        v = v.copy()
+        v[which] = -E * v[which]
+        return u, v
+    r = hfdi.integrate(balls, "hfdi", 1.0, rtol=1e-6, events=floors, on_event=bounce_one)
+    assert r.success, r.message
+    assert all(times.size == 1 for times in r.t_events)
+
+
 @pytest.mark.slow
 def test_both_speeds_find_the_same_events():
     """The dumbbell compiled and on the Python path: the same steps and the
