@@ -81,13 +81,7 @@ class EventSteps:
                              f"{type(self.controller).__name__} steps on its own")
         self._events = Events(events)
         self._on_event = on_event
-        # per function: its last zero on_event answered, its longest interval
-        # between them (from t0 to the first), and how many came in a row
-        # within ZENO_INTERVAL of that (_accumulating)
-        count = len(self._events.count)
-        self._answered_t = np.full(count, math.nan)
-        self._answered_gap = np.zeros(count)
-        self._answered_in_a_row = np.zeros(count, dtype=int)
+        self._forget_answered()
         state = self.state
         self._events.start(state.t, state.u, state.v)
 
@@ -370,6 +364,19 @@ class EventSteps:
             self._run.status = int(Status.TERMINATED)
             self._message = (f"t = {t:.10g}: events[{i}] ended the run (its zero number "
                              f"{int(events.count[i])}, terminal)")
+
+    def _forget_answered(self) -> None:
+        """Per function: its last zero ``on_event`` answered, its longest
+        interval between them (from ``t0`` to the first), and how many came
+        in a row within :data:`ZENO_INTERVAL` of that (:meth:`_accumulating`),
+        none yet. Also at a restored state, whose history of zeros is not
+        known: a master that restored a state before a zero and took the step
+        again ten times (the same zero answered ten times at one time) was
+        stopped as at a Zeno point."""
+        count = len(self._events.count)
+        self._answered_t = np.full(count, math.nan)
+        self._answered_gap = np.zeros(count)
+        self._answered_in_a_row = np.zeros(count, dtype=int)
 
     def _accumulating(self, k, t) -> bool:
         """Whether the zeros of ``events[k]`` that ``on_event`` answered, this one

@@ -115,6 +115,7 @@ class StateAccess:
         if getattr(self, "_events", None) is None:
             return
         current = self.state
+        self._forget_answered()
         self._events.start(current.t, current.u, current.v)
         if saved.event_values is not None and saved.event_values.shape == self._events.g.shape:
             self._events.resume(current.t, saved.event_values, saved.event_counted)

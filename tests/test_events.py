@@ -174,6 +174,19 @@ def test_impacts_accumulating_to_rest_stop_the_run_at_their_zeno_point(scheme):
     np.testing.assert_allclose(r.t_events[0], exact, rtol=0, atol=1e-9)
 
 
+def test_a_zero_taken_again_from_a_restored_state_is_no_zeno_point():
+    """A master that restores a state before a zero and takes the step again
+    (a co-simulation's rollback) answers that zero again at the same time:
+    the twelfth time is as the first (the tenth stopped as a Zeno point)."""
+    itg = hfdi.Integrator(oscillator(), "hfdi", rtol=1e-6, t_bound=10.0,
+                          events=lambda t, u, v: u[0], on_event=lambda t, u, v, which: None)
+    before = itg.get_state()
+    for _ in range(12):
+        itg.set_state(before)
+        assert itg.advance(1.0), itg.message
+    assert itg.status == hfdi.Status.RUNNING and itg.t == 1.0
+
+
 def test_a_floor_away_from_zero_is_not_fallen_through():
     """The floor at u = 100: after a rebound's reset g = u − 100 read exactly
     0 at the probe just after it (the first ulps of motion are below the
