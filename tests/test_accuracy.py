@@ -274,7 +274,7 @@ def test_controlling_u_alone_follows_rtol_past_a_stiff_mode_it_does_not_resolve(
 _FIRST_STEP_LIMIT = pytest.mark.xfail(strict=True, reason=(
     "known limit (docs/accuracy.md, 'Controlling u alone'): the first step is sized by u "
     "alone, 300 times longer than under (u, v); its v error, which the estimate does not "
-    "add (as for any first step), feeds u, and the estimate is 0.14-0.40 of the truth"))
+    "add (as for any first step), feeds u, and the estimate is 0.14-0.25 of the truth"))
 
 
 @pytest.mark.parametrize("scheme", [
@@ -283,7 +283,7 @@ _FIRST_STEP_LIMIT = pytest.mark.xfail(strict=True, reason=(
 def test_controlling_u_alone_keeps_the_global_estimate_of_u(scheme):
     """A forced, damped Duffing oscillator, u alone controlled at rtol 1e-5,
     against DOP853 at rtol 1e-13: the estimated global error of u within 3
-    times of the true one (HFDI: 0.92–1.0)."""
+    times of the true one (HFDI: 1.00)."""
     model = hfdi.System(mass=[1.0], damping=[[0.3]], internal_force=lambda u: u + u ** 3,
                         stiffness=lambda u: np.array([[1.0 + 3.0 * u[0] ** 2]]),
                         stiffness_derivative=lambda u, w: np.array([[6.0 * u[0] * w[0]]]),
