@@ -3,7 +3,10 @@
 ``pytest`` runs everything (``make test``). ``pytest -m "not slow"`` is the
 inner loop: the tests marked ``@pytest.mark.slow`` (each taking more than
 about 0.2 s: long runs, subprocesses, FMU hosts, the CLI as a user runs it)
-are left out, the rest run in seconds.
+are left out, the rest run in seconds. Every test that builds or hosts an
+FMU (it asks for the ``fmus`` fixture, directly or through another) is
+marked slow here: the FMU bundles its own copy of ``hfdi``, whose loops
+compile again after any edit of the library (about two minutes).
 
 Shared helpers that are not fixtures live in modules beside this one:
 :mod:`problems` (small test problems, the DOP853 reference, the writer of
@@ -73,6 +76,16 @@ def pytest_sessionstart(session):
         if run.returncode:
             warnings.warn(f"the compiled loops could not be compiled before the tests: "
                           f"{err.decode(errors='replace').strip().splitlines()[-1:]}")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """The tests that need a built FMU go to the slow tier (before ``-m``
+    selects): the rule of the module's docstring, kept by the fixture's
+    name rather than by a list of tests."""
+    for item in items:
+        if "fmus" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(scope="session")

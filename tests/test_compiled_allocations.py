@@ -118,7 +118,7 @@ SCRIPT = textwrap.dedent("""
 
 @pytest.fixture(scope="session")
 def counted(request):
-    """The counts of the cases this session runs (the quick tier's only), in one subprocess."""
+    """The counts of the cases this session runs, in one subprocess."""
     name = test_a_step_allocates_only_what_its_kernels_allocate.__name__
     selected = [item.callspec.params["case"] for item in request.session.items
                 if getattr(item, "originalname", None) == name]
@@ -129,9 +129,9 @@ def counted(request):
     return {tuple(r["case"]): r for r in json.loads(done.stdout.splitlines()[-1])}
 
 
-#: the quick tier counts the dumbbell's steps, every scheme and mode
-@pytest.mark.parametrize("case", [pytest.param(c, marks=() if c[0] == "dumbbell"
-                                                else pytest.mark.slow) for c in CASES],
+#: counted in a subprocess (NUMBA_NRT_STATS is read at import): the slow tier
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES,
                          ids=["-".join(map(str, c[:3])) for c in CASES])
 def test_a_step_allocates_only_what_its_kernels_allocate(counted, case):
     result = counted[tuple(case[:3])]

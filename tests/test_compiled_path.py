@@ -430,7 +430,8 @@ class LongChain(hfdi.SecondOrderSystem):
             lambda u, w: tangent(u, w, True))
 
 
-@pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=["newmark", "bathe", "hfdi"]))
+@pytest.mark.slow                               # compiles the user's kernels
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi"])
 def test_a_users_sparse_model_runs_its_compiled_kernels(scheme):
     """SparseKernels of a model of one's own (not the toss rule): exact
     derivatives, taken by the default path, the same run as its Python methods."""

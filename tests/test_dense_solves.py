@@ -166,6 +166,7 @@ def test_singular_and_non_finite_matrices_fail_at_both_speeds():
 
 # -- the compiled path --------------------------------------------------------------------
 
+@pytest.mark.slow                               # compiles the solve
 @pytest.mark.parametrize("name", list(CASES))
 def test_the_compiled_solve_is_the_python_solve_bit_for_bit(name):
     a, _ = CASES[name]
