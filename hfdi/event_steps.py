@@ -312,6 +312,7 @@ class EventSteps:
                 or last
             here.append(k)
         seen = self._model_here() if asks else None
+        speed = float(np.max(np.abs(self._vec.v), initial=0.0))   # before a reset
         jumped = False
         for k in ([i] + [k for k in here if k != i]) if asks else []:
             try:
@@ -340,14 +341,22 @@ class EventSteps:
                 what = "reset" if reset is not None else "answer"
                 self._stop_at(t, g, here, f"t = {t:.10g}: after on_event's {what}: {exc}")
                 return
-        accumulating = [k for k in here if self._accumulating(k, t)] if asks else []
+        # a reset's motion since the last zero at most speed·gap, the larger
+        # of the speeds before and after it (a bounce's landing and take-off)
+        speed = max(speed, float(np.max(np.abs(self._vec.v), initial=0.0))) if jumped \
+            else math.nan
+        rounding = ZENO_ROUNDING * _EPS * float(np.max(np.abs(self._vec.u), initial=0.0))
+        accumulating = [k for k in here if self._accumulating(k, t, speed, rounding)] \
+            if asks else []
         if accumulating:
             self._stop_at(t, g, here, (
                 f"t = {t:.10g}: the zeros of events[{accumulating[0]}] that on_event answers "
                 f"accumulate ({ZENO_ZEROS} in a row, each within {ZENO_INTERVAL:g} times "
-                f"its longest interval between zeros of the last): a Zeno point, past which "
-                f"steps cannot follow the model (a bouncing contact comes to rest there; a "
-                f"model that holds the contact, or a terminal event before it, goes on)"))
+                f"its longest interval between zeros of the last, or a reset's motion since "
+                f"it within {ZENO_ROUNDING:g} times the rounding of u): a Zeno point, past "
+                f"which steps cannot follow the model (a bouncing contact comes to rest "
+                f"there; a model that holds the contact, or a terminal event before it, "
+                f"goes on)"))
             return
         # the zeros count once: at the landed (or reset) state the functions
         # with a zero recorded at t are taken as at zero, and the next step
@@ -378,21 +387,31 @@ class EventSteps:
         self._answered_gap = np.zeros(count)
         self._answered_in_a_row = np.zeros(count, dtype=int)
 
-    def _accumulating(self, k, t) -> bool:
+    def _accumulating(self, k, t, speed, rounding) -> bool:
         """Whether the zeros of ``events[k]`` that ``on_event`` answered, this one
-        at ``t`` the last, are :data:`ZENO_ZEROS` in a row, each within
-        :data:`ZENO_INTERVAL` times the function's longest interval between
-        them (the first from ``t0``) after the one before: the impacts of a
-        ball bouncing to rest shorten geometrically, and past their
+        at ``t`` the last, are :data:`ZENO_ZEROS` in a row, each close to the
+        one before: within :data:`ZENO_INTERVAL` times the function's longest
+        interval between them (the first from ``t0``), or answered by a
+        reset (``speed``, the state's largest speed about it; NaN without
+        one) whose motion since the one before, at most ``speed·gap``, is
+        within ``rounding`` (:data:`ZENO_ROUNDING` ulps of ``u``), the gap
+        within :data:`ZENO_ROUNDING_INTERVAL` of the longest. The impacts of
+        a ball bouncing to rest shorten geometrically, and past their
         accumulation point no step resolves them (the ball fell through the
         floor with SUCCESS; a ball held on it by a force made a zero each
-        1e-9 s for hours). Per function, and against its own intervals: the
-        zeros of several contacts that close together, or a function's zeros
-        late in a long run, are not an accumulation."""
+        1e-9 s for hours); on a floor at u = 1e4 they stop shortening where
+        the flights reach the rounding of u (0.7–1.1e-6 s, about the first
+        rule's threshold) and went on, a step and a zero each, until
+        max_steps. Per function, and against its own intervals: the zeros of
+        several contacts that close together, or a function's zeros late in
+        a long run, are not an accumulation; zeros that reset nothing (a
+        clock's) count by the first rule alone."""
         last = self._answered_t[k]
         gap = t - (self.t0 if math.isnan(last) else last)
         self._answered_gap[k] = max(self._answered_gap[k], gap)
-        if not math.isnan(last) and gap <= ZENO_INTERVAL * self._answered_gap[k]:
+        longest = self._answered_gap[k]
+        if not math.isnan(last) and (gap <= ZENO_INTERVAL * longest or (
+                speed * gap <= rounding and gap <= ZENO_ROUNDING_INTERVAL * longest)):
             self._answered_in_a_row[k] += 1
         else:
             self._answered_in_a_row[k] = 1
@@ -500,6 +519,14 @@ class EventSteps:
 #: (:meth:`EventSteps._accumulating`; a run that needs more may raise them).
 ZENO_ZEROS = 10
 ZENO_INTERVAL = 1e-6
+#: ... or each answered by a reset whose motion since the one before is
+#: within ``ZENO_ROUNDING`` ulps of ``‖u‖∞``, the interval within
+#: ``ZENO_ROUNDING_INTERVAL`` times the longest: bounces at the rounding of
+#: ``u``, which shorten no further.
+ZENO_ROUNDING = 100.0
+ZENO_ROUNDING_INTERVAL = 1e-3
+
+_EPS = float(np.finfo(float).eps)
 
 #: The fewest accepted steps a call of the stepping code takes between the
 #: zeros that stop a run (the calls' own cost bounds it from below).
