@@ -26,7 +26,7 @@ import numpy as np
 
 from . import checks
 from .core import control
-from .core.estimate import error_fraction, weighted_rms
+from .core.estimate import error_fraction, first_step_atol, weighted_rms
 from .core.state import COMBINED, CONFIG, CUSTOM, ERROR, FIXED, ITERATION, RUN
 
 __all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
@@ -409,13 +409,21 @@ class ErrorControl(Controller):
             if np.ndim(value) and np.shape(value) == (n,):
                 setattr(self, name, np.concatenate([value, value]))
 
+    def first_atol(self, n: int) -> np.ndarray:
+        """The ``atol`` (2N,) of a step without history: :attr:`atol` with
+        every component controlled (:func:`hfdi.core.estimate.first_step_atol`)."""
+        return first_step_atol(np.broadcast_to(self.atol, (2 * n,)), self.rtol,
+                               self.u_scale or 1.0, self.v_scale or 1.0)
+
     def error_norm(self, attempt: Attempt) -> float:
         """The weighted RMS norm of the attempt's error estimate
-        (:func:`hfdi.core.estimate.weighted_rms`)."""
+        (:func:`hfdi.core.estimate.weighted_rms`); a step without history is
+        held to :attr:`first_atol`."""
         n = attempt.y_start.size // 2
         y0, y1 = attempt.y_start, attempt.y_end
         rtol = np.broadcast_to(self.rtol, (2 * n,)).astype(float)
-        atol = np.broadcast_to(self.atol, (2 * n,)).astype(float)
+        atol = (np.broadcast_to(self.atol, (2 * n,)).astype(float) if attempt.history
+                else self.first_atol(n))
         span = math.nan if self.span is None else self.span
         fraction = error_fraction(self.per_step, span, attempt.elapsed, attempt.accepted,
                                   attempt.history)

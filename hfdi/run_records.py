@@ -63,13 +63,14 @@ def data(ev, controller, scheme, breakpoints):
     Md, Mf = _parts(ev.mass)
     Cd, Cf = _parts(ev.damping)
     error = getattr(controller, "error", controller)
-    rtol, atol = np.zeros(2 * n), np.zeros(2 * n)
+    rtol, atol, first_atol = np.zeros(2 * n), np.zeros(2 * n), np.zeros(2 * n)
     if isinstance(error, ErrorControl):
         rtol[:] = error.rtol
         atol[:] = error.atol
+        first_atol[:] = error.first_atol(n)
     empty = np.zeros(0)
     return DATA.new(Md=Md, Mf=Mf, Cd=Cd, Cf=Cf, params=empty, load_params=empty, held=empty,
-                    rtol=rtol, atol=atol,
+                    rtol=rtol, atol=atol, first_atol=first_atol,
                     breakpoints=np.ascontiguousarray(breakpoints, dtype=float),
                     scheme_params=np.ascontiguousarray(scheme.params(), dtype=float))
 

@@ -12,7 +12,7 @@ from .arrays import axpy, dot, lincomb, max_abs
 from .jit import jitable, primitive
 
 __all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
-           "velocity_noise", "displacement_noise", "error_fraction", "SHARE_FLOOR_STEPS",
+           "velocity_noise", "displacement_noise", "error_fraction", "first_step_atol", "SHARE_FLOOR_STEPS",
            "SHORT_STEP", "is_short"]
 
 #: A step shorter than this fraction of the one proposed is a *short step*,
@@ -156,6 +156,22 @@ def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction, 
     return math.sqrt(dot(ratio, ratio) / controlled)
 
 
+def first_step_atol(atol, rtol, u_scale, v_scale):
+    """The ``atol`` of a step without history (2N,): ``atol``, its infinite
+    entries (components left uncontrolled) replaced by the default's
+    ``1e-3·min(rtol)·U`` for ``u`` and ``·V`` for ``v``. Such a step has no
+    estimate in the global error (:mod:`hfdi.stepping.global_error`), and an
+    uncontrolled ``v`` would let it grow until ``u`` alone limits it: under
+    ``u``-alone control the first step of a forced Duffing oscillator was 300
+    times longer than under ``(u, v)``, and its ``v`` error then fed ``u``
+    unseen (docs/algorithm.md, "Tolerance proportionality")."""
+    atol = np.asarray(atol, dtype=float)
+    n = atol.shape[0] // 2
+    scale = 1e-3 * float(np.min(rtol))
+    default = np.concatenate([np.full(n, scale * u_scale), np.full(n, scale * v_scale)])
+    return np.where(np.isinf(atol), default, atol)
+
+
 #: The share of the tolerance is never below ``1/(SHARE_FLOOR_STEPS·(n + 1))``
 #: after ``n`` accepted steps: a run that starts in a fast transient (a
 #: stiff, damped mode) resolves it with tiny steps whose mean would make the
@@ -189,11 +205,15 @@ def error_fraction(per_step, span, elapsed, accepted, history):
 def error_norm(cfg, data, run, vec):
     """The error norm of the estimate in ``VECTORS.error`` of the attempt from
     the current state to ``VECTORS.*_new`` (:func:`weighted_rms`), with the
-    share of the tolerance the attempt may spend (:func:`error_fraction`)."""
+    share of the tolerance the attempt may spend (:func:`error_fraction`).
+    A step without history (the first, or one after a restart) is held to
+    ``DATA.first_atol``, which controls every component
+    (:func:`first_step_atol`)."""
     h = run.a_h
     fraction = error_fraction(cfg.per_step, cfg.error_span, run.a_t_end - run.t_start,
                               run.accepted, run.has_previous)
-    return weighted_rms(vec.error, vec.u, vec.v, vec.u_new, vec.v_new, data.rtol, data.atol,
+    atol = data.atol if run.has_previous else data.first_atol
+    return weighted_rms(vec.error, vec.u, vec.v, vec.u_new, vec.v_new, data.rtol, atol,
                         displacement_noise(run.a_newton_error, vec),
                         velocity_noise(cfg.velocity_gain, run.a_newton_error, vec, h),
                         fraction, vec.ratio)
