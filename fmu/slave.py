@@ -18,7 +18,8 @@ that read FMI's structured names; DOF ``i`` is hfdi's index ``i - 1``):
 
 * parameters (fixed): ``scheme`` (newmark | bathe | hfdi), ``target_iterations``
   (0: not used), ``rtol`` (error control; 0: the master's tolerance of
-  ``fmi2SetupExperiment`` when defined), ``tolerance`` (Newton tolerance η;
+  ``fmi2SetupExperiment`` when defined, else for a model with event
+  functions hfdi's default rtol), ``tolerance`` (Newton tolerance η;
   0: automatic), ``initial_step`` (0: automatic),
   ``max_step`` (0: no limit), ``max_internal_steps``, ``error_mode`` (local |
   global: a doStep whose end misses the tolerance is discarded), ``compiled`` (the
@@ -359,7 +360,10 @@ class HfdiSlave(Fmi2Slave):
                                        "apply (combined mode)"),
             ("rtol", "1", "relative tolerance of the local error of u and v (error "
                           "control), in [1e-13, 0.1); 0: the master's tolerance of "
-                          "fmi2SetupExperiment when it defines one, else none"),
+                          "fmi2SetupExperiment when it defines one, else "
+                          + (f"{self._hfdi.DEFAULT_RTOL:g} (the model has event "
+                             "functions, whose zeros the iteration count alone misses)"
+                             if self._event_names else "none")),
             ("tolerance", "1", "Newton tolerance eta of the corrector (Eq. 38), in "
                                f"[{self._hfdi.controller.TOL_RANGE[0]:g}, 1); "
                                "0: automatic (1e-8, below rtol/1000 under error control)"),
@@ -687,8 +691,12 @@ class HfdiSlave(Fmi2Slave):
                               f"for the model's default structure, rebuild it for others")
         if errors:
             raise FmuError("; ".join(errors))
-        # the mode: the paper's rule, error control, or both (docs: fmu/README.md)
-        rtol = float(rtol) or float(params.get("master_rtol", 0.0)) or None
+        # the mode: the paper's rule, error control, or both (docs: fmu/README.md);
+        # a model with events is error-controlled whatever is given: the
+        # iteration count alone let the steps grow past whole bounces (the
+        # impact oscillator to t = 3: 1 impact of 4)
+        rtol = float(rtol) or float(params.get("master_rtol", 0.0)) or \
+            (hfdi.DEFAULT_RTOL if self._event_names else None)
         target = float(target) or None
         compiled = bool(params["compiled"])
         try:

@@ -227,6 +227,33 @@ def test_an_early_return_lands_on_each_event(built):
     plain.close()
 
 
+@pytest.mark.parametrize("early_return", [False, True])
+def test_without_a_tolerance_a_model_with_events_is_error_controlled(built, early_return):
+    """No rtol and no master tolerance: the impact oscillator's unit controls
+    the error at hfdi's default rtol (the iteration count alone grew the steps
+    past whole bounces: 1 impact of 4 to t = 3, differently with and without
+    early return), and meets every impact and highest point of the closed
+    form; the dumbbell, without events, keeps the paper's rule alone."""
+    model = hfdi.models.impact_oscillator()
+    impacts, tops = exact_events(model, STOP)
+    unit = Slave3(built[("impact_oscillator", 3)], early_return=early_return)
+    t, h = 0.0, 0.25
+    while t < STOP - 1e-12:
+        returned, last = unit.fmu.doStep(t, min(h, STOP - t))[2:]
+        t = last if returned else t + min(h, STOP - t)
+    assert list(unit.get(["event_count[1]", "event_count[2]"])) == [len(impacts), len(tops)]
+    # to rtol over the span (measured 2.9e-5 s at t = 2.9)
+    np.testing.assert_allclose(unit.get(["event_time[1]", "event_time[2]"]),
+                               [impacts[-1], tops[-1]], rtol=0, atol=hfdi.DEFAULT_RTOL * STOP)
+    unit.close()
+    description = read_model_description(str(built[("impact_oscillator", 3)]))
+    rtol = next(v for v in description.modelVariables if v.name == "rtol")
+    assert f"{hfdi.DEFAULT_RTOL:g}" in rtol.description
+    description = read_model_description(str(built[("dumbbell", 3)]))
+    rtol = next(v for v in description.modelVariables if v.name == "rtol")
+    assert rtol.description.endswith("else none")
+
+
 def test_fmu_state_save_and_restore_is_bit_exact(built):
     unit = Slave3(built[("impact_oscillator", 3)], early_return=True,
                   parameters={"rtol": 1e-8})
