@@ -273,11 +273,12 @@ def test_controlling_u_alone_follows_rtol_past_a_stiff_mode_it_does_not_resolve(
 
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
 def test_controlling_u_alone_keeps_the_global_estimate_of_u(scheme):
-    """A forced, damped Duffing oscillator, u alone controlled at rtol 1e-5,
+    """A forced, damped Duffing oscillator, u alone controlled at rtol 1e-4,
     against DOP853 at rtol 1e-13: the estimated global error of u within 3
-    times of the true one (0.99-1.00 for every scheme). The first step, which
+    times of the true one (0.98-1.00 for every scheme). The first step, which
     the estimate leaves out, is held to v's default atol too: sized by u
-    alone it was 300 times longer, and the estimate 0.14-0.25 of the truth."""
+    alone it was far longer, and the estimate 0.13-0.25 of the truth for
+    Newmark, Bathe and generalized-α."""
     model = hfdi.System(mass=[1.0], damping=[[0.3]], internal_force=lambda u: u + u ** 3,
                         stiffness=lambda u: np.array([[1.0 + 3.0 * u[0] ** 2]]),
                         stiffness_derivative=lambda u, w: np.array([[6.0 * u[0] * w[0]]]),
@@ -286,7 +287,7 @@ def test_controlling_u_alone_keeps_the_global_estimate_of_u(scheme):
     reference = solve_ivp(lambda t, y: [y[1], 0.5 * np.cos(1.2 * t) - 0.3 * y[1] - y[0]
                                         - y[0] ** 3], (0.0, 20.0), [1.0, 0.0],
                           method="DOP853", rtol=1e-13, atol=1e-14, dense_output=True)
-    rtol, atol_u = 1e-5, 1e-8
+    rtol, atol_u = 1e-4, 1e-7
     result = hfdi.integrate(model, scheme, 20.0, rtol=rtol, atol=[atol_u, np.inf])
     assert result.success, result.message
     exact = reference.sol(result.t)[0]
