@@ -30,11 +30,24 @@ class _ShapeFault(Exception):
 
 
 def custom_steps(itg, t_stop, max_accepted):
-    """Steps of ``itg`` towards ``t_stop``, at most ``max_accepted``."""
+    """Steps of ``itg`` towards ``t_stop``, at most ``max_accepted``; the rows
+    the accepted steps write handed on whenever their buffer fills, and at
+    the end (they were never handed on: ``integrate`` with a subclass of
+    ``ErrorControl`` returned the initial row alone, with SUCCESS)."""
+    try:
+        _custom_steps(itg, t_stop, max_accepted)
+    finally:
+        itg._hand_on_rows()
+
+
+def _custom_steps(itg, t_stop, max_accepted):
     run = itg._run
+    room = itg._vec.row_t.shape[0]
     taken = 0
     with np.errstate(all="ignore"):
         while run.t < t_stop and taken < max_accepted and run.status >= 0:
+            if room and run.rows + 2 > room:   # a step writes two rows at a breakpoint
+                itg._hand_on_rows()
             try:
                 if not _step(itg, t_stop):
                     return

@@ -882,3 +882,22 @@ def test_tight_tolerances_do_not_stall_on_the_velocitys_rounding(scheme):
     assert tight.success, tight.message
     assert reference.success
     assert np.abs(tight.u[-1] - reference.u[-1]).max() < 1e-7 * np.abs(reference.u).max()
+
+
+@pytest.mark.parametrize("t_end", [0.5, pytest.param(7.0, marks=pytest.mark.slow)])
+def test_a_users_controller_returns_every_row(t_end):
+    """A subclass of ErrorControl runs the custom loop (hfdi.custom), which
+    never handed its rows on: SUCCESS with the initial row alone. Its rows
+    are now those of ErrorControl's run, bit for bit, through several fills
+    of the row buffer."""
+    class Mine(ErrorControl):
+        pass
+
+    model, _ = exact_problems.duffing(python=True)
+    runs = [hfdi.integrate(model, "hfdi", t_end, controller=control(1e-7), compiled=False)
+            for control in (ErrorControl, Mine)]
+    assert runs[0].success and runs[1].success, (runs[0].message, runs[1].message)
+    assert len(runs[1].t) == runs[1].stats.accepted + 1 > (
+        hfdi.integrator.ROWS_PER_CALL if t_end > 1.0 else 100)
+    np.testing.assert_array_equal(runs[1].t, runs[0].t)
+    np.testing.assert_array_equal(runs[1].u, runs[0].u)
