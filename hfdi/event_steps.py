@@ -312,7 +312,7 @@ class EventSteps:
                 or last
             here.append(k)
         seen = self._model_here() if asks else None
-        speed = float(np.max(np.abs(self._vec.v), initial=0.0))   # before a reset
+        landed = (self._vec.u.copy(), self._vec.v.copy())        # before a reset
         jumped = False
         for k in ([i] + [k for k in here if k != i]) if asks else []:
             try:
@@ -341,19 +341,14 @@ class EventSteps:
                 what = "reset" if reset is not None else "answer"
                 self._stop_at(t, g, here, f"t = {t:.10g}: after on_event's {what}: {exc}")
                 return
-        # a reset's motion since the last zero at most speed·gap, the larger
-        # of the speeds before and after it (a bounce's landing and take-off)
-        speed = max(speed, float(np.max(np.abs(self._vec.v), initial=0.0))) if jumped \
-            else math.nan
-        rounding = ZENO_ROUNDING * _EPS * float(np.max(np.abs(self._vec.u), initial=0.0))
-        accumulating = [k for k in here if self._accumulating(k, t, speed, rounding)] \
-            if asks else []
+        motion = _reset_motion(*landed, self._vec.u, self._vec.v) if jumped else None
+        accumulating = [k for k in here if self._accumulating(k, t, motion)] if asks else []
         if accumulating:
             self._stop_at(t, g, here, (
                 f"t = {t:.10g}: the zeros of events[{accumulating[0]}] that on_event answers "
                 f"accumulate ({ZENO_ZEROS} in a row, each within {ZENO_INTERVAL:g} times "
                 f"its longest interval between zeros of the last, or a reset's motion since "
-                f"it within {ZENO_ROUNDING:g} times the rounding of u): a Zeno point, past "
+                f"it within {ZENO_ROUNDING:g} ulps of u): a Zeno point, past "
                 f"which steps cannot follow the model (a bouncing contact comes to rest "
                 f"there; a model that holds the contact, or a terminal event before it, "
                 f"goes on)"))
@@ -387,15 +382,15 @@ class EventSteps:
         self._answered_gap = np.zeros(count)
         self._answered_in_a_row = np.zeros(count, dtype=int)
 
-    def _accumulating(self, k, t, speed, rounding) -> bool:
+    def _accumulating(self, k, t, reset) -> bool:
         """Whether the zeros of ``events[k]`` that ``on_event`` answered, this one
         at ``t`` the last, are :data:`ZENO_ZEROS` in a row, each close to the
         one before: within :data:`ZENO_INTERVAL` times the function's longest
         interval between them (the first from ``t0``), or answered by a
-        reset (``speed``, the state's largest speed about it; NaN without
-        one) whose motion since the one before, at most ``speed·gap``, is
-        within ``rounding`` (:data:`ZENO_ROUNDING` ulps of ``u``), the gap
-        within :data:`ZENO_ROUNDING_INTERVAL` of the longest. The impacts of
+        ``reset`` (:func:`_reset_motion`; ``None`` without one) whose
+        components' motion since the one before is within the rounding of
+        their ``u``, the gap within :data:`ZENO_ROUNDING_INTERVAL` of the
+        longest. The impacts of
         a ball bouncing to rest shorten geometrically, and past their
         accumulation point no step resolves them (the ball fell through the
         floor with SUCCESS; a ball held on it by a force made a zero each
@@ -411,7 +406,8 @@ class EventSteps:
         self._answered_gap[k] = max(self._answered_gap[k], gap)
         longest = self._answered_gap[k]
         if not math.isnan(last) and (gap <= ZENO_INTERVAL * longest or (
-                speed * gap <= rounding and gap <= ZENO_ROUNDING_INTERVAL * longest)):
+                reset is not None and gap <= ZENO_ROUNDING_INTERVAL * longest
+                and bool(np.all(reset[0] * gap + reset[1] <= reset[2])))):
             self._answered_in_a_row[k] += 1
         else:
             self._answered_in_a_row[k] = 1
@@ -519,14 +515,34 @@ class EventSteps:
 #: (:meth:`EventSteps._accumulating`; a run that needs more may raise them).
 ZENO_ZEROS = 10
 ZENO_INTERVAL = 1e-6
-#: ... or each answered by a reset whose motion since the one before is
-#: within ``ZENO_ROUNDING`` ulps of ``‖u‖∞``, the interval within
+#: ... or each answered by a reset whose components' motion since the one
+#: before is within ``ZENO_ROUNDING`` ulps of their ``u``, the interval within
 #: ``ZENO_ROUNDING_INTERVAL`` times the longest: bounces at the rounding of
 #: ``u``, which shorten no further.
 ZENO_ROUNDING = 100.0
 ZENO_ROUNDING_INTERVAL = 1e-3
 
 _EPS = float(np.finfo(float).eps)
+
+
+def _reset_motion(u_landed, v_landed, u, v):
+    """``(speed, jump, rounding)`` over the components a reset changed (from
+    the landed state to ``(u, v)``; ``None`` when it changed none): the
+    larger of their speeds before and after (a bounce's landing and
+    take-off: their motion since the last zero is at most ``speed·gap``),
+    the jump of their ``u``, and :data:`ZENO_ROUNDING` ulps of their ``u``.
+    Per component: a bouncing DOF at 1e4 beside one oscillating at 1 (the
+    largest speed of all kept it from ever counting), or a rattle of 1e-9
+    beside a DOF at rest at 1e6 (the rounding of ``‖u‖∞`` took it for one),
+    are judged by their own motion; so is a stepper that a clock's reset
+    moves by 1e-3 at rest (its speed 0)."""
+    moved = (u != u_landed) | (v != v_landed)
+    if not moved.any():
+        return None
+    speed = np.maximum(np.abs(v_landed), np.abs(v))[moved]
+    jump = np.abs(u - u_landed)[moved]
+    rounding = ZENO_ROUNDING * _EPS * np.maximum(np.abs(u_landed), np.abs(u))[moved]
+    return speed, jump, rounding
 
 #: The fewest accepted steps a call of the stepping code takes between the
 #: zeros that stop a run (the calls' own cost bounds it from below).

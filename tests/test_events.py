@@ -215,6 +215,58 @@ def test_a_floor_away_from_zero_is_not_fallen_through(floor_at):
     assert r.u.min() >= floor_at - max(1e-12, 8 * np.spacing(abs(floor_at)))
 
 
+@pytest.mark.slow
+def test_a_bounce_at_the_rounding_of_u_is_judged_by_the_components_it_moves():
+    """The rule for bounces at the rounding of u looks at the components the
+    reset changed, each against its own u: a ball on a floor at 1e4 beside an
+    oscillator of amplitude 1 (the largest speed of all kept the rule from
+    firing: 2,252 zeros past the Zeno time until max_steps) stops at its Zeno
+    point; a rattle of 1e-9 beside a coordinate resting at 1e9 (the rounding
+    of ‖u‖∞ took its bounces for rounding), and a stepper that a clock's reset
+    moves by 1e-3 while at rest (its speed 0), run to the end."""
+    floor_at = 1e4
+    model = hfdi.LinearSystem(mass=[1.0, 1.0], stiffness=[[0.0, 0.0], [0.0, 1.0]],
+                              load=lambda t: np.array([-G, 0.0]),
+                              initial_displacement=[floor_at + H0, 1.0])
+
+    def floor(t, u, v):
+        return u[0] - floor_at
+    floor.direction = -1
+
+    def bounce(t, u, v, which):
+        u, v = u.copy(), v.copy()
+        u[0], v[0] = floor_at, -E * v[0]
+        return u, v
+    t1 = math.sqrt(2 * H0 / G)
+    t_zeno = t1 + 2 * E * (G * t1) / (G * (1 - E))
+    r = hfdi.integrate(model, "hfdi", 2 * t_zeno, rtol=1e-8, events=floor, on_event=bounce,
+                       max_steps=3000)
+    assert r.status == hfdi.Status.MODEL_ERROR and "accumulate" in r.message, r.message
+    assert t_zeno - 1e-4 < r.t[-1] <= t_zeno and r.t_events[0].size < 100
+
+    gap, speed = 1e-9, 1e-6
+    rattle = hfdi.LinearSystem(mass=[1.0, 1.0], stiffness=np.zeros((2, 2)),
+                               load=lambda t: np.zeros(2), initial_displacement=[1e9, 0.0])
+
+    def walls(t, u, v, which):
+        v = v.copy()
+        v[1] = speed if which == 2 else -v[1]
+        return u, v
+    r = hfdi.integrate(rattle, "hfdi", 10.2, rtol=1e-6, on_event=walls, events=[
+        lambda t, u, v: u[1] - gap, lambda t, u, v: -gap - u[1], lambda t, u, v: t - 10.0])
+    assert r.success and [len(times) for times in r.t_events] == [50, 50, 1], r.message
+
+    tick = 1e-4
+    rest = hfdi.LinearSystem(mass=[1.0], stiffness=[[0.0]], load=lambda t: np.zeros(1))
+
+    def clock(t, u, v):
+        return math.sin(math.pi * (t - 0.1) / tick) if t > 0.1 else t - 0.1
+    r = hfdi.integrate(rest, "hfdi", 0.102, rtol=1e-6, events=clock, max_step=tick / 4,
+                       on_event=lambda t, u, v, which: (u + 1e-3, 0.0 * v))
+    assert r.success and r.t_events[0].size == 20, r.message
+    assert r.u[-1, 0] == pytest.approx(0.02)
+
+
 def test_regular_or_nearly_simultaneous_zeros_are_no_zeno_point():
     """Zeros that do not accumulate: a regular oscillation's every 0.079 s
     late in a run (t0 = 1e5; a threshold on the run's time scale took ten of
