@@ -71,6 +71,8 @@ class Attempt:
     history : bool
         Whether the estimate had the predictor's history (``False`` on the
         first step and after a load breakpoint).
+    first : bool
+        Whether the attempt is a trial of the run's first step.
     y_start, y_end : ndarray (2N,) or None
         ``(u, v)`` at the start and end of the attempt (with ``error``).
     velocity_noise : float
@@ -92,6 +94,7 @@ class Attempt:
     message: str = ""
     error: np.ndarray | None = None
     history: bool = True
+    first: bool = False
     y_start: np.ndarray | None = None
     y_end: np.ndarray | None = None
     velocity_noise: float = 0.0
@@ -410,20 +413,20 @@ class ErrorControl(Controller):
                 setattr(self, name, np.concatenate([value, value]))
 
     def first_atol(self, n: int) -> np.ndarray:
-        """The ``atol`` (2N,) of a step without history: :attr:`atol` with
+        """The ``atol`` (2N,) of the run's first step: :attr:`atol` with
         every component controlled (:func:`hfdi.core.estimate.first_step_atol`)."""
         return first_step_atol(np.broadcast_to(self.atol, (2 * n,)), self.rtol,
                                self.u_scale or 1.0, self.v_scale or 1.0)
 
     def error_norm(self, attempt: Attempt) -> float:
         """The weighted RMS norm of the attempt's error estimate
-        (:func:`hfdi.core.estimate.weighted_rms`); a step without history is
-        held to :attr:`first_atol`."""
+        (:func:`hfdi.core.estimate.weighted_rms`); the run's first step is
+        held to :meth:`first_atol`."""
         n = attempt.y_start.size // 2
         y0, y1 = attempt.y_start, attempt.y_end
         rtol = np.broadcast_to(self.rtol, (2 * n,)).astype(float)
-        atol = (np.broadcast_to(self.atol, (2 * n,)).astype(float) if attempt.history
-                else self.first_atol(n))
+        atol = self.first_atol(n) if attempt.first else \
+            np.broadcast_to(self.atol, (2 * n,)).astype(float)
         span = math.nan if self.span is None else self.span
         fraction = error_fraction(self.per_step, span, attempt.elapsed, attempt.accepted,
                                   attempt.history)

@@ -96,7 +96,7 @@ def _try(itg, proposed, t_limit, landing=None):
     converged = outcome == codes.OK
     attempt = Attempt(h, proposed, clipped, converged, run.a_iterations,
                       "" if converged else attempt_message(run, cfg, itg.ev.fault),
-                      history=run.has_previous)
+                      history=run.has_previous, first=bool(run.first_step_pending))
     attempt.kept = ({name: getattr(vec, name).copy() for name in _KEPT},
                     {name: getattr(run, name) for name in _KEPT_RUN})
     if converged and itg.controller.uses_error_estimate:

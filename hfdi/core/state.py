@@ -237,7 +237,7 @@ DATA = Arrays("Data", [
     ("load_params", "vector"),                  # the load's
     ("held", "vector"),                         # a held extra load (CONFIG.has_held)
     ("rtol", "vector"), ("atol", "vector"),     # over (u, v), 2N each
-    ("first_atol", "vector"),                   # atol of a step without history
+    ("first_atol", "vector"),                   # atol of the run's first step
     ("breakpoints", "vector"),                  # sorted
     ("scheme_params", "vector"),                # the scheme's stage function's data
 ])
