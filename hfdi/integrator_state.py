@@ -297,9 +297,15 @@ def check_state(saved: IntegratorState, *, n: int, controller: str, scheme: str,
                              f"{value!r}")
     if saved.grid_steps < 0:
         raise ValueError(f"state.grid_steps must be >= 0, got {saved.grid_steps!r}")
-    for name in ("work", "energy_error", "energy_scale", "grid_origin"):
+    for name in ("work", "energy_scale", "grid_origin"):
         if not math.isfinite(getattr(saved, name)):
             raise ValueError(f"state.{name} must be finite, got {getattr(saved, name)!r}")
+    # NaN where the model gives no potential energy: the balance is unknown
+    # (a System without potential_energy had its own states refused)
+    unknown = math.isnan(saved.potential) or math.isnan(saved.initial_potential)
+    if not (math.isfinite(saved.energy_error) or unknown and math.isnan(saved.energy_error)):
+        raise ValueError(f"state.energy_error must be finite, or NaN where the potential "
+                         f"energy is unknown (NaN), got {saved.energy_error!r}")
     if saved.energy_scale < 0:
         raise ValueError(f"state.energy_scale must be >= 0, got {saved.energy_scale!r}")
     for name in ("potential", "initial_potential"):

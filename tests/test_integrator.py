@@ -662,6 +662,32 @@ def test_a_state_taken_to_other_matrices_gets_their_acceleration(scheme):
     assert matrices_digest(np.ones(2), None) == matrices_digest(np.eye(2), np.zeros((2, 2)))
 
 
+def test_a_state_of_a_model_without_potential_energy_round_trips():
+    """A System without potential_energy has an unknown energy balance (NaN):
+    its own saved state was refused ("energy_error must be finite"). It is
+    taken back bit for bit, and the run goes on as the one it was saved
+    from; a NaN balance where the potential is known is still refused."""
+    model = hfdi.System(mass=[1.0], internal_force=lambda u: u + u ** 3,
+                        stiffness=lambda u: np.array([[1.0 + 3.0 * u[0] ** 2]]),
+                        stiffness_derivative=lambda u, w: np.array([[6.0 * u[0] * w[0]]]),
+                        initial_displacement=[1.0])
+    part = hfdi.Integrator(model, "hfdi", rtol=1e-6, t_bound=2.0)
+    assert part.advance(1.0) and math.isnan(part.energy_error)
+    saved = hfdi.IntegratorState.from_bytes(part.get_state().to_bytes())
+    again = hfdi.Integrator(model, "hfdi", rtol=1e-6, t_bound=2.0)
+    again.set_state(saved)
+    assert again.get_state().to_bytes() == saved.to_bytes()
+    assert again.advance(2.0) and part.advance(2.0)
+    np.testing.assert_array_equal(again.state.u, part.state.u)
+    known = hfdi.Integrator(hfdi.LinearSystem(mass=[1.0], stiffness=[[1.0]],
+                                              initial_displacement=[1.0]), "hfdi", rtol=1e-6)
+    assert known.advance(0.5)
+    state = known.get_state()
+    state.energy_error = math.nan
+    with pytest.raises(ValueError, match="energy_error must be finite, or NaN where"):
+        known.set_state(state)
+
+
 def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():
     """set_state of a state saved under other parameters recomputes f, a and
     V there (model_changed). When the changed model cannot be evaluated
