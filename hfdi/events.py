@@ -306,6 +306,13 @@ class Events:
                     t_root = self._edge(i, left_t[i], t_root, 0.0, lambda g: side * g > 0,
                                         state)[0]
                     reached = True
+            if self.counted_zero[i] and t_root <= np.nextafter(np.nextafter(t0, t1), t1):
+                # within two spacings of the time of a zero counted at t0: that
+                # zero, where the landed state lies a rounding of t before it
+                # (at t0 = 1e5 the probe LEAVING·h rounded to t0, g read the
+                # side before the crossing, and the zero was counted ten
+                # times at one time, taken for a Zeno point)
+                continue
             if t_root == t0:
                 u, v = u0.copy(), v0.copy()
             elif t_root == t1:

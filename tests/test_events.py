@@ -267,6 +267,21 @@ def test_a_bounce_at_the_rounding_of_u_is_judged_by_the_components_it_moves():
     assert r.u[-1, 0] == pytest.approx(0.02)
 
 
+def test_a_zero_landed_on_late_in_time_counts_once():
+    """At t0 = 1e5 the look just after a zero that on_event answered (a
+    millionth of the next step) rounded to the zero's own time, where the
+    landed state lies a rounding of t before the crossing: the zero was found
+    again at the same time, ten times, and the run stopped as at a Zeno
+    point. Every zero of u = cos(100 t) now counts once, where it is."""
+    w = 100.0
+    wave = hfdi.LinearSystem(mass=[1.0], stiffness=[[w * w]], initial_displacement=[1.0])
+    r = hfdi.integrate(wave, "hfdi", 1e5 + 1.0, t0=1e5, rtol=1e-6, atol=1e-9,
+                       events=lambda t, u, v: u[0], on_event=lambda t, u, v, which: None)
+    assert r.success, r.message
+    exact = 1e5 + (np.pi / 2 + np.pi * np.arange(32)) / w
+    np.testing.assert_allclose(r.t_events[0], exact, rtol=0, atol=1e-6)
+
+
 def test_regular_or_nearly_simultaneous_zeros_are_no_zeno_point():
     """Zeros that do not accumulate: a regular oscillation's every 0.079 s
     late in a run (t0 = 1e5; a threshold on the run's time scale took ten of
