@@ -12,8 +12,8 @@ from .arrays import axpy, dot, lincomb, max_abs
 from .jit import jitable, primitive
 
 __all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
-           "velocity_noise", "displacement_noise", "error_fraction", "first_step_atol", "SHARE_FLOOR_STEPS",
-           "SHORT_STEP", "is_short"]
+           "velocity_noise", "displacement_noise", "error_fraction", "first_step_atol",
+           "SHARE_FLOOR_STEPS", "SHORT_STEP", "is_short"]
 
 #: A step shorter than this fraction of the one proposed is a *short step*,
 #: taken by Taylor's expansion (or the scheme past a stiff component) and not
