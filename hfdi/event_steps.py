@@ -380,6 +380,7 @@ class EventSteps:
         count = len(self._events.count)
         self._answered_t = np.full(count, math.nan)
         self._answered_gap = np.zeros(count)
+        self._answered_between = np.zeros(count)    # the longest, not from t0
         self._answered_in_a_row = np.zeros(count, dtype=int)
 
     def _accumulating(self, k, t, reset) -> bool:
@@ -387,10 +388,12 @@ class EventSteps:
         at ``t`` the last, are :data:`ZENO_ZEROS` in a row, each close to the
         one before: within :data:`ZENO_INTERVAL` times the function's longest
         interval between them (the first from ``t0``), or answered by a
-        ``reset`` (:func:`_reset_motion`; ``None`` without one) whose
-        components' motion since the one before is within the rounding of
-        their ``u``, the gap within :data:`ZENO_ROUNDING_INTERVAL` of the
-        longest. The impacts of
+        ``reset`` (:func:`_reset_motion`; ``None`` without one) that changed
+        a component whose motion since the one before is within the rounding
+        of its ``u``, the gap within :data:`ZENO_ROUNDING_INTERVAL` of the
+        longest interval between two of them (not from ``t0``: zeros that
+        came regularly from the first, a sampled controller's, are no
+        accumulation however small their motion). The impacts of
         a ball bouncing to rest shorten geometrically, and past their
         accumulation point no step resolves them (the ball fell through the
         floor with SUCCESS; a ball held on it by a force made a zero each
@@ -405,9 +408,11 @@ class EventSteps:
         gap = t - (self.t0 if math.isnan(last) else last)
         self._answered_gap[k] = max(self._answered_gap[k], gap)
         longest = self._answered_gap[k]
+        if not math.isnan(last):
+            self._answered_between[k] = max(self._answered_between[k], gap)
         if not math.isnan(last) and (gap <= ZENO_INTERVAL * longest or (
-                reset is not None and gap <= ZENO_ROUNDING_INTERVAL * longest
-                and bool(np.all(reset[0] * gap + reset[1] <= reset[2])))):
+                reset is not None and gap <= ZENO_ROUNDING_INTERVAL * self._answered_between[k]
+                and bool(np.any(reset[0] * gap + reset[1] <= reset[2])))):
             self._answered_in_a_row[k] += 1
         else:
             self._answered_in_a_row[k] = 1
@@ -515,10 +520,10 @@ class EventSteps:
 #: (:meth:`EventSteps._accumulating`; a run that needs more may raise them).
 ZENO_ZEROS = 10
 ZENO_INTERVAL = 1e-6
-#: ... or each answered by a reset whose components' motion since the one
-#: before is within ``ZENO_ROUNDING`` ulps of their ``u``, the interval within
-#: ``ZENO_ROUNDING_INTERVAL`` times the longest: bounces at the rounding of
-#: ``u``, which shorten no further.
+#: ... or each answered by a reset that changed a component whose motion
+#: since the one before is within ``ZENO_ROUNDING`` ulps of its ``u``, the
+#: interval within ``ZENO_ROUNDING_INTERVAL`` times the longest between two
+#: of them: bounces at the rounding of ``u``, which shorten no further.
 ZENO_ROUNDING = 100.0
 ZENO_ROUNDING_INTERVAL = 1e-3
 
@@ -531,11 +536,13 @@ def _reset_motion(u_landed, v_landed, u, v):
     larger of their speeds before and after (a bounce's landing and
     take-off: their motion since the last zero is at most ``speed·gap``),
     the jump of their ``u``, and :data:`ZENO_ROUNDING` ulps of their ``u``.
-    Per component: a bouncing DOF at 1e4 beside one oscillating at 1 (the
-    largest speed of all kept it from ever counting), or a rattle of 1e-9
-    beside a DOF at rest at 1e6 (the rounding of ``‖u‖∞`` took it for one),
-    are judged by their own motion; so is a stepper that a clock's reset
-    moves by 1e-3 at rest (its speed 0)."""
+    Per component, any one of them: a bouncing DOF at 1e4 beside one
+    oscillating at 1 (the largest speed of all kept it from ever counting),
+    or beside a bounce counter the reset adds 1 to, or one it rewrites by an
+    ulp, is judged by its own motion; a rattle of 1e-9 beside a DOF at rest
+    at 1e9 (the rounding of ``‖u‖∞`` took it for one) and a stepper that a
+    clock's reset moves by 1e-3 at rest (its speed 0) move more than their
+    rounding."""
     moved = (u != u_landed) | (v != v_landed)
     if not moved.any():
         return None

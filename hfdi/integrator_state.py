@@ -235,11 +235,12 @@ def _field(mapping, key, kind):
 
 
 def check_state(saved: IntegratorState, *, n: int, controller: str, scheme: str, t0: float,
-                t_bound, kinetic_energy) -> None:
+                t_bound, kinetic_energy, potential_known=False) -> None:
     """Refuse (ValueError) a state that is not one of an integrator of ``n``
     degrees of freedom with this ``controller`` and ``scheme`` (their reprs)
     from ``t0`` to ``t_bound``, or holds values out of their range
-    (``kinetic_energy(v)`` is the model's). Bytes of
+    (``kinetic_energy(v)`` is the model's; ``potential_known``: the model
+    gives its potential energy, so a state's may not be NaN). Bytes of
     :meth:`IntegratorState.from_bytes` are data: here their values are checked."""
     if saved.n_dof != n:
         raise ValueError(f"state has {saved.n_dof} degrees of freedom, this integrator's "
@@ -301,8 +302,13 @@ def check_state(saved: IntegratorState, *, n: int, controller: str, scheme: str,
         if not math.isfinite(getattr(saved, name)):
             raise ValueError(f"state.{name} must be finite, got {getattr(saved, name)!r}")
     # NaN where the model gives no potential energy: the balance is unknown
-    # (a System without potential_energy had its own states refused)
+    # (a System without potential_energy had its own states refused); where
+    # it gives one, an edited NaN would turn energy_limit off unsaid
     unknown = math.isnan(saved.potential) or math.isnan(saved.initial_potential)
+    if unknown and potential_known:
+        raise ValueError(f"state.potential and state.initial_potential must be finite for "
+                         f"a model that gives its potential energy, got "
+                         f"{saved.potential!r} and {saved.initial_potential!r}")
     if not (math.isfinite(saved.energy_error) or unknown and math.isnan(saved.energy_error)):
         raise ValueError(f"state.energy_error must be finite, or NaN where the potential "
                          f"energy is unknown (NaN), got {saved.energy_error!r}")

@@ -5,6 +5,8 @@
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .core.state import RUN
@@ -147,7 +149,8 @@ class StateAccess:
     def _check_state(self, saved: IntegratorState):
         check_state(saved, n=self.ev.n, controller=repr(self.controller),
                     scheme=repr(self.scheme), t0=self.t0, t_bound=self.t_bound,
-                    kinetic_energy=self.ev.kinetic_energy)
+                    kinetic_energy=self.ev.kinetic_energy,
+                    potential_known=not math.isnan(self._run.initial_potential))
         self._check_state_model(saved.current, saved.model_version)
         self._check_event_count(saved.event_count)
 

@@ -217,17 +217,20 @@ def test_a_floor_away_from_zero_is_not_fallen_through(floor_at):
 
 @pytest.mark.slow
 def test_a_bounce_at_the_rounding_of_u_is_judged_by_the_components_it_moves():
-    """The rule for bounces at the rounding of u looks at the components the
-    reset changed, each against its own u: a ball on a floor at 1e4 beside an
+    """The rule for bounces at the rounding of u looks at each component the
+    reset changed, against its own u: a ball on a floor at 1e4 beside an
     oscillator of amplitude 1 (the largest speed of all kept the rule from
-    firing: 2,252 zeros past the Zeno time until max_steps) stops at its Zeno
-    point; a rattle of 1e-9 beside a coordinate resting at 1e9 (the rounding
-    of ‖u‖∞ took its bounces for rounding), and a stepper that a clock's reset
-    moves by 1e-3 while at rest (its speed 0), run to the end."""
+    firing: 2,252 zeros past the Zeno time until max_steps), with a bounce
+    counter the reset adds 1 to (a rule over every changed component never
+    fired), stops at its Zeno point; a rattle of 1e-9 beside a coordinate
+    resting at 1e9 (the rounding of ‖u‖∞ took its bounces for rounding), a
+    stepper that a clock's reset moves by 1e-3 while at rest (its speed 0),
+    and a sampled controller that nudges a mass at 1e4 by 1e-13 each 1e-4 s
+    (intervals regular from the first) run to the end."""
     floor_at = 1e4
-    model = hfdi.LinearSystem(mass=[1.0, 1.0], stiffness=[[0.0, 0.0], [0.0, 1.0]],
-                              load=lambda t: np.array([-G, 0.0]),
-                              initial_displacement=[floor_at + H0, 1.0])
+    model = hfdi.LinearSystem(mass=np.ones(3), stiffness=np.diag([0.0, 1.0, 0.0]),
+                              load=lambda t: np.array([-G, 0.0, 0.0]),
+                              initial_displacement=[floor_at + H0, 1.0, 0.0])
 
     def floor(t, u, v):
         return u[0] - floor_at
@@ -236,6 +239,7 @@ def test_a_bounce_at_the_rounding_of_u_is_judged_by_the_components_it_moves():
     def bounce(t, u, v, which):
         u, v = u.copy(), v.copy()
         u[0], v[0] = floor_at, -E * v[0]
+        u[2] += 1.0
         return u, v
     t1 = math.sqrt(2 * H0 / G)
     t_zeno = t1 + 2 * E * (G * t1) / (G * (1 - E))
@@ -265,6 +269,15 @@ def test_a_bounce_at_the_rounding_of_u_is_judged_by_the_components_it_moves():
                        on_event=lambda t, u, v, which: (u + 1e-3, 0.0 * v))
     assert r.success and r.t_events[0].size == 20, r.message
     assert r.u[-1, 0] == pytest.approx(0.02)
+    held = hfdi.LinearSystem(mass=[1.0], stiffness=[[0.0]], load=lambda t: np.zeros(1),
+                             initial_displacement=[1e4])
+
+    def sampled(t, u, v, which):
+        return u, np.array([-10.0 * (u[0] - 1e4) + 1e-9 * math.sin(t)])
+    r = hfdi.integrate(held, "hfdi", 0.101, rtol=1e-6, max_step=tick / 4, on_event=sampled,
+                       events=lambda t, u, v: (math.sin(math.pi * (t - 0.1) / tick)
+                                               if t > 0.1 else t - 0.1))
+    assert r.success and r.t_events[0].size == 11, r.message
 
 
 def test_a_zero_landed_on_late_in_time_counts_once():

@@ -666,7 +666,8 @@ def test_a_state_of_a_model_without_potential_energy_round_trips():
     """A System without potential_energy has an unknown energy balance (NaN):
     its own saved state was refused ("energy_error must be finite"). It is
     taken back bit for bit, and the run goes on as the one it was saved
-    from; a NaN balance where the potential is known is still refused."""
+    from. Where the model gives its potential, a NaN balance or potential
+    is refused (it turned energy_limit off unsaid)."""
     model = hfdi.System(mass=[1.0], internal_force=lambda u: u + u ** 3,
                         stiffness=lambda u: np.array([[1.0 + 3.0 * u[0] ** 2]]),
                         stiffness_derivative=lambda u, w: np.array([[6.0 * u[0] * w[0]]]),
@@ -686,6 +687,12 @@ def test_a_state_of_a_model_without_potential_energy_round_trips():
     state.energy_error = math.nan
     with pytest.raises(ValueError, match="energy_error must be finite, or NaN where"):
         known.set_state(state)
+    for name in ("potential", "initial_potential"):
+        state = known.get_state()
+        setattr(state, name, math.nan)
+        state.energy_error = math.nan
+        with pytest.raises(ValueError, match="must be finite for a model that gives its"):
+            known.set_state(state)
 
 
 def test_a_refresh_that_fails_in_set_state_leaves_the_integrator_as_it_was():
