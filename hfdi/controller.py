@@ -26,7 +26,7 @@ import numpy as np
 
 from . import checks
 from .core import control
-from .core.estimate import error_fraction, first_step_atol, weighted_rms
+from .core.estimate import default_atol, error_fraction, first_step_atol, weighted_rms
 from .core.state import COMBINED, CONFIG, CUSTOM, ERROR, FIXED, ITERATION, RUN
 
 __all__ = ["Attempt", "Decision", "Controller", "IterationCount", "ErrorControl", "Combined",
@@ -400,9 +400,7 @@ class ErrorControl(Controller):
         """Refuse tolerances given per degree of freedom for another size, and
         lay those given for ``u`` out over ``(u, v)``."""
         if self.atol is None:
-            scale = 1e-3 * float(np.min(self.rtol))
-            self.atol = np.concatenate([np.full(n, scale * (self.u_scale or 1.0)),
-                                        np.full(n, scale * (self.v_scale or 1.0))])
+            self.atol = default_atol(n, self.rtol, self.u_scale or 1.0, self.v_scale or 1.0)
         for name in ("rtol", "atol"):
             value = getattr(self, name)
             if np.ndim(value) and np.shape(value) not in ((n,), (2 * n,)):

@@ -312,7 +312,7 @@ class EventSteps:
                 or last
             here.append(k)
         seen = self._model_here() if asks else None
-        landed = (self._vec.u.copy(), self._vec.v.copy())        # before a reset
+        landed = (self._vec.u.copy(), self._vec.v.copy()) if asks else None  # before a reset
         jumped = False
         for k in ([i] + [k for k in here if k != i]) if asks else []:
             try:
@@ -383,14 +383,14 @@ class EventSteps:
         self._answered_between = np.zeros(count)    # the longest, not from t0
         self._answered_in_a_row = np.zeros(count, dtype=int)
 
-    def _accumulating(self, k, t, reset) -> bool:
+    def _accumulating(self, k, t, motion) -> bool:
         """Whether the zeros of ``events[k]`` that ``on_event`` answered, this one
         at ``t`` the last, are :data:`ZENO_ZEROS` in a row, each close to the
         one before: within :data:`ZENO_INTERVAL` times the function's longest
         interval between them (the first from ``t0``), or answered by a
-        ``reset`` (:func:`_reset_motion`; ``None`` without one) that changed
-        a component whose motion since the one before is within the rounding
-        of its ``u``, the gap within :data:`ZENO_ROUNDING_INTERVAL` of the
+        reset whose ``motion`` (:func:`_reset_motion`; ``None`` without one)
+        shows a changed component that moved within the rounding of its ``u``
+        since the one before, the gap within :data:`ZENO_ROUNDING_INTERVAL` of the
         longest interval between two of them (not from ``t0``: zeros that
         came regularly from the first, a sampled controller's, are no
         accumulation however small their motion). The impacts of
@@ -411,8 +411,8 @@ class EventSteps:
         if not math.isnan(last):
             self._answered_between[k] = max(self._answered_between[k], gap)
         if not math.isnan(last) and (gap <= ZENO_INTERVAL * longest or (
-                reset is not None and gap <= ZENO_ROUNDING_INTERVAL * self._answered_between[k]
-                and bool(np.any(reset[0] * gap + reset[1] <= reset[2])))):
+                motion is not None and gap <= ZENO_ROUNDING_INTERVAL * self._answered_between[k]
+                and bool(np.any(motion[0] * gap + motion[1] <= motion[2])))):
             self._answered_in_a_row[k] += 1
         else:
             self._answered_in_a_row[k] = 1

@@ -12,8 +12,8 @@ from .arrays import axpy, dot, lincomb, max_abs
 from .jit import jitable, primitive
 
 __all__ = ["predict", "local_error", "velocity_history_factor", "error_norm", "weighted_rms",
-           "velocity_noise", "displacement_noise", "error_fraction", "first_step_atol",
-           "SHARE_FLOOR_STEPS", "SHORT_STEP", "is_short"]
+           "velocity_noise", "displacement_noise", "error_fraction", "default_atol",
+           "first_step_atol", "SHARE_FLOOR_STEPS", "SHORT_STEP", "is_short"]
 
 #: A step shorter than this fraction of the one proposed is a *short step*,
 #: taken by Taylor's expansion (or the scheme past a stiff component) and not
@@ -156,6 +156,13 @@ def weighted_rms(error, u0, v0, u1, v1, rtol, atol, noise_u, noise_v, fraction, 
     return math.sqrt(dot(ratio, ratio) / controlled)
 
 
+def default_atol(n, rtol, u_scale, v_scale):
+    """The default ``atol`` (2N,): ``1e-3·min(rtol)`` times ``U`` for ``u``
+    and ``V`` for ``v`` (:func:`hfdi.options.state_scales`)."""
+    scale = 1e-3 * float(np.min(rtol))
+    return np.concatenate([np.full(n, scale * u_scale), np.full(n, scale * v_scale)])
+
+
 def first_step_atol(atol, rtol, u_scale, v_scale):
     """The ``atol`` of the run's first step (2N,): ``atol``, its infinite
     entries (components left uncontrolled) replaced by the default's
@@ -169,10 +176,8 @@ def first_step_atol(atol, rtol, u_scale, v_scale):
     step starts from the run's, and held to ``v`` too, every restart of a
     load with breakpoints each 0.1 s took 2–3 times the steps."""
     atol = np.asarray(atol, dtype=float)
-    n = atol.shape[0] // 2
-    scale = 1e-3 * float(np.min(rtol))
-    default = np.concatenate([np.full(n, scale * u_scale), np.full(n, scale * v_scale)])
-    return np.where(np.isinf(atol), default, atol)
+    return np.where(np.isinf(atol), default_atol(atol.shape[0] // 2, rtol, u_scale, v_scale),
+                    atol)
 
 
 #: The share of the tolerance is never below ``1/(SHARE_FLOOR_STEPS·(n + 1))``
