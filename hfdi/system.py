@@ -299,11 +299,17 @@ class LinearSystem(SecondOrderSystem):
             self._K = np.diag(k) if k.ndim == 1 else k
             self._T = np.zeros((n, n))
         self._p = checks.callable_or_none("LinearSystem load", load, "p(t) -> (N,)")
-        rate = checks.callable_or_none("LinearSystem load_rate", load_rate, "p'(t) -> (N,)")
-        if rate is not None:
-            # an instance attribute only when given: one on every instance would
-            # read as a method replaced on it, which the compiled kernels ignore
-            self.load_rate = rate
+        self.load_rate = load_rate
+
+    @property
+    def load_rate(self):
+        """The exact load rate ``p'(t)`` given, or ``None``."""
+        return self._load_rate
+
+    @load_rate.setter
+    def load_rate(self, rate):
+        self._load_rate = checks.callable_or_none("LinearSystem load_rate", rate,
+                                                  "p'(t) -> (N,)")
 
     def internal_force(self, u):
         return self._K @ u
@@ -311,23 +317,27 @@ class LinearSystem(SecondOrderSystem):
     def compiled_kernels(self):
         """The compiled kernels of ``f = K u`` (:mod:`hfdi.models.linear_kernels`)
         where the compiled path can run this system: a dense ``K`` (fewer than
-        ``DENSE_BELOW`` unknowns) and no load, or a load of hat pulses; a
-        Python load function cannot run compiled (the run then says so once
-        and takes the Python path). Imports numba."""
+        ``DENSE_BELOW`` unknowns), and no load or a load (and load rate) given
+        as ``numba.njit`` functions (:mod:`hfdi.compiled.callables`); a Python
+        load function cannot run compiled (the run then says so once and takes
+        the Python path). Imports numba."""
         from .compiled import CompiledUnavailable
         if sp.issparse(self._K):
             raise CompiledUnavailable("LinearSystem has a sparse stiffness: its steps run "
                                       "with sparse solves in Python")
-        if self._p is not None:
-            raise CompiledUnavailable("LinearSystem's load is a Python function, which the "
-                                      "compiled loop cannot call")
+        from .compiled.callables import load_kernels
+        load, rate = load_kernels("LinearSystem", self._p, self._load_rate)
         from .models.kernels import compiled_kernels
         from .models.linear_kernels import (linear_force, linear_potential_energy,
                                             linear_stiffness, linear_stiffness_derivative)
         from .models.loads import hat_load_params
-        return compiled_kernels(linear_force, linear_stiffness, linear_stiffness_derivative,
-                                linear_potential_energy, np.ascontiguousarray(self._K, float).reshape(-1),
-                                load_params=hat_load_params(self.n_dof))
+        kernels = compiled_kernels(linear_force, linear_stiffness, linear_stiffness_derivative,
+                                   linear_potential_energy,
+                                   np.ascontiguousarray(self._K, float).reshape(-1),
+                                   load_params=hat_load_params(self.n_dof))
+        if load is None:
+            return kernels._replace(load_rate=rate)
+        return kernels._replace(load=load, load_params=np.zeros(1), load_rate=rate)
 
     def stiffness(self, u):
         return self._K

@@ -6,6 +6,7 @@ The references are independent of the integrator: exact solutions
 (``exact_problems``) and, for true local errors, scipy's DOP853 at tolerances
 far below the errors measured.
 """
+import functools
 import math
 import sys
 import tracemalloc
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg as sla
 import pytest
+from numba import njit
 from scipy.integrate import solve_ivp
 
 import hfdi
@@ -349,15 +351,10 @@ def test_the_load_scale_of_a_model_at_rest():
     assert atol_u(declared, t_bound=4.0) == pytest.approx(1.0)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("scheme", SCHEMES)
-def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
-    """A stiff structure starting at rest under a sine load moves by 1.8e-7:
-    with u's scale 1 (no u_scale given) the default atol let its error reach
-    7-16 rtol; from the load's static response (3.3e-7) it stays below rtol,
-    measured against a Radau rtol-1e-10 reference; a declared u_scale still
-    rules."""
-    from scipy.integrate import solve_ivp
+@functools.lru_cache(maxsize=None)
+def _structure_at_rest():
+    """``(M, K, C, times, u at times)`` of a stiff structure at rest under a
+    sine load, ``u`` from a Radau rtol-1e-10 run (a few seconds: once)."""
     M = np.array([[2.0, 0.5], [0.5, 1.0]])
     K = 1e6 * np.array([[3.0, -1.0], [-1.0, 2.0]])
     C = 1e-3 * K
@@ -368,17 +365,27 @@ def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
         [np.zeros(2), Minv @ np.array([np.sin(2000 * t), 0.0])]), (0.0, 0.02), np.zeros(4),
         method="Radau", rtol=1e-10, atol=1e-18, dense_output=True)
     times = np.linspace(0.001, 0.02, 50)
-    exact = reference.sol(times)[:2].T
+    return M, K, C, times, reference.sol(times)[:2].T
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_a_structure_at_rest_takes_its_scale_from_its_load(scheme):
+    """A stiff structure starting at rest under a sine load moves by 1.8e-7:
+    with u's scale 1 (no u_scale given) the default atol let its error reach
+    7-16 rtol; from the load's static response (3.3e-7) it stays below rtol,
+    measured against a Radau rtol-1e-10 reference; a declared u_scale still
+    rules."""
+    M, K, C, times, exact = _structure_at_rest()
     scale = np.abs(exact).max()
-    model = hfdi.LinearSystem(mass=M, stiffness=K, damping=C,
-                              load=lambda t: np.array([np.sin(2000 * t), 0.0]))
+    model = hfdi.LinearSystem(mass=M, stiffness=K, damping=C, load=_fast_sine_load)
     rtol = 1e-3
     result = hfdi.integrate(model, scheme, 0.02, rtol=rtol)
     assert result.success, result.message
     error = np.abs(np.asarray(result.sol(times)[0]) - exact).max() / scale
     assert error < rtol, error
     declared = hfdi.LinearSystem(mass=M, stiffness=K, damping=C, u_scale=1.0,
-                                 load=lambda t: np.array([np.sin(2000 * t), 0.0]))
+                                 load=_fast_sine_load)
     loose = hfdi.integrate(declared, scheme, 0.02, rtol=rtol)
     assert loose.stats.steps < result.stats.steps
     assert np.abs(np.asarray(loose.sol(times)[0]) - exact).max() / scale > rtol
@@ -600,7 +607,7 @@ def test_dense_output_at_the_end_of_a_run_stopped_on_a_load_jump():
     twice): the interpolant at that time is the state reached, not 0/0."""
     model, _ = exact_problems.damped_chain()
     jumpy = hfdi.LinearSystem(model.mass, model.stiffness(np.zeros(3)), model.damping,
-                              load=lambda t: np.array([1.0, 0.0, 0.0]) * (t >= 0.5),
+                              load=_push_from_half,
                               initial_displacement=model.initial_displacement,
                               initial_velocity=model.initial_velocity)
     for scheme in ("newmark", "hfdi"):
@@ -689,8 +696,26 @@ def test_progress_is_reported():
     assert seen and seen[-1] == (10.0, result.stats.accepted)
 
 
+# the tests' loads as numba functions: their runs are compiled (a Python load
+# keeps a run on the Python path, 30-80 times slower)
+@njit
 def step_load(t):
     return np.array([0.0 if t < 0.3 else 2.0])
+
+
+@njit
+def _held_load(t):
+    return np.array([2.0])
+
+
+@njit
+def _fast_sine_load(t):
+    return np.array([np.sin(2000 * t), 0.0])
+
+
+@njit
+def _push_from_half(t):
+    return np.array([1.0, 0.0, 0.0]) * (t >= 0.5)
 
 
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi", among=SCHEMES))
@@ -706,7 +731,7 @@ def test_load_jump_declared_as_breakpoint(scheme):
     assert 0.3 in landed.t
     assert np.all(landed.u_eval[t < 0.3] == 0.0)       # nothing moves before the load
     # as accurate as a run that starts at the jump with the load already on
-    on = hfdi.LinearSystem(np.array([1.0]), np.array([[4.0]]), load=lambda t: np.array([2.0]))
+    on = hfdi.LinearSystem(np.array([1.0]), np.array([[4.0]]), load=_held_load)
     after = t[t >= 0.3]
     fresh = hfdi.integrate(on, scheme, 3.0, t0=0.3, rtol=1e-6, atol=1e-9, t_eval=after)
     error = np.max(np.abs(landed.u_eval[:, 0] - exact))

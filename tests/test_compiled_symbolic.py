@@ -243,7 +243,9 @@ def test_a_model_with_a_load_of_expressions_runs_whole_in_the_driver(scheme):
     assert _relative(fixed[1].u, fixed[0].u) < 1e-12
     runs = [hfdi.integrate(_loaded_chain(), scheme, 1.0, rtol=1e-4, compiled=c)
             for c in (False, True)]
-    reference = hfdi.integrate(_loaded_chain(), "hfdi", 1.0, rtol=1e-10, compiled=False)
+    # the reference compiled: 15,493 steps, 0.4 s (17 s on the Python path,
+    # whose runs the fixed-step comparison above ties to the compiled ones)
+    reference = hfdi.integrate(_loaded_chain(), "hfdi", 1.0, rtol=1e-10, compiled=True)
     assert reference.success
     errors = [_relative(r.u[-1], reference.u[-1]) for r in runs]
     assert runs[0].stats.steps == pytest.approx(runs[1].stats.steps, rel=0.01)

@@ -1,9 +1,11 @@
 """``LinearSystem`` runs compiled where its parts allow, and a model that keeps
 a run on the Python path says once why."""
+import math
 import warnings
 
 import numpy as np
 import pytest
+from numba import njit
 
 import hfdi
 from hfdi.compiled import CompiledUnavailable
@@ -11,13 +13,14 @@ from hfdi.compiled import CompiledUnavailable
 from problems import schemes_quick
 
 
-def damped_chain(load=None):
+def damped_chain(load=None, load_rate=None):
     """Three masses, dense M, K and C (a full mass matrix: HFDI's B is dense)."""
     rng = np.random.default_rng(0)
     A = rng.standard_normal((3, 3))
     K = A @ A.T + 3 * np.eye(3)
     return hfdi.LinearSystem(mass=np.eye(3) + 0.1 * np.ones((3, 3)), stiffness=K,
-                             damping=0.05 * K, load=load, initial_displacement=np.ones(3))
+                             damping=0.05 * K, load=load, load_rate=load_rate,
+                             initial_displacement=np.ones(3))
 
 
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
@@ -34,6 +37,45 @@ def test_a_linear_system_runs_compiled_and_as_on_the_python_path(scheme):
     A = np.block([[np.zeros((3, 3)), np.eye(3)], [-solve(M, K), -solve(M, C)]])
     exact = expm(3.0 * A) @ np.concatenate([np.ones(3), np.zeros(3)])
     assert np.abs(runs[1].u[-1] - exact[:3]).max() < 1e-3 * np.abs(exact[:3]).max()
+
+
+@njit
+def _push(t):
+    return np.array([math.sin(2.0 * t), 0.0, 0.0])
+
+
+@njit
+def _push_rate(t):
+    return np.array([2.0 * math.cos(2.0 * t), 0.0, 0.0])
+
+
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
+def test_a_linear_system_with_a_numba_load_runs_compiled_and_as_on_the_python_path(scheme):
+    """Its load and exact load rate called by the compiled loop's kernels;
+    the answer against the closed form of the forced response."""
+    model = damped_chain(load=_push, load_rate=_push_rate)
+    assert hfdi.Integrator(model, scheme, t_bound=1.0).compiled
+    runs = [hfdi.integrate(model, scheme, 3.0, rtol=1e-5, compiled=c) for c in (False, True)]
+    assert runs[0].stats.steps == runs[1].stats.steps
+    np.testing.assert_allclose(runs[1].u, runs[0].u, rtol=0, atol=1e-12)
+    # u(t) = e^{At} x0 + ∫ e^{A(t-s)} b sin 2s ds, the integral from the
+    # augmented system's exponential (the load as the state of an oscillator)
+    from scipy.linalg import expm, solve
+    M, K, C = model.mass, model.stiffness(None), model.damping
+    A = np.block([[np.zeros((3, 3)), np.eye(3)], [-solve(M, K), -solve(M, C)]])
+    big = np.zeros((8, 8))
+    big[:6, :6] = A
+    big[3:6, 6] = solve(M, np.array([1.0, 0.0, 0.0]))       # b · (sin 2t), state 6
+    big[6, 7], big[7, 6] = 2.0, -2.0                          # (sin 2t)' = 2 cos 2t
+    x0 = np.concatenate([np.ones(3), np.zeros(3), [0.0, 1.0]])
+    exact = expm(3.0 * big) @ x0
+    assert np.abs(runs[1].u[-1] - exact[:3]).max() < 1e-3 * np.abs(exact[:3]).max()
+
+
+def test_a_python_load_rate_beside_a_numba_load_is_named():
+    model = damped_chain(load=_push, load_rate=lambda t: np.array([2.0 * np.cos(2.0 * t), 0, 0]))
+    with pytest.raises(CompiledUnavailable, match="LinearSystem's load_rate is a Python function"):
+        hfdi.Integrator(model, "hfdi", t_bound=1.0, compiled=True)
 
 
 def test_a_python_load_keeps_it_on_the_python_path_and_says_why_once():

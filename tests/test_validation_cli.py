@@ -91,15 +91,16 @@ def test_table_rtol_runs_are_error_controlled(tmp_path, capsys, monkeypatch):
     labelled by rtol and without the paper's rows (it has no such runs)."""
     monkeypatch.setenv("HFDI_CACHE_DIR", str(tmp_path / "cache"))
     out = tmp_path / "runs.json"
-    assert main(["table", "dumbbell", "--schemes", "hfdi", "--rtol", "1e-3,1e-6",
-                 "--t-end", "0.5", "--json", str(out)]) == 0
+    # 600 and 3,200 steps on the Python path (1e-3 and 1e-6 to 0.5 s: 38,000)
+    assert main(["table", "dumbbell", "--schemes", "hfdi", "--rtol", "1e-2,1e-4",
+                 "--t-end", "0.2", "--json", str(out)]) == 0
     records = json.loads(out.read_text())
-    assert [(r["target"], r["rtol"]) for r in records] == [(None, 1e-3), (None, 1e-6)]
+    assert [(r["target"], r["rtol"]) for r in records] == [(None, 1e-2), (None, 1e-4)]
     assert all(r["status"] == "SUCCESS" for r in records)
     assert records[1]["eps"]["u"] < 0.1 * records[0]["eps"]["u"]
     assert records[1]["steps"] > records[0]["steps"]
     printed = capsys.readouterr().out
-    assert "rtol" in printed and "1e-06" in printed and "(paper)" not in printed
+    assert "rtol" in printed and "1e-04" in printed and "(paper)" not in printed
 
 
 @pytest.mark.parametrize("bad", ["0.5", "1e-20", "x", ""])

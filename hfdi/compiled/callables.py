@@ -1,8 +1,10 @@
-"""Compiled kernels of a :class:`hfdi.System` whose callables are numba functions.
+"""Compiled kernels of a :class:`hfdi.System` whose callables are numba
+functions, and of a :class:`hfdi.LinearSystem`'s numba load.
 
 A ``System`` built from functions compiled with ``numba.njit`` (``f(u)``,
 ``K(u)``, ``T(u, w)``, and optionally ``V(u)``, ``p(t)``, ``p'(t)``) runs
-compiled: each is called by a kernel of the signature the compiled loop
+compiled, and so does a ``LinearSystem`` whose ``p(t)`` (and ``p'(t)``, if
+given) are: each is called by a kernel of the signature the compiled loop
 takes (:mod:`hfdi.compiled.signatures`), which hands ``u`` on and returns what
 the function returns, so both speeds call the same machine code. A function
 whose result is not of the kernel's type (a float64 C-contiguous array of
@@ -17,7 +19,7 @@ import math
 
 import numpy as np
 
-__all__ = ["system_kernels", "is_compiled_function"]
+__all__ = ["system_kernels", "load_kernels", "is_compiled_function"]
 
 #: The callables of a System, by the name its constructor takes them under.
 _CALLABLES = ("internal_force", "stiffness", "stiffness_derivative", "potential_energy",
@@ -40,13 +42,7 @@ def system_kernels(system, functions: dict):
     hfdi.compiled.CompiledUnavailable
         Naming the first callable that is a Python function.
     """
-    from . import CompiledUnavailable
-    for name in _CALLABLES:
-        function = functions.get(name)
-        if function is not None and not is_compiled_function(function):
-            raise CompiledUnavailable(
-                f"System's {name} is a Python function, which the compiled loop cannot call "
-                f"(given as a numba.njit function, it runs compiled)")
+    _refuse_python_functions("System", functions)
     from . import CompiledKernels
     from ..models.kernels import compiled
     from ..models.loads import hat_load, hat_load_params
@@ -60,6 +56,48 @@ def system_kernels(system, functions: dict):
                            load=load, load_params=load_params, load_rate=load_rate)
 
 
+def load_kernels(owner: str, load, load_rate):
+    """``(load, load_rate)``: the kernels calling the numba functions ``load``
+    and ``load_rate`` (``None`` for one not given).
+
+    Raises
+    ------
+    hfdi.compiled.CompiledUnavailable
+        Naming the first of them that is a Python function (``owner``'s).
+    """
+    _refuse_python_functions(owner, {"load": load, "load_rate": load_rate})
+    return _load_kernels(load, load_rate)
+
+
+def _refuse_python_functions(owner, functions):
+    from . import CompiledUnavailable
+    for name in _CALLABLES:
+        function = functions.get(name)
+        if function is not None and not is_compiled_function(function):
+            raise CompiledUnavailable(
+                f"{owner}'s {name} is a Python function, which the compiled loop cannot call "
+                f"(given as a numba.njit function, it runs compiled)")
+
+
+@functools.lru_cache(maxsize=64)
+def _load_kernels(p, dp):
+    """The kernels calling ``p`` and ``p'`` (compiled once per pair in a process)."""
+    from numba import njit
+
+    from ..core.jit import JIT_OPTIONS
+    from ..core.numba_types import LOAD
+    load = load_rate = None
+    if p is not None:
+        @njit(LOAD, **JIT_OPTIONS)
+        def load(time, params):
+            return p(time)
+    if dp is not None:
+        @njit(LOAD, **JIT_OPTIONS)
+        def load_rate(time, params):
+            return dp(time)
+    return load, load_rate
+
+
 @functools.lru_cache(maxsize=64)
 def _kernels(f, k, t, v, p, dp):
     """The kernels calling ``f``, ``K``, ``T``, ``V``, ``p``, ``p'`` (compiled
@@ -67,8 +105,7 @@ def _kernels(f, k, t, v, p, dp):
     from numba import njit
 
     from ..core.jit import JIT_OPTIONS
-    from ..core.numba_types import (FORCE, LOAD, POTENTIAL_ENERGY, STIFFNESS,
-                                    STIFFNESS_DERIVATIVE)
+    from ..core.numba_types import FORCE, POTENTIAL_ENERGY, STIFFNESS, STIFFNESS_DERIVATIVE
 
     @njit(FORCE, **JIT_OPTIONS)
     def force(u, params):
@@ -97,13 +134,4 @@ def _kernels(f, k, t, v, p, dp):
         def potential_energy(u, params):
             return v(u)
 
-    load = load_rate = None
-    if p is not None:
-        @njit(LOAD, **JIT_OPTIONS)
-        def load(time, params):
-            return p(time)
-    if dp is not None:
-        @njit(LOAD, **JIT_OPTIONS)
-        def load_rate(time, params):
-            return dp(time)
-    return force, stiffness, stiffness_derivative, potential_energy, load, load_rate
+    return (force, stiffness, stiffness_derivative, potential_energy) + _load_kernels(p, dp)
