@@ -56,6 +56,12 @@ class KernelModel(SecondOrderSystem):
     FIXED_PARAMETERS: tuple = ()
     load_rate = None
     damping = None
+    #: Counts the assignments of the model's public attributes (its
+    #: parameters, ``m.sigma = 0.8``): an integrator seeing it move calls its
+    #: ``model_changed()`` before its next step, so that both speeds follow
+    #: the change at once, with ``f``, ``a`` and ``V`` recomputed (the
+    #: compiled kernels read the parameters as data handed to them).
+    parameter_version = 0
 
     def __setattr__(self, name, value):
         if name in self.FIXED_PARAMETERS:
@@ -72,6 +78,9 @@ class KernelModel(SecondOrderSystem):
                 f"assigned: build a model with other parameters, hfdi.models.get({self.name!r}, "
                 f"...)")
         super().__setattr__(name, value)
+        if not name.startswith("_") and name != "parameter_version":
+            # private names are the model's caches, not its physics
+            super().__setattr__("parameter_version", self.parameter_version + 1)
 
     def __setstate__(self, state):
         """A copy or an unpickled model keeps its fixed parameters read-only."""
