@@ -32,7 +32,7 @@ import numpy as np
 
 from .dense import interpolate_state
 
-__all__ = ["Events", "EventError", "Crossing", "ROOT_TOLERANCE", "LEAVING"]
+__all__ = ["Events", "EventError", "Crossing", "ROOT_TOLERANCE", "LEAVING", "NEARER"]
 
 #: Brent's absolute and relative tolerance on ``t`` (``solve_ivp``'s).
 ROOT_TOLERANCE = 4.0 * np.finfo(float).eps
@@ -40,6 +40,11 @@ ROOT_TOLERANCE = 4.0 * np.finfo(float).eps
 #: is first looked at: far enough for the motion to show above the zero's
 #: rounding, near enough that no other zero falls before it.
 LEAVING = 1e-6
+#: Where a function that the first look finds back on its arrival side is
+#: looked at again, as shares of the first look's distance from the zero:
+#: a flight shorter than that look (a slow rebound after a reset) left to
+#: the other side and came back before it.
+NEARER = (1e-2, 1e-4, 1e-6)
 
 
 class EventError(ValueError):
@@ -275,6 +280,19 @@ class Events:
                     self.direction[i] * leaving >= 0:
                 at_start.append(int(i))
             left_t[i], left_g[i] = after, leaving
+            if self.counted_zero[i] and leaving != 0 and self.direction[i] * leaving >= 0:
+                # on the side a crossing in the event's direction ends on: a
+                # flight shorter than the look (a ball sent up from the floor
+                # at 1e-6 m/s) may have left to the other side and come back
+                # before it, unseen (the ball then fell through the floor)
+                for share in NEARER:
+                    near = t0 + share * (after - t0)
+                    if not near > t0:
+                        break
+                    g_near = self.value(i, near, *map(_read_only, state(near)))
+                    if g_near * leaving < 0:
+                        left_t[i], left_g[i] = near, g_near
+                        break
         active = self.active(left_g, g1)
         # g staying at zero is no crossing
         active &= ~((left_g == 0) & (g1 == 0))

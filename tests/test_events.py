@@ -280,6 +280,40 @@ def test_a_bounce_at_the_rounding_of_u_is_judged_by_the_components_it_moves():
     assert r.success and r.t_events[0].size == 11, r.message
 
 
+MODES = [pytest.param(dict(rtol=1e-6), id="error"), pytest.param(dict(step=1e-2), id="fixed"),
+         pytest.param(dict(target_iterations=3.0), id="iterations")]
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_rebound_shorter_than_the_first_look_is_seen(mode):
+    """Sent up from the floor at 1e-6 m/s, the ball flies 2e-7 s, less than
+    the first look after the zero (1e-6 of a step of a good part of a
+    second): the landing was missed and the ball fell through the floor with
+    SUCCESS in every mode. The second landing now ends the run where the
+    closed form puts it."""
+    floor = lambda t, u, v: u[0]        # noqa: E731
+    floor.direction, floor.terminal = -1, 2
+    r = hfdi.integrate(ball(), "hfdi", 3.0, events=floor,
+                       on_event=lambda t, u, v, which: (u, np.array([1e-6])), **mode)
+    t1 = math.sqrt(2 * H0 / G)
+    assert r.status == hfdi.Status.TERMINATED, r.message
+    np.testing.assert_allclose(r.t_events[0], [t1, t1 + 2e-6 / G], rtol=0, atol=5e-9)
+
+
+@pytest.mark.parametrize("mode", MODES[1:])
+def test_a_bouncing_ball_stops_at_its_zeno_point_in_every_mode(mode):
+    """Restitution 0.5: error control stopped at the Zeno point; with a fixed
+    step or the paper's rule the flights shrank below the first look and the
+    ball fell through the floor (u = −65 at t = 5) with SUCCESS."""
+    floor = lambda t, u, v: u[0]        # noqa: E731
+    floor.direction = -1
+    r = hfdi.integrate(ball(), "hfdi", 5.0, events=floor,
+                       on_event=lambda t, u, v, which: (u, -0.5 * v), **mode)
+    t_zeno = math.sqrt(2 * H0 / G) * (1 + 2 * 0.5 / (1 - 0.5))
+    assert r.status == hfdi.Status.MODEL_ERROR and "accumulate" in r.message, r.message
+    assert abs(r.t[-1] - t_zeno) < 1e-6 and abs(r.u[-1, 0]) < 1e-12
+
+
 def test_a_zero_landed_on_late_in_time_counts_once():
     """At t0 = 1e5 the look just after a zero that on_event answered (a
     millionth of the next step) rounded to the zero's own time, where the
