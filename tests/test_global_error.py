@@ -482,3 +482,28 @@ def test_events_that_switch_the_load_keep_the_estimate_and_resets_end_it(scheme)
     checked = hfdi.integrate(bounce, scheme, 10.0, rtol=1e-6, events=floor, error="global",
                              on_event=lambda t, u, v, i: (np.array([-0.5]), -0.99 * v))
     assert checked.status == hfdi.Status.TOLERANCE_NOT_MET and "lost" in checked.message
+
+
+def test_a_local_run_far_past_its_tolerance_says_so():
+    """A pendulum released near the top (u0 = 3, to t = 40), u alone
+    controlled: each step within rtol, the answer's error 109 times it (the
+    estimate 102 times, against a DOP853 rtol-1e-13 reference). The run
+    succeeds, as rtol asks of each step, and its message gives the estimate
+    and the way to bound the answer; a run within SAY_GLOBAL_ABOVE does not."""
+    import sympy
+    from scipy.integrate import solve_ivp
+    from hfdi.integrate import SAY_GLOBAL_ABOVE
+    from hfdi.models.symbolic import EnergyModel
+    x = sympy.Symbol("x")
+    model = EnergyModel([x], 1 - sympy.cos(x), mass=[1.0], initial_displacement=[3.0],
+                        name="pendulum")
+    far = hfdi.integrate(model, "hfdi", 40.0, rtol=1e-3, atol=np.r_[3e-6, np.inf])
+    reference = solve_ivp(lambda t, y: [y[1], -np.sin(y[0])], (0.0, 40.0), [3.0, 0.0],
+                          method="DOP853", rtol=1e-13, atol=1e-14, t_eval=far.t)
+    error = np.abs(far.u[:, 0] - reference.y[0]).max() / (1e-3 * 3.0 + 3e-6)
+    assert far.status == hfdi.Status.SUCCESS
+    assert error > SAY_GLOBAL_ABOVE and far.global_error_ratio > SAY_GLOBAL_ABOVE
+    assert f"{far.global_error_ratio:.3g} times the tolerance" in far.message
+    assert 'error="global"' in far.message
+    near = hfdi.integrate(model, "hfdi", 40.0, rtol=1e-3)
+    assert near.global_error_ratio < SAY_GLOBAL_ABOVE and near.message == "reached t_end"
