@@ -2,6 +2,9 @@
 load of hat pulses (docs/models.md, "One physics per model")."""
 from __future__ import annotations
 
+import functools
+import inspect
+
 import numpy as np
 
 from ..system import SecondOrderSystem
@@ -38,6 +41,16 @@ class length_scale:                                  # noqa: N801 - used as a de
         model.__dict__["u_scale"] = value
 
 
+@functools.lru_cache(maxsize=None)
+def _constructor_parameters(cls) -> frozenset:
+    """The names ``cls``'s constructor takes: the model's parameters."""
+    try:
+        names = inspect.signature(cls.__init__).parameters
+    except (TypeError, ValueError):
+        return frozenset()
+    return frozenset(names) - {"self"}
+
+
 class KernelModel(SecondOrderSystem):
     """A model whose ``f``, ``K``, ``T[w]`` and ``V`` are the kernels
     :attr:`KERNELS` on the data :meth:`params`, and whose load is the hat
@@ -56,11 +69,12 @@ class KernelModel(SecondOrderSystem):
     FIXED_PARAMETERS: tuple = ()
     load_rate = None
     damping = None
-    #: Counts the assignments of the model's public attributes (its
-    #: parameters, ``m.sigma = 0.8``): an integrator seeing it move calls its
-    #: ``model_changed()`` before its next step, so that both speeds follow
-    #: the change at once, with ``f``, ``a`` and ``V`` recomputed (the
-    #: compiled kernels read the parameters as data handed to them).
+    #: Counts the assignments of the model's parameters (the names its
+    #: constructor takes, ``m.sigma = 0.8``): an integrator seeing it move
+    #: calls its ``model_changed()`` before its next step, so that both speeds
+    #: follow the change at once, with ``f``, ``a`` and ``V`` recomputed (the
+    #: compiled kernels read the parameters as data handed to them). Other
+    #: attributes (a subclass's counters, caches) are not the model's physics.
     parameter_version = 0
 
     def __setattr__(self, name, value):
@@ -78,8 +92,7 @@ class KernelModel(SecondOrderSystem):
                 f"assigned: build a model with other parameters, hfdi.models.get({self.name!r}, "
                 f"...)")
         super().__setattr__(name, value)
-        if not name.startswith("_") and name != "parameter_version":
-            # private names are the model's caches, not its physics
+        if name in _constructor_parameters(type(self)):
             super().__setattr__("parameter_version", self.parameter_version + 1)
 
     def __setstate__(self, state):
