@@ -23,22 +23,6 @@ def damped_chain(load=None, load_rate=None):
                              initial_displacement=np.ones(3))
 
 
-@pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
-def test_a_linear_system_runs_compiled_and_as_on_the_python_path(scheme):
-    model = damped_chain()
-    assert hfdi.Integrator(model, scheme, t_bound=1.0).compiled
-    runs = [hfdi.integrate(model, scheme, 3.0, rtol=1e-4, compiled=c) for c in (False, True)]
-    assert runs[0].stats.steps == runs[1].stats.steps
-    # the kernels are the Python methods' own products (BLAS's dgemv both)
-    np.testing.assert_allclose(runs[1].u, runs[0].u, rtol=0, atol=1e-12)
-    # and the answer is right: against the matrix exponential of the first-order form
-    from scipy.linalg import expm, solve
-    M, K, C = model.mass, model.stiffness(None), model.damping
-    A = np.block([[np.zeros((3, 3)), np.eye(3)], [-solve(M, K), -solve(M, C)]])
-    exact = expm(3.0 * A) @ np.concatenate([np.ones(3), np.zeros(3)])
-    assert np.abs(runs[1].u[-1] - exact[:3]).max() < 1e-3 * np.abs(exact[:3]).max()
-
-
 @njit
 def _push(t):
     return np.array([math.sin(2.0 * t), 0.0, 0.0])
@@ -49,26 +33,29 @@ def _push_rate(t):
     return np.array([2.0 * math.cos(2.0 * t), 0.0, 0.0])
 
 
+@pytest.mark.parametrize("forced", [False, True], ids=["free", "numba_load"])
 @pytest.mark.parametrize("scheme", schemes_quick("hfdi"))
-def test_a_linear_system_with_a_numba_load_runs_compiled_and_as_on_the_python_path(scheme):
-    """Its load and exact load rate called by the compiled loop's kernels;
-    the answer against the closed form of the forced response."""
-    model = damped_chain(load=_push, load_rate=_push_rate)
+def test_a_linear_system_runs_compiled_and_as_on_the_python_path(scheme, forced):
+    """Free, or forced by a load and exact load rate given as numba functions
+    (called by the compiled loop's kernels): compiled, the Python path's run,
+    and right against the closed form."""
+    model = damped_chain(load=_push, load_rate=_push_rate) if forced else damped_chain()
     assert hfdi.Integrator(model, scheme, t_bound=1.0).compiled
     runs = [hfdi.integrate(model, scheme, 3.0, rtol=1e-5, compiled=c) for c in (False, True)]
     assert runs[0].stats.steps == runs[1].stats.steps
+    # the kernels are the Python methods' own products (BLAS's dgemv both)
     np.testing.assert_allclose(runs[1].u, runs[0].u, rtol=0, atol=1e-12)
-    # u(t) = e^{At} x0 + ∫ e^{A(t-s)} b sin 2s ds, the integral from the
-    # augmented system's exponential (the load as the state of an oscillator)
+    # the first-order form's exponential, the load p = (sin 2t, 0, 0) as the
+    # state of an oscillator beside it ((sin 2t)' = 2 cos 2t)
     from scipy.linalg import expm, solve
     M, K, C = model.mass, model.stiffness(None), model.damping
-    A = np.block([[np.zeros((3, 3)), np.eye(3)], [-solve(M, K), -solve(M, C)]])
     big = np.zeros((8, 8))
-    big[:6, :6] = A
-    big[3:6, 6] = solve(M, np.array([1.0, 0.0, 0.0]))       # b · (sin 2t), state 6
-    big[6, 7], big[7, 6] = 2.0, -2.0                          # (sin 2t)' = 2 cos 2t
-    x0 = np.concatenate([np.ones(3), np.zeros(3), [0.0, 1.0]])
-    exact = expm(3.0 * big) @ x0
+    big[:3, 3:6] = np.eye(3)
+    big[3:6, :3], big[3:6, 3:6] = -solve(M, K), -solve(M, C)
+    if forced:
+        big[3:6, 6] = solve(M, np.array([1.0, 0.0, 0.0]))
+    big[6, 7], big[7, 6] = 2.0, -2.0
+    exact = expm(3.0 * big) @ np.concatenate([np.ones(3), np.zeros(3), [0.0, 1.0]])
     assert np.abs(runs[1].u[-1] - exact[:3]).max() < 1e-3 * np.abs(exact[:3]).max()
 
 
