@@ -103,6 +103,20 @@ def test_table_rtol_runs_are_error_controlled(tmp_path, capsys, monkeypatch):
     assert "rtol" in printed and "1e-04" in printed and "(paper)" not in printed
 
 
+def test_table_compiled_takes_the_same_steps(tmp_path, monkeypatch):
+    """``--compiled``: the same runs (steps, N̄, Δt_mv) in compiled code."""
+    records = {}
+    for compiled in (False, True):
+        out = tmp_path / f"runs-{compiled}.json"
+        assert main(["table", "dumbbell", "--schemes", "hfdi,newmark", "--targets", "3.3",
+                     "--t-end", "0.2", "--no-eps", "--json", str(out)]
+                    + (["--compiled"] if compiled else [])) == 0
+        records[compiled] = json.loads(out.read_text())
+    same = ("scheme", "target", "steps", "mean_iterations", "mean_step", "status")
+    assert [{k: r[k] for k in same} for r in records[False]] == \
+        [{k: r[k] for k in same} for r in records[True]]
+
+
 @pytest.mark.parametrize("bad", ["0.5", "1e-20", "x", ""])
 def test_table_rtol_out_of_range_is_one_line(bad, capsys):
     with pytest.raises(SystemExit) as exit_:

@@ -60,6 +60,10 @@ def build_parser():
                        help="write the runs as CSV")
     table.add_argument("--no-eps", action="store_true",
                        help="skip the IDA reference and the error norms")
+    table.add_argument("--compiled", action="store_true",
+                       help="take the steps in compiled code where the model allows (the "
+                            "same steps and N̄; t_T then measures compiled code; default: "
+                            "the Python path, as the tables in docs/results.md)")
     opt.add_parallel_options(table)
     sub.add_parser("models", help="list the models, their parameters, T_o and the paper's targets")
     figures = sub.add_parser("figures", help="the paper's figures of one problem as PNG files")
@@ -125,7 +129,8 @@ def _table(args):
     with opt.runner_from_args(args) as runner:
         tables = run_tables(problems, args.schemes, args.targets, args.t_end,
                             eps=not args.no_eps, runner=runner, progress=progress, say=say,
-                            rtols=args.rtol, run_progress=_run_progress)
+                            rtols=args.rtol, run_progress=_run_progress,
+                            compiled=args.compiled)
     records = []
     for problem in problems:
         print(f"{problem}: computational characteristics "

@@ -69,14 +69,20 @@ class RunRecord:
 
 def run_experiment(problem: str, scheme: str, target: float | None,
                    t_end: float | None = None, params: dict | None = None, rtol=None,
-                   progress=None):
+                   progress=None, compiled=False):
     """Integrate ``problem`` to its ``T_o`` (or ``t_end``) at the target
     iteration count ``target`` (the paper's mode), under error control at
     ``rtol``, or both; returns (model, result). ``progress`` is passed to
-    :func:`hfdi.integrate`."""
+    :func:`hfdi.integrate`; ``compiled`` true takes the steps in compiled
+    code where the model allows (``compiled=None`` of :func:`hfdi.integrate`),
+    its loop loaded (or compiled) by a short run first, so that the run's CPU
+    time is its steps'."""
     model = hfdi.models.get(problem, **(params or {}))
     t_end = experiment(problem).observation_time if t_end is None else t_end
-    return model, integrate(model, scheme, t_end, target, rtol, progress=progress)
+    if compiled:
+        integrate(model, scheme, 1e-6 * t_end, target, rtol, compiled=None)
+    return model, integrate(model, scheme, t_end, target, rtol, progress=progress,
+                            compiled=None if compiled else False)
 
 
 def integrate(model, scheme: str, t_end: float, target=None, rtol=None, atol=None,
@@ -161,21 +167,23 @@ def problem_reference(problem: str, t_end=None, params=None, rtol=1e-12, atol_fa
 
 
 def table_run(problem: str, scheme: str, target: float | None, t_end=None, params=None,
-              eps_rtol=1e-12, rtol=None, progress=None) -> RunRecord:
+              eps_rtol=1e-12, rtol=None, progress=None, compiled=False) -> RunRecord:
     """One run of a table and its record, with ``ε`` against the rtol
-    ``eps_rtol`` reference (:func:`problem_reference`; none when ``None``).
+    ``eps_rtol`` reference (:func:`problem_reference`; none when ``None``);
+    ``compiled`` as in :func:`run_experiment`.
 
     The unit of work of :func:`run_tables`: a module-level function of plain
     arguments, so that it runs the same in a worker process.
     """
-    model, result = run_experiment(problem, scheme, target, t_end, params, rtol, progress)
+    model, result = run_experiment(problem, scheme, target, t_end, params, rtol, progress,
+                                   compiled)
     reference = None if eps_rtol is None else problem_reference(problem, t_end, params, eps_rtol)
     return make_record(problem, scheme, target, model, result, reference, rtol)
 
 
 def run_tables(problems, schemes=PAPER_SCHEMES, targets=None, t_end=None, params=None,
                eps=True, runner=None, progress=None, say=None, rtols=None,
-               run_progress=None) -> dict:
+               run_progress=None, compiled=False) -> dict:
     """Every run of the paper's tables of several problems (their targets unless
     ``targets``), each record with ``ε`` (Eq. 42) of every quantity of interest
     of its model when ``eps``.
@@ -206,6 +214,9 @@ def run_tables(problems, schemes=PAPER_SCHEMES, targets=None, t_end=None, params
         ``run_progress(label)`` returns the ``progress(t, statistics)``
         callback of :func:`hfdi.integrate` for the run ``label``; used when the
         runs are made in this process (a worker's output is not shown).
+    compiled : bool
+        Take the steps in compiled code where the model allows
+        (:func:`run_experiment`); the steps and N̄ are the same.
 
     Returns
     -------
@@ -235,14 +246,15 @@ def run_tables(problems, schemes=PAPER_SCHEMES, targets=None, t_end=None, params
         for scheme in schemes:
             for target in (targets or ([None] if rtols else exp.table_targets(scheme))):
                 for rtol in (rtols or [None]):
-                    task = (problem, scheme, None if target is None else float(target),
-                            t_end, params, 1e-12 if eps else None, rtol)
+                    progress_of_run = None
                     if run_progress is not None and not runner.parallel:
                         label = "/".join(f"{k}={v:g}" for k, v in (("N̄", target),
                                                                     ("rtol", rtol))
                                          if v is not None)
-                        task += (run_progress(f"{problem} {scheme} {label}"),)
-                    tasks.append(task)
+                        progress_of_run = run_progress(f"{problem} {scheme} {label}")
+                    tasks.append((problem, scheme, None if target is None else float(target),
+                                  t_end, params, 1e-12 if eps else None, rtol,
+                                  progress_of_run, bool(compiled)))
     records = runner.map(table_run, tasks,
                          on_result=None if progress is None else lambda i, r: progress(r))
     tables = {problem: [] for problem in problems}
