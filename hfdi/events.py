@@ -284,13 +284,19 @@ class Events:
                 # on the side a crossing in the event's direction ends on: a
                 # flight shorter than the look (a ball sent up from the floor
                 # at 1e-6 m/s) may have left to the other side and come back
-                # before it, unseen (the ball then fell through the floor)
+                # before it, unseen (the ball then fell through the floor).
+                # Only a move away from where g really is at t0 is a flight:
+                # the state a step landed at lies a little off the zero (its
+                # own error), on either side, and g passing on through the
+                # zero from there is no new crossing
+                g_start = self.value(i, t0, *map(_read_only, (u0, v0)))
                 for share in NEARER:
                     near = t0 + share * (after - t0)
                     if not near > t0:
                         break
                     g_near = self.value(i, near, *map(_read_only, state(near)))
-                    if g_near * leaving < 0:
+                    if g_near * leaving < 0 and (g_start * leaving >= 0
+                                                 or abs(g_near) > abs(g_start)):
                         left_t[i], left_g[i] = near, g_near
                         break
         active = self.active(left_g, g1)

@@ -1135,6 +1135,28 @@ def test_a_parameter_assigned_between_calls_is_followed_by_both_speeds(scheme):
     assert np.abs(ends[True] - unchanged.state.u).max() > 1e-7
 
 
+def test_what_counts_as_a_change_of_a_built_in_model():
+    """The constructors' names (a subclass's own __init__ included) and the
+    attributes a model declares: counted once each change; the same value
+    again, or an attribute of a subclass's own, is no change."""
+    from hfdi.models.dumbbell import Dumbbell
+    from hfdi.models.impact_oscillator import ImpactOscillator
+
+    class Scaled(Dumbbell):
+        def __init__(self, scale=1.0, **parameters):
+            super().__init__(**parameters)
+            self.scale = scale
+
+    for model, name, value in ((Scaled(), "A", 4e6), (Scaled(), "scale", 2.0),
+                               (ImpactOscillator(), "stiffness_value", 400.0)):
+        before = model.parameter_version
+        setattr(model, name, getattr(model, name))
+        model.calls = 1
+        assert model.parameter_version == before, name
+        setattr(model, name, value)
+        assert model.parameter_version == before + 1, name
+
+
 def test_the_library_kernels_skip_the_check_that_others_pass(monkeypatch):
     """The paper models' kernels are held to their Python methods by this
     suite; comparing them again at every construction cost up to 1.8 ms. A

@@ -300,6 +300,23 @@ def test_a_rebound_shorter_than_the_first_look_is_seen(mode):
     np.testing.assert_allclose(r.t_events[0], [t1, t1 + 2e-6 / G], rtol=0, atol=5e-9)
 
 
+def test_a_zero_passed_through_after_on_event_counts_once():
+    """on_event answering without a reset: the step lands on the zero, a
+    little off it (its own error), and g goes on through. The nearer looks
+    took that offset for a flight: every zero counted twice."""
+    duffing = hfdi.System([1.0], lambda u: u + 5 * u ** 3,
+                          lambda u: np.array([[1 + 15 * u[0] ** 2]]),
+                          lambda u, w: np.array([[30 * u[0] * w[0]]]),
+                          initial_displacement=[1.0])
+    floor = lambda t, u, v: u[0]        # noqa: E731
+    floor.direction = -1
+    answered = hfdi.integrate(duffing, "hfdi", 15.0, rtol=1e-4, events=floor,
+                              on_event=lambda t, u, v, which: None)
+    plain = hfdi.integrate(duffing, "hfdi", 15.0, rtol=1e-4, events=floor)
+    assert answered.t_events[0].size == plain.t_events[0].size == 5
+    np.testing.assert_allclose(answered.t_events[0], plain.t_events[0], rtol=0, atol=1e-6)
+
+
 @pytest.mark.parametrize("mode", MODES[1:])
 def test_a_bouncing_ball_stops_at_its_zeno_point_in_every_mode(mode):
     """Restitution 0.5: error control stopped at the Zeno point; with a fixed

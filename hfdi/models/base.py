@@ -42,13 +42,29 @@ class length_scale:                                  # noqa: N801 - used as a de
 
 
 @functools.lru_cache(maxsize=None)
-def _constructor_parameters(cls) -> frozenset:
-    """The names ``cls``'s constructor takes: the model's parameters."""
+def _parameter_names(cls) -> frozenset:
+    """The model's parameters: the names the constructors of ``cls`` and of
+    its bases take (a subclass's own ``__init__`` passes theirs on), and its
+    ``PARAMETER_ATTRIBUTES``."""
+    names = set()
+    for klass in cls.__mro__:
+        init = vars(klass).get("__init__")
+        if init is None:
+            continue
+        try:
+            signature = inspect.signature(init)
+        except (TypeError, ValueError):
+            continue
+        names.update(name for name, p in signature.parameters.items()
+                     if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
+    return frozenset(names.union(getattr(cls, "PARAMETER_ATTRIBUTES", ())) - {"self"})
+
+
+def _same(old, new) -> bool:
     try:
-        names = inspect.signature(cls.__init__).parameters
-    except (TypeError, ValueError):
-        return frozenset()
-    return frozenset(names) - {"self"}
+        return bool(np.array_equal(old, new))
+    except Exception:       # noqa: BLE001 - values that do not compare are changes
+        return False
 
 
 class KernelModel(SecondOrderSystem):
@@ -69,13 +85,17 @@ class KernelModel(SecondOrderSystem):
     FIXED_PARAMETERS: tuple = ()
     load_rate = None
     damping = None
-    #: Counts the assignments of the model's parameters (the names its
-    #: constructor takes, ``m.sigma = 0.8``): an integrator seeing it move
-    #: calls its ``model_changed()`` before its next step, so that both speeds
-    #: follow the change at once, with ``f``, ``a`` and ``V`` recomputed (the
-    #: compiled kernels read the parameters as data handed to them). Other
-    #: attributes (a subclass's counters, caches) are not the model's physics.
+    #: Counts the changes of the model's parameters (the names its
+    #: constructors take and :attr:`PARAMETER_ATTRIBUTES`, ``m.sigma = 0.8``):
+    #: an integrator seeing it move calls its ``model_changed()`` before its
+    #: next step, so that both speeds follow the change at once, with ``f``,
+    #: ``a`` and ``V`` recomputed (the compiled kernels read the parameters as
+    #: data handed to them). Other attributes (a subclass's counters, caches)
+    #: are not the model's physics; a value assigned again is no change.
     parameter_version = 0
+    #: Attributes the kernels' data are built from whose names the
+    #: constructor does not take (``stiffness_value`` for ``stiffness``).
+    PARAMETER_ATTRIBUTES: tuple = ()
 
     def __setattr__(self, name, value):
         if name in self.FIXED_PARAMETERS:
@@ -91,8 +111,10 @@ class KernelModel(SecondOrderSystem):
                 f"{self.name} {name} is derived from the model's parameters and cannot be "
                 f"assigned: build a model with other parameters, hfdi.models.get({self.name!r}, "
                 f"...)")
+        missing = object()
+        old = self.__dict__.get(name, missing)
         super().__setattr__(name, value)
-        if name in _constructor_parameters(type(self)):
+        if name in _parameter_names(type(self)) and (old is missing or not _same(old, value)):
             super().__setattr__("parameter_version", self.parameter_version + 1)
 
     def __setstate__(self, state):

@@ -52,6 +52,10 @@ class ImpactOscillator(KernelModel):
         "stop_time": 3.0,
     }
 
+    #: the constructor's ``stiffness``, under a name of its own (``stiffness``
+    #: is the method)
+    PARAMETER_ATTRIBUTES = ("stiffness_value",)
+
     def __init__(self, mass=1.0, stiffness=4.0 * math.pi ** 2, gap=0.08, restitution=0.7,
                  u0=0.0, v0=1.0):
         mass = checks.positive("impact_oscillator mass", mass)
