@@ -226,7 +226,7 @@ def integrate(system: SecondOrderSystem, scheme, t_end, *, rtol=None, atol=None,
 #: this many times its tolerance says so in its message (its status stays
 #: SUCCESS: it did what rtol asks of each step). Controlling ``u`` alone on a
 #: pendulum released near the top (u0 = 3, to t = 40) left ``u``'s error at
-#: 32-190 times rtol, estimated at 17-185, where ``(u, v)`` stays within 5.
+#: 32-187 times rtol, estimated at 17-185, where ``(u, v)`` stays within 5.
 SAY_GLOBAL_ABOVE = 10.0
 
 #: The start of the message of a run that progress ended.
