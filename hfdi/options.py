@@ -7,6 +7,8 @@ import copy
 import math
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from . import checks
 from .controller import (DEFAULT_RTOL, TOL_RANGE, Combined, Controller, ErrorControl, FixedStep,
@@ -163,31 +165,65 @@ LOAD_SAMPLES = 17
 
 def load_response_scale(ev, K0, t0, span) -> float | None:
     """The displacement the model's own load drives from rest: the largest
-    ``p̂_i / (|K_ii| + 2 M_ii/τ²)``, ``p̂_i`` the largest ``|p_i|`` at
-    :data:`LOAD_SAMPLES` times of the span ``τ`` of the error control (at
-    ``t0`` alone, ``τ = 1``, when it is not known), ``K = K(u0)``: the static
-    deflection of a stiff degree of freedom, the free flight ``p τ²/(2M)``
-    of a soft one. ``None`` without a load. The model's load only, not an
+    ``|x|`` of ``(K + 2M/τ²) x = p(t)`` over :data:`LOAD_SAMPLES` times of
+    the span ``τ`` of the error control (at ``t0`` alone, ``τ = 1``, when it
+    is not known), ``K = K(u0)``: the static deflection of the stiff modes,
+    the free flight ``p τ²/(2M)`` of the soft ones. The whole matrices, not
+    their diagonals: where stiff springs couple the degrees of freedom, the
+    diagonal is the stiff modes' and the slow mode's deflection is orders of
+    magnitude larger (docs/algorithm.md, "Tolerance proportionality").
+    No larger than the free flight ``‖p‖₂ τ²/(2 λ_min(M))`` (the bound for a
+    positive semi-definite ``K``; an indefinite one may make the matrix
+    singular), and the diagonal's ``p_i/(|K_ii| + 2M_ii/τ²)`` where the
+    solve fails. ``None`` without a load. The model's load only, not an
     ``extra_load`` (an FMU's inputs: the scale is the model's); samples
     where it cannot be evaluated or is not a finite (N,) vector are left out."""
     times = [t0] if span is None else np.linspace(t0, t0 + span, LOAD_SAMPLES)
-    largest = np.zeros(ev.n)
+    loads = []
     for t in times:
         try:
-            value = np.abs(np.asarray(ev.system.load(float(t)), dtype=float))
+            value = np.asarray(ev.system.load(float(t)), dtype=float)
         except Exception:           # a load that fails later fails in the run
             continue
-        if value.shape == largest.shape and np.all(np.isfinite(value)):
-            np.maximum(largest, value, out=largest)
-    if not largest.any():
+        if value.shape == (ev.n,) and np.all(np.isfinite(value)) and value.any():
+            loads.append(value)
+    if not loads:
         return None
+    P = np.column_stack(loads)
     tau = span if span is not None else 1.0
-    stiffness = np.abs(np.asarray(K0.diagonal()).ravel())
+    shift = 2.0 / (tau * tau)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        response = largest / (stiffness + 2.0 * ev.mass_diagonal / (tau * tau))
-    response = response[np.isfinite(response)]
-    scale = float(response.max(initial=0.0))
+        response = _static_response(ev, K0, shift, P)
+        if response is None:
+            stiffness = np.abs(np.asarray(K0.diagonal()).ravel())
+            response = np.abs(P).max(axis=1) / (stiffness + shift * ev.mass_diagonal)
+        response = response[np.isfinite(response)]
+        scale = float(response.max(initial=0.0))
+        floor = ev.mass_floor()
+        if floor > 0.0:
+            scale = min(scale, float(np.linalg.norm(P, axis=0).max()) / (shift * floor))
     return scale if scale > 0.0 else None
+
+
+def _static_response(ev, K0, shift, P):
+    """``|x|`` (N,), the largest over the columns of ``(K0 + shift M) X = P``;
+    ``None`` where the matrix is singular or the solve not finite."""
+    M = ev.mass
+    try:
+        if sp.issparse(K0) or sp.issparse(M):
+            A = sp.csc_matrix(K0, dtype=float) + shift * (
+                sp.diags(M) if M.ndim == 1 else sp.csc_matrix(M))
+            X = spla.splu(sp.csc_matrix(A)).solve(P)
+        else:
+            A = np.array(K0, dtype=float)
+            if M.ndim == 1:
+                A[np.diag_indices_from(A)] += shift * M
+            else:
+                A += shift * M
+            X = np.linalg.solve(A, P)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        return None
+    return np.abs(X).max(axis=1) if np.all(np.isfinite(X)) else None
 
 
 def fit_error_control(controller, span, u0, v0, u_scale, load_scale=None):

@@ -351,6 +351,22 @@ def test_the_load_scale_of_a_model_at_rest():
     assert atol_u(declared, t_bound=4.0) == pytest.approx(1.0)
 
 
+def test_the_load_scale_of_a_coupled_model_at_rest_is_its_motion():
+    """Stiff springs coupling two degrees of freedom put ``1e8`` on both
+    diagonal entries of ``K`` while the slow mode (ω = 1) moves by about 1:
+    the default ``atol``'s scale of ``u`` is of the order of the motion the
+    load drives (the whole ``K``), not the diagonal's 1e-8 of it."""
+    theta = 0.3
+    R = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    K = R @ np.diag([1.0, 1e8]) @ R.T
+    model = hfdi.LinearSystem(np.eye(2), K, 0.02 * R @ np.diag([1.0, 1e4]) @ R.T,
+                              load=_push_first)
+    rtol, span = 1e-4, 10.0
+    U = hfdi.Integrator(model, "hfdi", rtol=rtol, t_bound=span).tolerances[1][0] / (1e-3 * rtol)
+    motion = np.abs(hfdi.integrate(model, "hfdi", span, rtol=rtol).u).max()
+    assert 0.2 <= U / motion <= 5.0, (U, motion)
+
+
 @functools.lru_cache(maxsize=None)
 def _structure_at_rest():
     """``(M, K, C, times, u at times)`` of a stiff structure at rest under a
@@ -711,6 +727,11 @@ def _held_load(t):
 @njit
 def _fast_sine_load(t):
     return np.array([np.sin(2000 * t), 0.0])
+
+
+@njit
+def _push_first(t):
+    return np.array([1.0, 0.0])
 
 
 @njit
