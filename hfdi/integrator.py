@@ -547,7 +547,8 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
             When the model cannot be evaluated at the current state (the
             integrator is then left as it was).
         ValueError
-            When the model's ``mass`` or ``damping`` changed: they are read
+            When the model's ``mass`` or ``damping`` changed, or HFDI's model
+            gained or lost its ``load_rate``: they are read (the rate chosen)
             once, at construction; a new ``Integrator`` takes them (and
             :meth:`set_state` the state reached).
         """
@@ -558,6 +559,14 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                 f"the {changed} of model {type(self.system).__name__} changed after the "
                 f"integrator was built, which reads M and C once: build a new Integrator "
                 f"for the new matrices (set_state carries the state reached over)")
+        if isinstance(self.scheme, HFDI) and \
+                self.scheme.exact_rate(self.ev.has_load_rate) != bool(self._cfg.exact_rate):
+            now = "given" if self.ev.has_load_rate else "removed"
+            raise ValueError(
+                f"the load_rate of model {type(self.system).__name__} was {now} after the "
+                f"integrator was built, which chooses HFDI's load rate (the model's p' or one "
+                f"it derives) once: build a new Integrator (set_state carries the state "
+                f"reached over)")
         try:
             potential = self.ev.potential_energy(self._vec.u)
         except ModelError:

@@ -1135,6 +1135,36 @@ def test_a_parameter_assigned_between_calls_is_followed_by_both_speeds(scheme):
     assert np.abs(ends[True] - unchanged.state.u).max() > 1e-7
 
 
+@njit
+def _sine_load(t):
+    return np.array([np.sin(t)])
+
+
+@njit
+def _sine_load_rate(t):
+    return np.array([np.cos(t)])
+
+
+@pytest.mark.parametrize("told", [True, False], ids=["model_changed", "assigned"])
+def test_a_load_rate_removed_between_calls_is_refused_by_both_speeds(told):
+    """``m.load_rate = None`` after HFDI chose the model's exact rate: the
+    compiled run crashed in numba (AttributeError), the Python path failed
+    after 30 halvings calling None. Both now refuse it with a ValueError that
+    names the load_rate, as a changed mass is refused, and the run is left at
+    the state it reached."""
+    for compiled in (False, True):
+        model = hfdi.LinearSystem(np.array([1.0]), np.array([[4.0]]), load=_sine_load,
+                                  load_rate=_sine_load_rate)
+        itg = hfdi.Integrator(model, "hfdi", rtol=1e-6, compiled=compiled)
+        assert itg.advance(1.0)
+        reached = itg.state.u.copy()
+        model.load_rate = None
+        with pytest.raises(ValueError, match="load_rate of model LinearSystem was removed"):
+            itg.model_changed() if told else itg.advance(2.0)
+        assert itg.t == 1.0
+        np.testing.assert_array_equal(itg.state.u, reached)
+
+
 def test_what_counts_as_a_change_of_a_built_in_model():
     """The constructors' names (a subclass's own __init__ included) and the
     attributes a model declares: counted once each change; the same value
