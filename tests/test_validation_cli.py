@@ -117,6 +117,27 @@ def test_table_compiled_takes_the_same_steps(tmp_path, monkeypatch):
         [{k: r[k] for k in same} for r in records[True]]
 
 
+def test_the_runs_of_all_and_figures_take_compiled(monkeypatch):
+    """``all --compiled`` and ``figures --compiled`` hand it to every run of
+    the problem (ProblemRuns): the same steps and N̄, the steps compiled."""
+    import validation.runs as runs
+    asked = []
+
+    def integrate(*args, compiled=False, **kwargs):
+        asked.append(compiled)
+        return hfdi_integrate(*args, compiled=compiled, **kwargs)
+    hfdi_integrate = runs.integrate
+    monkeypatch.setattr(runs, "integrate", integrate)
+    results = {}
+    for compiled in (False, True):
+        ctx = runs.ProblemRuns("dumbbell", ("hfdi",), (3.0,), t_end=0.2, compiled=compiled)
+        results[compiled] = ctx.run("hfdi", 3.0)
+    # the Python path's run, then the compiled one's loading run and its run
+    assert asked == [False, None, None]
+    assert results[True].stats.steps == results[False].stats.steps
+    assert results[True].stats.mean_iterations == results[False].stats.mean_iterations
+
+
 @pytest.mark.parametrize("bad", ["0.5", "1e-20", "x", ""])
 def test_table_rtol_out_of_range_is_one_line(bad, capsys):
     with pytest.raises(SystemExit) as exit_:

@@ -178,6 +178,10 @@ def test_all_writes_the_report_and_resumes(tmp_path, capsys):
     changed = {p for p in outputs if p.stat().st_mtime_ns != stamps[p]}
     assert changed == {lost, out / "report.md"}
 
+    # outputs of the Python path are not resumed by compiled runs (t_T differs)
+    assert main(args + ["--compiled"]) == 2
+    assert "compiled: None there, True now" in capsys.readouterr().err
+
     # other settings in the same directory: refused in one line
     assert main(["all", "--out", str(out), "--problems", "dumbbell", "--t-end", "0.3"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -23,6 +23,11 @@ _OTHER_TARGETS = (f"{', '.join(s for s in SCHEME_ORDER if s not in PAPER_SCHEMES
                   f"{','.join(format(t, 'g') for t in OTHER_SCHEME_TARGETS)}")
 
 
+_COMPILED_HELP = ("take the steps in compiled code where the model allows (the same steps "
+                  "and N̄; t_T then measures compiled code; default: the Python path, as the "
+                  "tables in docs/results.md)")
+
+
 def _run_options(parser):
     """The options that choose the runs of ``figures`` and ``all``."""
     parser.add_argument("--schemes", type=opt.schemes, default=list(PAPER_SCHEMES),
@@ -35,6 +40,7 @@ def _run_options(parser):
     parser.add_argument("--long-t-end", type=opt.positive, default=None,
                         help="end time of the long energy runs of Figs. 7 and 18 (default: "
                              "--t-end when given, else the paper's 10 and 3)")
+    parser.add_argument("--compiled", action="store_true", help=_COMPILED_HELP)
 
 
 def build_parser():
@@ -60,10 +66,7 @@ def build_parser():
                        help="write the runs as CSV")
     table.add_argument("--no-eps", action="store_true",
                        help="skip the IDA reference and the error norms")
-    table.add_argument("--compiled", action="store_true",
-                       help="take the steps in compiled code where the model allows (the "
-                            "same steps and N̄; t_T then measures compiled code; default: "
-                            "the Python path, as the tables in docs/results.md)")
+    table.add_argument("--compiled", action="store_true", help=_COMPILED_HELP)
     opt.add_parallel_options(table)
     sub.add_parser("models", help="list the models, their parameters, T_o and the paper's targets")
     figures = sub.add_parser("figures", help="the paper's figures of one problem as PNG files")
@@ -194,7 +197,7 @@ def _figures(args):
     out = out_dir(args.out)
     progress = Progress(checkpoint=opt.raise_if_interrupted)
     ctx = ProblemRuns(args.problem, args.schemes, args.targets, args.t_end, args.long_t_end,
-                      progress=progress)
+                      progress=progress, compiled=args.compiled)
     written = write_figures(ctx, out)
     for _, path, _ in written:
         print(path)
@@ -229,7 +232,7 @@ def _all(args):
         try:
             report = run_all(out, args.problems, args.schemes, args.targets, args.t_end,
                              args.long_t_end, args.ratios or list(DEFAULT_RATIOS), args.force,
-                             progress, runner=runner)
+                             progress, runner=runner, compiled=args.compiled)
         except SettingsMismatch as exc:
             raise UsageError(str(exc)) from None
     progress.say(f"done: {report}")

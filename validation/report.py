@@ -401,9 +401,10 @@ def _check_settings(out: Path, settings: dict, force: bool) -> dict:
         except (OSError, ValueError):
             saved = {}
     if saved and not force and saved.get("settings") != settings:
-        diff = ", ".join(f"{k}: {saved.get('settings', {}).get(k)!r} there, {v!r} now"
-                         for k, v in settings.items()
-                         if saved.get("settings", {}).get(k) != v)
+        there = saved.get("settings", {})
+        diff = ", ".join(f"{k}: {there.get(k)!r} there, {settings.get(k)!r} now"
+                         for k in [*settings, *(k for k in there if k not in settings)]
+                         if there.get(k) != settings.get(k))
         raise SettingsMismatch(f"{out} holds outputs made with other settings ({diff}); "
                                "use --force to redo them or choose another --out")
     return saved
@@ -436,16 +437,18 @@ def _existing(out: Path, problem: str | None, skip: bool) -> dict:
             "convergence": skip and (out / f"{problem}_reference_convergence.json").exists()}
 
 
-def _problem_outputs(problem, schemes, targets, t_end, long_t_end, out, existing, write,
-                     progress) -> bool:
-    """The table, figures and reference convergence of one problem.
+def _problem_outputs(problem, schemes, targets, t_end, long_t_end, out, existing, compiled,
+                     write, progress) -> bool:
+    """The table, figures and reference convergence of one problem, the runs
+    compiled or not (:class:`validation.runs.ProblemRuns`).
 
     ``write(name, data)`` writes one output (``name`` relative to ``out``);
     outputs listed in ``existing`` (:func:`_existing`) are skipped. Returns
     whether anything was written.
     """
     out = Path(out)
-    ctx = ProblemRuns(problem, schemes, targets, t_end, long_t_end, progress=progress)
+    ctx = ProblemRuns(problem, schemes, targets, t_end, long_t_end, progress=progress,
+                      compiled=compiled)
     wrote = False
     table = out / f"{problem}_table.json"
     if existing["table"] is not None:
@@ -498,7 +501,7 @@ def _stability_outputs(ratios, out, existing, write, progress, schemes=PAPER_SCH
 
 def _all_task(kind, *args) -> dict:
     """One task of a parallel :func:`run_all`, run in a worker: ``("problem",
-    name, schemes, targets, t_end, long_t_end, out, existing)`` or
+    name, schemes, targets, t_end, long_t_end, out, existing, compiled)`` or
     ``("stability", ratios, out, existing, schemes)``. Returns the outputs as bytes
     (``files``: name → data, in the order made), the progress lines and, for
     the stability, its rows."""
@@ -519,7 +522,7 @@ def _all_task(kind, *args) -> dict:
 
 def run_all(out, problems=None, schemes=PAPER_SCHEMES, targets=None, t_end=None,
             long_t_end=None, ratios=DEFAULT_RATIOS, force=False, progress=None,
-            runner=None) -> Path:
+            runner=None, compiled=False) -> Path:
     """Every table, figure, the stability outputs and ``report.md`` into ``out``.
 
     Parameters
@@ -542,6 +545,10 @@ def run_all(out, problems=None, schemes=PAPER_SCHEMES, targets=None, t_end=None,
         Runs each problem and the stability outputs as tasks (see the module
         docstring); default: one after the other in this process, each output
         written as soon as it is made.
+    compiled : bool
+        Take the runs' steps in compiled code where the model allows (the same
+        steps and ``N̄``; ``t_T`` then of compiled code). A setting: an ``out``
+        made the other way is not resumed.
 
     Returns
     -------
@@ -562,6 +569,9 @@ def run_all(out, problems=None, schemes=PAPER_SCHEMES, targets=None, t_end=None,
     settings = {"schemes": list(schemes), "targets": None if targets is None else
                 [float(t) for t in targets], "t_end": t_end, "long_t_end": long_t_end,
                 "ratios": [float(r) for r in ratios]}
+    if compiled:
+        # only when set: outputs made before the setting existed resume as they were
+        settings["compiled"] = True
     saved = _check_settings(out, settings, force)
     write_output(out / SETTINGS_FILE, json.dumps(
         {"settings": settings, "report_problems": saved.get("report_problems")}, indent=1))
@@ -577,13 +587,14 @@ def run_all(out, problems=None, schemes=PAPER_SCHEMES, targets=None, t_end=None,
         wrote = False
         for problem in problems:
             wrote |= _problem_outputs(problem, schemes, targets, t_end, long_t_end, out,
-                                      _existing(out, problem, skip), write, progress)
+                                      _existing(out, problem, skip), bool(compiled), write,
+                                      progress)
         rows, written = _stability_outputs(ratios, out, _existing(out, None, skip), write,
                                            progress, stability_schemes(schemes))
         wrote |= written
     else:
         tasks = [("problem", p, list(schemes), targets, t_end, long_t_end, str(out),
-                  _existing(out, p, skip))
+                  _existing(out, p, skip), bool(compiled))
                  # longest first (Experiment.cost), so that the workers finish together
                  for p in sorted(problems, key=lambda p: -experiment(p).cost)]
         tasks.append(("stability", ratios, str(out), _existing(out, None, skip),

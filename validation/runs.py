@@ -340,11 +340,15 @@ class ProblemRuns:
     params : dict, optional
         Model parameters.
     progress : Progress, optional
+    compiled : bool
+        Take the runs' steps in compiled code where the model allows
+        (:func:`run_experiment`): the same steps, ``t_T`` then of compiled code.
     """
 
     def __init__(self, problem, schemes=PAPER_SCHEMES, targets=None, t_end=None,
-                 long_t_end=None, params=None, progress=None):
+                 long_t_end=None, params=None, progress=None, compiled=False):
         self.problem = problem
+        self.compiled = bool(compiled)
         self.params = dict(params or {})
         self.model = hfdi.models.get(problem, **self.params)
         self.schemes = tuple(schemes)
@@ -375,7 +379,8 @@ class ProblemRuns:
         key = (scheme, float(target), t_end)
         if key not in self._runs:
             start = time.perf_counter()
-            _, result = run_experiment(self.problem, scheme, float(target), t_end, self.params)
+            _, result = run_experiment(self.problem, scheme, float(target), t_end, self.params,
+                                       compiled=self.compiled)
             st = result.stats
             self.progress.say(
                 f"run {self.problem} {run_label(scheme, target, plain=True)} "
