@@ -317,6 +317,31 @@ def test_a_zero_passed_through_after_on_event_counts_once():
     np.testing.assert_allclose(answered.t_events[0], plain.t_events[0], rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("scheme", schemes_quick("hfdi", "generalized_alpha"))
+@pytest.mark.parametrize("mode", [pytest.param(dict(rtol=1e-3), id="error"),
+                                  pytest.param(dict(step=0.05), id="fixed")])
+@pytest.mark.parametrize("answer", [lambda t, u, v, which: None,
+                                    lambda t, u, v, which: (u, v)], ids=["None", "same"])
+def test_a_zero_the_landed_state_falls_short_of_counts_once(scheme, mode, answer):
+    """u = cos 3t through u = 0.9 downwards: where on_event is asked the step
+    lands on the zero, a little before it (its own error), and g goes on to
+    it. That passing was counted as a new zero, 2e-8 to 2e-3 s later: 6
+    zeros instead of 3, and terminal=3 stopped at the second."""
+    oscillator = hfdi.LinearSystem([1.0], [9.0], initial_displacement=[1.0])
+    level = lambda t, u, v: u[0] - 0.9        # noqa: E731
+    level.direction = -1
+    exact = (np.arccos(0.9) + 2 * np.pi * np.arange(3)) / 3
+    plain = hfdi.integrate(oscillator, scheme, 5.0, events=level, **mode)
+    answered = hfdi.integrate(oscillator, scheme, 5.0, events=level, on_event=answer, **mode)
+    assert plain.t_events[0].size == answered.t_events[0].size == 3
+    late = 5e-3 if "rtol" in mode else 2e-2      # the schemes' phase error at that step
+    np.testing.assert_allclose(answered.t_events[0], exact, rtol=0, atol=late)
+    level.terminal = 3
+    stopped = hfdi.integrate(oscillator, scheme, 5.0, events=level, on_event=answer, **mode)
+    assert stopped.status == hfdi.Status.TERMINATED
+    np.testing.assert_allclose(stopped.t[-1], exact[2], rtol=0, atol=late)
+
+
 @pytest.mark.parametrize("mode", MODES[1:])
 def test_a_bouncing_ball_stops_at_its_zeno_point_in_every_mode(mode):
     """Restitution 0.5: error control stopped at the Zeno point; with a fixed
