@@ -235,6 +235,9 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         # a model that counts the changes of its parameters (EnergyModel): the
         # integrator follows them (model_changed) before its next step
         self._model_version = getattr(system, "parameter_version", None)
+        # the load rate the run chose with (a System's or LinearSystem's is
+        # assigned, not counted): another one is followed as a change
+        self._load_rate_seen = system.load_rate
         if isinstance(self.scheme, HFDI) and self.scheme.load_rate == "exact" \
                 and not ev.has_load_rate:
             why = "extra_load is given" if system.load_rate is not None else \
@@ -580,6 +583,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         run.potential = potential
         run.newton_constant = run.newton_guard = math.inf     # measured on the model as it was
         self._model_version = getattr(self.system, "parameter_version", None)
+        self._load_rate_seen = self.system.load_rate
         if self._compiled_call is not None:
             compiled_path.follow_model(self)
 
@@ -600,9 +604,13 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
                              f"(t = {run.t:.10g}): {message}")
 
     def _follow_model(self) -> bool:
-        """:meth:`model_changed` if the model's ``parameter_version`` moved;
-        ``False`` (status MODEL_ERROR) when the changed model fails there."""
-        if self._model_version is None or self.system.parameter_version == self._model_version:
+        """:meth:`model_changed` if the model's ``parameter_version`` moved or
+        its ``load_rate`` is another one; ``False`` (status MODEL_ERROR) when
+        the changed model fails there."""
+        # == and not `is`: a model's method is a new bound method at each access
+        if (self._model_version is None
+                or self.system.parameter_version == self._model_version) \
+                and self.system.load_rate == self._load_rate_seen:
             return True
         try:
             self.model_changed()

@@ -175,9 +175,11 @@ def load_response_scale(ev, K0, t0, span) -> float | None:
     No larger than the free flight ``‖p‖₂ τ²/(2 λ_min(M))`` (the bound for a
     positive semi-definite ``K``; an indefinite one may make the matrix
     singular), and the diagonal's ``p_i/(|K_ii| + 2M_ii/τ²)`` where the
-    solve fails. ``None`` without a load. The model's load only, not an
-    ``extra_load`` (an FMU's inputs: the scale is the model's); samples
-    where it cannot be evaluated or is not a finite (N,) vector are left out."""
+    solve fails or no positive bound of ``λ_min(M)`` is known (a sparse ``M``
+    that Gershgorin's bound cannot certify). ``None`` without a load. The
+    model's load only, not an ``extra_load`` (an FMU's inputs: the scale is
+    the model's); samples where it cannot be evaluated or is not a finite
+    (N,) vector are left out."""
     times = [t0] if span is None else np.linspace(t0, t0 + span, LOAD_SAMPLES)
     loads = []
     for t in times:
@@ -192,14 +194,16 @@ def load_response_scale(ev, K0, t0, span) -> float | None:
     P = np.column_stack(loads)
     tau = span if span is not None else 1.0
     shift = 2.0 / (tau * tau)
+    floor = ev.mass_floor()
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        response = _static_response(ev, K0, shift, P)
+        # without a positive bound of λ_min(M) nothing bounds the solve's
+        # answer (K may cancel 2M/τ²): the diagonal's
+        response = _static_response(ev, K0, shift, P) if floor > 0.0 else None
         if response is None:
             stiffness = np.abs(np.asarray(K0.diagonal()).ravel())
             response = np.abs(P).max(axis=1) / (stiffness + shift * ev.mass_diagonal)
         response = response[np.isfinite(response)]
         scale = float(response.max(initial=0.0))
-        floor = ev.mass_floor()
         if floor > 0.0:
             scale = min(scale, float(np.linalg.norm(P, axis=0).max()) / (shift * floor))
     return scale if scale > 0.0 else None

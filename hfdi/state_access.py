@@ -102,7 +102,9 @@ class StateAccess:
         if refresh:
             try:
                 self.model_changed()
-            except ModelError:
+            except (ModelError, ValueError):
+                # a model that fails there, or whose matrices or load rate
+                # changed: the integrator as it was
                 run, self._message, self._model_version, state = before
                 self._restore(state)
                 self._run = run

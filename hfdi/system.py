@@ -205,9 +205,6 @@ class System(SecondOrderSystem):
         self._t = stiffness_derivative
         self._p = load
         self._load_rate = load_rate
-        #: Counts the assignments of ``load_rate`` (the integrator follows
-        #: them, :meth:`hfdi.Integrator.model_changed`)
-        self.parameter_version = 0
         self._v = potential_energy
         self._q = quantities
         self.name = name
@@ -241,7 +238,6 @@ class System(SecondOrderSystem):
     @load_rate.setter
     def load_rate(self, rate):
         self._load_rate = checks.callable_or_none("System load_rate", rate, "p'(t) -> (N,)")
-        self.parameter_version += 1
 
     def stiffness(self, u):
         return self._k(u)
@@ -303,11 +299,7 @@ class LinearSystem(SecondOrderSystem):
             self._K = np.diag(k) if k.ndim == 1 else k
             self._T = np.zeros((n, n))
         self._p = checks.callable_or_none("LinearSystem load", load, "p(t) -> (N,)")
-        self._load_rate = checks.callable_or_none("LinearSystem load_rate", load_rate,
-                                                  "p'(t) -> (N,)")
-        #: Counts the assignments of ``load_rate`` (the integrator follows
-        #: them, :meth:`hfdi.Integrator.model_changed`)
-        self.parameter_version = 0
+        self.load_rate = load_rate
 
     @property
     def load_rate(self):
@@ -318,7 +310,6 @@ class LinearSystem(SecondOrderSystem):
     def load_rate(self, rate):
         self._load_rate = checks.callable_or_none("LinearSystem load_rate", rate,
                                                   "p'(t) -> (N,)")
-        self.parameter_version += 1
 
     def internal_force(self, u):
         return self._K @ u

@@ -367,6 +367,25 @@ def test_the_load_scale_of_a_coupled_model_at_rest_is_its_motion():
     assert 0.2 <= U / motion <= 5.0, (U, motion)
 
 
+def test_the_load_scale_stays_bounded_where_no_mass_bound_is_known():
+    """A sparse M that Gershgorin cannot bound from below (λ_min 0.4, the
+    bound negative) and K = −c M nearly cancelling 2M/τ²: the solve's answer
+    has no bound there (U was 9e10 for a motion of 105, and the error 15,897
+    rtol); the diagonal's scale is taken instead."""
+    import scipy.sparse as sp
+    block = np.full((3, 3), 0.6)
+    np.fill_diagonal(block, 1.0)
+    M = sp.block_diag([block] * 43, format="csr")
+    tau = 10.0
+    c = 2.0 / tau ** 2 * (1.0 - 1e-9)
+    model = hfdi.LinearSystem(M, (-c * M).tocsr(), load=lambda t: np.eye(129)[0])
+    U = hfdi.Integrator(model, "hfdi", rtol=1e-6, t_bound=tau).tolerances[1][0] / 1e-9
+    # u = M⁻¹p (cosh(√c t) − 1)/c exactly
+    motion = np.abs(np.linalg.solve(M.toarray(), np.eye(129)[0])).max() * \
+        (np.cosh(np.sqrt(c) * tau) - 1.0) / c
+    assert 0.01 <= U / motion <= 10.0, (U, motion)
+
+
 @functools.lru_cache(maxsize=None)
 def _structure_at_rest():
     """``(M, K, C, times, u at times)`` of a stiff structure at rest under a

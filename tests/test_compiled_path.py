@@ -1165,6 +1165,29 @@ def test_a_load_rate_removed_between_calls_is_refused_by_both_speeds(told):
         np.testing.assert_array_equal(itg.state.u, reached)
 
 
+def test_the_same_load_rate_again_is_no_change():
+    """Assigning a LinearSystem the load rate it has changes nothing (the run
+    bit for bit, no restart), and a state of another model is still refused."""
+    def fresh(k=4.0):
+        return hfdi.LinearSystem(np.array([1.0]), np.array([[k]]), load=_sine_load,
+                                 load_rate=_sine_load_rate)
+    ends = []
+    for reassign in (False, True):
+        model = fresh()
+        itg = hfdi.Integrator(model, "hfdi", rtol=1e-6)
+        assert itg.advance(1.0)
+        if reassign:
+            model.load_rate = _sine_load_rate
+        assert itg.advance(2.0)
+        ends.append((itg.state.u, itg.statistics.steps))
+    np.testing.assert_array_equal(ends[0][0], ends[1][0])
+    assert ends[0][1] == ends[1][1]
+    other = fresh(9.0)
+    other.load_rate = _sine_load_rate
+    with pytest.raises(ValueError, match="another model"):
+        hfdi.Integrator(other, "hfdi", rtol=1e-6).set_state(itg.get_state())
+
+
 def test_what_counts_as_a_change_of_a_built_in_model():
     """The constructors' names (a subclass's own __init__ included) and the
     attributes a model declares: counted once each change; the same value
