@@ -612,7 +612,7 @@ def test_a_swallowed_ctrl_c_still_ends_the_command(monkeypatch, capsys, tmp_path
     written = tmp_path / "after the interrupt"
 
     def run_all(out, problems, schemes, targets, t_end, long_t_end, ratios, force,
-                progress, runner):
+                progress, runner, compiled):
         _swallowed_ctrl_c()
         progress.say("table dumbbell")
         written.write_text("an output after Ctrl-C")
