@@ -1165,6 +1165,30 @@ def test_a_load_rate_removed_between_calls_is_refused_by_both_speeds(told):
         np.testing.assert_array_equal(itg.state.u, reached)
 
 
+def test_set_state_refused_by_the_changed_model_leaves_the_integrator_as_it_was():
+    """A model that counts its changes, its mass changed since a state was
+    saved: set_state's refresh refuses it (ValueError, the matrices are read
+    once). The integrator was left at the saved state, its version taken as
+    seen, so the next step went on with the old mass unasked."""
+    class Counted(hfdi.LinearSystem):
+        parameter_version = 0
+    model = Counted(np.array([1.0]), np.array([[4.0]]), load=_sine_load,
+                    load_rate=_sine_load_rate)
+    itg = hfdi.Integrator(model, "hfdi", rtol=1e-6)
+    assert itg.advance(0.5)
+    saved = itg.get_state()
+    assert itg.advance(1.0)
+    reached = itg.state.u.copy()
+    model.mass = np.array([2.0])
+    model.parameter_version += 1
+    with pytest.raises(ValueError, match="mass"):
+        itg.set_state(saved)
+    assert itg.t == 1.0
+    np.testing.assert_array_equal(itg.state.u, reached)
+    with pytest.raises(ValueError, match="mass"):
+        itg.advance(2.0)
+
+
 def test_the_same_load_rate_again_is_no_change():
     """Assigning a LinearSystem the load rate it has changes nothing (the run
     bit for bit, no restart), and a state of another model is still refused."""
