@@ -7,13 +7,12 @@ import copy
 import math
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from . import checks
 from .controller import (DEFAULT_RTOL, TOL_RANGE, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .evaluation import brief
+from .linsolve.sparse import Factorization, SingularMatrixError, combine
 
 __all__ = ["make_controller", "newton_tolerance", "breakpoints_of", "initial_vector",
            "optional_positive", "time_value", "times", "state_scales", "fit_error_control",
@@ -212,20 +211,9 @@ def load_response_scale(ev, K0, t0, span) -> float | None:
 def _static_response(ev, K0, shift, P):
     """``|x|`` (N,), the largest over the columns of ``(K0 + shift M) X = P``;
     ``None`` where the matrix is singular or the solve not finite."""
-    M = ev.mass
     try:
-        if sp.issparse(K0) or sp.issparse(M):
-            A = sp.csc_matrix(K0, dtype=float) + shift * (
-                sp.diags(M) if M.ndim == 1 else sp.csc_matrix(M))
-            X = spla.splu(sp.csc_matrix(A)).solve(P)
-        else:
-            A = np.array(K0, dtype=float)
-            if M.ndim == 1:
-                A[np.diag_indices_from(A)] += shift * M
-            else:
-                A += shift * M
-            X = np.linalg.solve(A, P)
-    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        X = Factorization(combine((1.0, K0), (shift, ev.mass))).solve(P)
+    except SingularMatrixError:
         return None
     return np.abs(X).max(axis=1) if np.all(np.isfinite(X)) else None
 
