@@ -30,7 +30,7 @@ from .event_steps import EventSteps
 from .state_access import StateAccess
 from .messages import Status, stop_message
 from .options import (NEWTON_TESTS, breakpoints_of, fit_error_control, initial_vector,
-                      load_response_scale, make_controller, needs_load_scale,
+                      driven_scale, make_controller, needs_load_scale,
                       newton_tolerance, optional_positive, time_value)
 from .preflight import default_first_step, initial_state
 from .result import STATISTICS_FIELDS, Statistics
@@ -88,7 +88,8 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         docs/accuracy.md, "Controlling u alone"). Default ``1e-3 · rtol · U``
         for ``u`` and ``1e-3 · rtol · V`` for ``v``, the scales of the
         initial state, or of a model at rest its declared ``u_scale`` or the
-        displacement its load drives (:func:`hfdi.options.state_scales`).
+        displacement its load and initial velocity drive
+        (:func:`hfdi.options.state_scales`).
     target_iterations : float, optional
         Target Newton iteration count ``N̄`` per (sub-)step (Eq. 39), in
         ``[1, 100]``. For Bathe the step's target is ``2 N̄``, as the paper's
@@ -300,12 +301,13 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         start = time.process_time()
         current, K0, T0, potential = initial_state(
             ev, self.scheme, self.t0, u0, v0, check_stiffness, self.floor, self.t_bound, every)
-        # the default atol's scales: of the state, or (a model at rest) of its load
+        # the default atol's scales: of the state, or (a model at rest) of what
+        # its load and initial velocity drive
         declared = declared_u_scale(system)
         error_span = span if error_span is None else error_span
-        load_scale = load_response_scale(ev, K0, self.t0, error_span) \
+        driven = driven_scale(ev, K0, self.t0, v0, error_span) \
             if needs_load_scale(c, u0, declared) else None
-        fit_error_control(c, error_span, u0, v0, declared, load_scale)
+        fit_error_control(c, error_span, u0, v0, declared, driven)
         c.prepare(ev.n, self.scheme.order)
         if self.energy_limit is not None and math.isnan(potential):
             raise ValueError(

@@ -12,11 +12,11 @@ from . import checks
 from .controller import (DEFAULT_RTOL, TOL_RANGE, Combined, Controller, ErrorControl, FixedStep,
                          IterationCount)
 from .evaluation import brief
-from .linsolve.sparse import Factorization, SingularMatrixError, combine
+from .linsolve.sparse import DENSE_BELOW, Factorization, SingularMatrixError, combine
 
 __all__ = ["make_controller", "newton_tolerance", "breakpoints_of", "initial_vector",
            "optional_positive", "time_value", "times", "state_scales", "fit_error_control",
-           "NEWTON_TESTS"]
+           "driven_scale", "load_response_scale", "velocity_response_scale", "NEWTON_TESTS"]
 
 #: Values of ``Integrator(newton_test=...)``.
 NEWTON_TESTS = ("correction", "error")
@@ -145,15 +145,16 @@ def make_controller(controller, rtol, atol, target, step, span, min_step, max_st
     return error if iteration is None else Combined(iteration, error)
 
 
-def state_scales(u0, v0, u_scale, span, load_scale=None):
+def state_scales(u0, v0, u_scale, span, driven_scale=None):
     """``(U, V)``, the scales of ``u`` and ``v`` of the default ``atol``:
     ``U = ‖u0‖∞``; for a model starting at ``u0 = 0`` the model's declared
-    ``u_scale`` (``None``: none), else ``load_scale``, the displacement its
-    load drives (:func:`load_response_scale`), else 1; ``V = max(‖v0‖∞,
-    U/τ)`` with ``τ`` the run's span (one length per span: the slowest
-    motion the run can show), or ``max(‖v0‖∞, U)`` (per unit of time) when
-    the span is not known."""
-    U = float(np.max(np.abs(u0), initial=0.0)) or float(u_scale or load_scale or 1.0)
+    ``u_scale`` (``None``: none), else ``driven_scale``, the displacement its
+    load and its initial velocity drive (:func:`load_response_scale`,
+    :func:`velocity_response_scale`), else 1; ``V = max(‖v0‖∞, U/τ)`` with
+    ``τ`` the run's span (one length per span: the slowest motion the run
+    can show), or ``max(‖v0‖∞, U)`` (per unit of time) when the span is not
+    known."""
+    U = float(np.max(np.abs(u0), initial=0.0)) or float(u_scale or driven_scale or 1.0)
     V = max(float(np.max(np.abs(v0), initial=0.0)), U / span if span else U)
     return U, V
 
@@ -218,17 +219,88 @@ def _static_response(ev, K0, shift, P):
     return np.abs(X).max(axis=1) if np.all(np.isfinite(X)) else None
 
 
-def fit_error_control(controller, span, u0, v0, u_scale, load_scale=None):
+def fit_error_control(controller, span, u0, v0, u_scale, driven_scale=None):
     """Give the error rule(s) of ``controller`` the run's span and the state's
     scales (:meth:`hfdi.controller.ErrorControl.fit_run`)."""
     for part in (controller, getattr(controller, "error", None)):
         if isinstance(part, ErrorControl):
-            part.fit_run(span, *state_scales(u0, v0, u_scale, span, load_scale))
+            part.fit_run(span, *state_scales(u0, v0, u_scale, span, driven_scale))
+
+
+def driven_scale(ev, K0, t0, v0, span) -> float | None:
+    """The displacement that the load and the initial velocity of a model at
+    rest drive: the larger of :func:`load_response_scale` and
+    :func:`velocity_response_scale` (``None`` when neither drives any)."""
+    scales = [scale for scale in (load_response_scale(ev, K0, t0, span),
+                                  velocity_response_scale(ev, K0, v0, span))
+              if scale is not None]
+    return max(scales) if scales else None
+
+
+def velocity_response_scale(ev, K0, v0, span) -> float | None:
+    """The displacement that the initial velocity ``v0`` drives from ``u0 =
+    0``: mode by mode of ``K0 φ = λ M φ`` (the symmetric part of ``K0``),
+    the modal velocity ``φᵀ M v0`` over ``√(|λ| + c² + 1/τ²)`` (``c =
+    φᵀ C φ``, the mode's damping; ``τ`` the span of the error control, 1
+    when it is not known): the amplitude ``v0/ω`` of a stiff mode, ``v0·m/c``
+    of an overdamped one, the flight ``v0·τ`` over the span of a free one;
+    ``U`` the largest ``Σ_k |φ_ik|·amplitude_k``. Where ``M`` is not dense-able
+    (``N ≥`` :data:`hfdi.linsolve.sparse.DENSE_BELOW`) or not positive definite,
+    the diagonal's ``|v0_i|/√(|K_ii|/M_ii + (C_ii/M_ii)² + 1/τ²)``, which
+    can only be smaller where springs couple the degrees of freedom (a
+    tighter ``atol``, never a looser one). ``None`` for ``v0 = 0``."""
+    v0 = np.asarray(v0, dtype=float)
+    if not np.any(v0):
+        return None
+    tau = span if span is not None else 1.0
+    with np.errstate(all="ignore"):
+        scale = _modal_velocity_response(ev, K0, v0, tau) if ev.n < DENSE_BELOW else None
+        if scale is None:
+            mass, stiffness = ev.mass_diagonal, np.abs(np.asarray(K0.diagonal()).ravel())
+            damping = 0.0 if ev.damping is None else np.abs(
+                ev.damping if ev.damping.ndim == 1 else np.asarray(ev.damping.diagonal()).ravel())
+            rate = np.sqrt(stiffness / mass + (damping / mass) ** 2 + 1.0 / (tau * tau))
+            response = np.abs(v0) / rate
+            response = response[np.isfinite(response)]
+            scale = float(response.max(initial=0.0))
+    return scale if scale > 0.0 else None
+
+
+def _dense(A, n):
+    """``A`` (a diagonal vector, a dense or a sparse matrix) as a dense (n, n) array."""
+    if A is None:
+        return np.zeros((n, n))
+    if isinstance(A, np.ndarray):
+        return np.diag(A) if A.ndim == 1 else A
+    return A.toarray()
+
+
+def _modal_velocity_response(ev, K0, v0, tau):
+    """:func:`velocity_response_scale` through the modes; ``None`` where ``M``
+    is not positive definite or the modes are not finite."""
+    n = ev.n
+    M, K, C = _dense(ev.mass, n), _dense(K0, n), _dense(ev.damping, n)
+    try:
+        L = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return None
+    # K φ = λ M φ as L⁻¹ K L⁻ᵀ y = λ y, φ = L⁻ᵀ y (mass-normalised)
+    A = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (K + K.T)).T)
+    if not np.all(np.isfinite(A)):
+        return None
+    lam, Y = np.linalg.eigh(0.5 * (A + A.T))
+    Phi = np.linalg.solve(L.T, Y)
+    modal_velocity = Y.T @ (L.T @ v0)
+    modal_damping = np.einsum("ik,ij,jk->k", Phi, C, Phi)
+    amplitude = np.abs(modal_velocity) / np.sqrt(np.abs(lam) + modal_damping ** 2
+                                                 + 1.0 / (tau * tau))
+    response = np.abs(Phi) @ amplitude
+    return float(response.max()) if np.all(np.isfinite(response)) else None
 
 
 def needs_load_scale(controller, u0, u_scale) -> bool:
     """Whether the default ``atol`` of ``controller`` would take its scale of
-    ``u`` from the load (:func:`state_scales`)."""
+    ``u`` from what drives a model at rest (:func:`state_scales`)."""
     if np.any(u0) or u_scale:
         return False
     return any(isinstance(part, ErrorControl) and part.atol is None and part.u_scale is None

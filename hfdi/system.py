@@ -172,8 +172,8 @@ class System(SecondOrderSystem):
     name : str, optional
     u_scale : float, optional
         A length of the model (:attr:`SecondOrderSystem.u_scale`); 1 when
-        omitted, and the default ``atol`` then takes its scale from the load
-        for a model starting at rest.
+        omitted, and the default ``atol`` then takes its scale from what the
+        load and the initial velocity drive for a model starting at rest.
 
     Raises
     ------

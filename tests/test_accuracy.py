@@ -386,6 +386,47 @@ def test_the_load_scale_stays_bounded_where_no_mass_bound_is_known():
     assert 0.01 <= U / motion <= 10.0, (U, motion)
 
 
+@pytest.mark.parametrize("scheme", ["newmark", "bathe", "hfdi", "generalized_alpha"])
+def test_a_kick_from_rest_is_controlled_at_any_size(scheme):
+    """``u0 = 0`` and no load: the motion is the initial velocity's, ``u =
+    v0 e^{−ζωt} sin(ω_d t)/ω_d``. The default ``atol`` scales with it: a kick
+    of 1e-8 is integrated to the same relative error as a kick of 1 (it was
+    taken at the scale 1, and the error was 15,000 rtol with SUCCESS)."""
+    omega, zeta, rtol, span = 2.0, 0.0125, 1e-5, 10.0
+    damped = omega * np.sqrt(1.0 - zeta ** 2)
+    errors = []
+    for v0 in (1.0, 1e-8, 1e6):
+        model = hfdi.LinearSystem([[1.0]], [[omega ** 2]], [[2.0 * zeta * omega]],
+                                  initial_velocity=[v0])
+        result = hfdi.integrate(model, scheme, span, rtol=rtol)
+        assert result.success, result.message
+        exact = v0 * np.exp(-zeta * omega * result.t) * np.sin(damped * result.t) / damped
+        errors.append(np.abs(result.u[:, 0] - exact).max() / (np.abs(exact).max() * rtol))
+    assert max(errors) <= 10.0, errors
+    assert max(errors) <= 1.5 * min(errors), errors
+
+
+def test_the_velocity_scale_of_a_model_at_rest_is_its_motion():
+    """What ``v0`` drives from ``u0 = 0``, mode by mode: the slow mode's
+    amplitude where stiff springs couple the degrees of freedom (the
+    diagonal's would be 1e4 times too small), ``v0·m/c`` where damping
+    dominates, the flight ``v0·τ`` of a free mass; each against the largest
+    ``|u|`` of the run."""
+    theta = 0.3
+    R = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    coupled = hfdi.LinearSystem(np.eye(2), R @ np.diag([1.0, 1e8]) @ R.T,
+                                0.02 * R @ np.diag([1.0, 1e4]) @ R.T,
+                                initial_velocity=R @ [1e-3, 0.0])
+    overdamped = hfdi.LinearSystem([[2.0]], [[1.0]], [[400.0]], initial_velocity=[3.0])
+    free = hfdi.LinearSystem([[1.0]], [[0.0]], initial_velocity=[-2.0])
+    rtol, span = 1e-4, 5.0
+    for model in (coupled, overdamped, free):
+        U = hfdi.Integrator(model, "hfdi", rtol=rtol, t_bound=span).tolerances[1][0] / \
+            (1e-3 * rtol)
+        motion = np.abs(hfdi.integrate(model, "hfdi", span, rtol=rtol).u).max()
+        assert 0.5 <= U / motion <= 3.0, (model.initial_velocity, U, motion)
+
+
 @functools.lru_cache(maxsize=None)
 def _structure_at_rest():
     """``(M, K, C, times, u at times)`` of a stiff structure at rest under a
