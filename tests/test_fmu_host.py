@@ -211,6 +211,39 @@ def test_the_importer_runs_only_the_files_it_was_given(tmp_path, monkeypatch):
             del sys.modules[key]
 
 
+def test_a_copy_imported_beside_the_library_has_compiled_types_of_its_own(monkeypatch):
+    """The FMU's copy of hfdi, imported under its own name in a process that
+    holds the library (an FMU simulated in the user's Python): every numba
+    type its compiled loop takes is the copy's. The stage function's type
+    was the library's (numba names a named tuple by its class's name and
+    interns a function type by its signature's name), so the copy's cached
+    loop named the library's ``Stage``, and a C host without the library
+    could not load it: its native path was off, with a warning."""
+    import hfdi
+    from hfdi.core import numba_types
+    from fmu.entry import Importer, package_files
+    source = Path(hfdi.__file__).parent
+    name = f"_hfdi_fmu_test_{uuid.uuid4().hex}"
+    importer = Importer()
+    importer.add(name, str(source), package_files(source))
+    monkeypatch.setattr(sys, "meta_path", [importer, *sys.meta_path])
+    try:
+        importer.load(name)
+        copy = importlib.import_module(f"{name}.core.numba_types")
+        state = importlib.import_module(f"{name}.core.state")
+        ours = numba_types.field_type("function STAGE_FUNCTION")
+        theirs = copy.field_type("function STAGE_FUNCTION")
+        assert theirs != ours
+        assert theirs.signature.return_type.instance_class is state.Stage
+        assert ours.signature.return_type.instance_class is hfdi.core.state.Stage
+        for record in ("DATA", "VECTORS", "FUNCTIONS"):
+            assert copy.struct_type(getattr(state, record)) != \
+                numba_types.struct_type(getattr(hfdi.core.state, record))
+    finally:
+        for key in [k for k in sys.modules if k == name or k.startswith(name + ".")]:
+            del sys.modules[key]
+
+
 # -- 3. threads at the first instantiation -------------------------------------------------
 @pytest.mark.parametrize("threads", [2, 8])
 @pytest.mark.slow

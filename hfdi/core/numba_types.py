@@ -34,6 +34,13 @@ POTENTIAL_ENERGY = types.float64(VECTOR, VECTOR)
 #: ``load(t, load_params) -> p (N,)`` (also the load rate's)
 LOAD = VECTOR(types.float64, VECTOR)
 STAGE = types.NamedUniTuple(types.float64, len(Stage._fields), Stage)
+# numba names a named tuple by its class's name alone, and interns a function
+# type by its signature's name: the stage function's type of a copy of these
+# sources imported under another name (an FMU's) was the library's, holding
+# the library's Stage, and the copy's cached loop then named the library's
+# module (a C host without it could not load it). The package in the name
+# keeps them apart (as Struct's names below).
+STAGE.name = f"{__name__.split('.')[0]}.{STAGE.name}"
 #: ``stage(h, index, scheme_params) -> Stage``
 STAGE_FUNCTION = STAGE(types.float64, types.int64, VECTOR)
 
