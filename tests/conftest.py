@@ -102,11 +102,11 @@ def fmus(tmp_path_factory):
 
 def _compile_fmu_loops(path):
     """The compiled FMU's two loops (affine and HFDI stages) and its native C
-    function compiled into the cache in a process of their own. Compiled for
-    the first time in a test process that already holds this library's
-    compiled code, the FMU copy's native function failed ("mismatch of
-    argument types") and its doSteps went through the slave (the same
-    values, the native path never armed); an open finding, docs/compiled.md."""
+    function compiled into the cache in a process of their own, once, before
+    the tests that run them (compiled in a test process that holds this
+    library, the copy's cached loop named the library's module until its
+    numba types carried the package: docs/compiled.md, "An FMU's copy beside
+    the library"; tests/test_fmu_host.py checks them)."""
     import subprocess
     import sys
     code = ("import sys\nfrom fmpy import extract\nfrom fmu.master import Unit\n"
