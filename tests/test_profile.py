@@ -32,13 +32,15 @@ def test_a_costlier_model_takes_a_larger_share():
     # the toss rule's beam kernels cost far more per call than the dumbbell's
     # scalar arithmetic, with linear algebra of the same small size (measured
     # 0.45 and 0.16); each run once before, so that no first call's
-    # compilation (a fresh cache) counts as the model's time (0.33 then)
+    # compilation (a fresh cache) counts as the model's time (0.33 then). A
+    # ratio, not a difference: other work on the machine dilutes both shares
+    # alike (0.22 and 0.11 measured with the cores busy)
     shares = {}
     for problem, t_end in (("dumbbell", 0.2), ("toss_rule", 0.01)):
         profile_run(problem, "newmark", 3.0, repeats=1, t_end=t_end)
         shares[problem] = profile_run(problem, "newmark", 3.0, repeats=1,
                                       t_end=t_end)["fractions"]["model"]
-    assert shares["toss_rule"] > shares["dumbbell"] + 0.15, shares
+    assert shares["toss_rule"] > 1.5 * shares["dumbbell"], shares
 
 
 def test_command_line_writes_json(tmp_path, capsys):
