@@ -105,21 +105,43 @@ def _direction(n):
     return w
 
 
+@functools.lru_cache(maxsize=16)
+def _even_direction(n):
+    """A second fixed direction, every entry of size 0.5 to 1.5 (signs alternating)."""
+    k = np.arange(1, n + 1)
+    w = (-1.0) ** k * (1.0 + 0.5 * np.sin(k * 2.399963229728653))
+    w.flags.writeable = False
+    return w
+
+
 def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
-    """``K(u0)`` against central differences of ``f`` along one direction
+    """``K(u0)`` against central differences of ``f`` along two directions
     (docs/user-models.md, "Writing your own model").
 
-    ``d_i = s·√ε·max(|u0_i|, 1e-3·U) w_i`` (``U = max(max|u0|, u_scale)``,
-    ``w`` a fixed direction) at scales ``s`` = 1, 1e2, 1e4, 1e6; the
-    mismatches at ``d`` and ``2d`` are Richardson-combined,
-    ``(8 m(d) − m(2d))/6``. Row ``i`` counts at a scale where the rounding
-    of ``f`` is below 1e-4 of its terms ``Σ_j |K_ij d_j|``, and its error is
-    the smallest over the scales that count; above 0.1 % of its terms it is
-    refused. Beyond the first scale a failing evaluation only drops that scale.
+    First ``d_i = s·√ε·max(|u0_i|, 1e-3·U) w_i`` (``U = max(max|u0|,
+    u_scale)``, ``w`` a fixed direction): each degree of freedom moved by
+    its own size. Where those sizes differ, then ``d_i = s·√ε·U·w'_i`` with
+    entries of ``w'`` of one size: moved by 1e-3 of the others, a degree of
+    freedom at 0 hid a wrong column of ``K`` under the threshold (``K_01``
+    left out of a 2-DOF chain started at ``u0 = (1, 0)`` passed, and HFDI
+    erred by 1.85e-3 with SUCCESS at a fixed step, or stalled under error
+    control). Each at scales ``s`` = 1, 1e2, 1e4, 1e6; the mismatches at
+    ``d`` and ``2d`` are Richardson-combined, ``(8 m(d) − m(2d))/6``. Row
+    ``i`` counts at a scale where the rounding of ``f`` is below 1e-4 of its
+    terms ``Σ_j |K_ij d_j|``, and its error is the smallest over the scales
+    that count; above 0.1 % of its terms it is refused. Beyond the first
+    scale a failing evaluation only drops that scale.
     """
-    w = _direction(ev.n)
     size_u = max(float(np.abs(u0).max()), floor)
-    base = _SQRT_EPS * np.maximum(np.abs(u0), 1e-3 * size_u) * w
+    own = np.maximum(np.abs(u0), 1e-3 * size_u)
+    _check_stiffness_along(ev, u0, K, call, name, where, _SQRT_EPS * own * _direction(ev.n))
+    if own.min() < size_u:
+        _check_stiffness_along(ev, u0, K, call, name, where,
+                               _SQRT_EPS * size_u * _even_direction(ev.n))
+
+
+def _check_stiffness_along(ev, u0, K, call, name, where, base):
+    """:func:`check_stiffness_of` along the step ``base`` (at scale 1)."""
     n = ev.n
     best = np.full(n, np.inf)
     best_scale = np.zeros(n)

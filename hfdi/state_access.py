@@ -75,7 +75,10 @@ class StateAccess:
             If ``saved`` is not an :class:`IntegratorState`.
         ValueError
             If it belongs to a model of another size, to another model (its
-            kept force ``f(u)`` is not this model's there), to an integrator
+            kept force ``f(u)`` is not this model's there: HFDI's and
+            generalized-α's states; Newmark and Bathe keep no force, and a
+            state of another model of the same size is taken, its
+            acceleration that model's), to an integrator
             of another scheme or mode (controller), or holds values out of
             their range (non-finite arrays, an unknown status, times out of
             order, negative counters); the integrator is then left as it was.

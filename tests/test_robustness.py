@@ -1030,6 +1030,26 @@ def test_the_stiffness_check_takes_degrees_of_freedom_of_any_size(scale):
         hfdi.Integrator(model(1.01), "hfdi", rtol=1e-6, atol=[1e-9, 1e-9 * scale])
 
 
+@pytest.mark.parametrize("scheme", ["newmark", "hfdi"])
+def test_a_wrong_column_of_a_degree_of_freedom_at_rest_is_refused(scheme):
+    """A 2-DOF chain started at ``u0 = (1, 0)`` with ``K_01`` left out: moved
+    by 1e-3 of the first, the second DOF hid the missing column under the
+    threshold, and HFDI erred by 1.85e-3 (21,000 times the true K's error)
+    at a fixed step with SUCCESS. Refused now, naming the row; the true K
+    passes."""
+    true = np.array([[2.0, -1.0], [-1.0, 2.0]])
+
+    def chain(K):
+        return hfdi.System(mass=[1.0, 1.0], internal_force=lambda u: true @ u,
+                           stiffness=lambda u: K.copy(),
+                           stiffness_derivative=lambda u, w: np.zeros((2, 2)),
+                           initial_displacement=[1.0, 0.0])
+    hfdi.Integrator(chain(true), scheme, step=0.01)
+    with pytest.raises(hfdi.ModelError, match="stiffness does not match internal_force at "
+                                              "u0: in row 0"):
+        hfdi.Integrator(chain(np.array([[2.0, 0.0], [-1.0, 2.0]])), scheme, step=0.01)
+
+
 def _one_dof(force, stiffness, u0=0.0, **kwargs):
     return hfdi.System(mass=[1.0], internal_force=lambda u: np.array([force(u[0])]),
                        stiffness=lambda u: np.array([[stiffness(u[0])]]),
