@@ -159,8 +159,9 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         load's left limit at the end of the step that lands there, its right
         limit after), and steps over the others.
     check_stiffness : bool
-        Check ``K(u0)`` against central differences of ``f`` (4 extra force
-        evaluations for a correct model, at most 16) and refuse a model whose
+        Check ``K(u0)`` against central differences of ``f`` along two
+        directions (4 or 8 extra force evaluations for a correct model, at
+        most 32) and refuse a model whose
         ``K`` is not ``∂f/∂u`` (default); for HFDI with the model's
         ``load_rate``, check ``p'(t0)`` against forward differences of ``p``
         too (at most 26 load evaluations).
