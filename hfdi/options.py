@@ -266,20 +266,12 @@ def velocity_response_scale(ev, K0, v0, span) -> float | None:
     return scale if scale > 0.0 else None
 
 
-def _dense(A, n):
-    """``A`` (a diagonal vector, a dense or a sparse matrix) as a dense (n, n) array."""
-    if A is None:
-        return np.zeros((n, n))
-    if isinstance(A, np.ndarray):
-        return np.diag(A) if A.ndim == 1 else A
-    return A.toarray()
-
-
 def _modal_velocity_response(ev, K0, v0, tau):
     """:func:`velocity_response_scale` through the modes; ``None`` where ``M``
     is not positive definite or the modes are not finite."""
     n = ev.n
-    M, K, C = _dense(ev.mass, n), _dense(K0, n), _dense(ev.damping, n)
+    # each as a dense (n, n) array (a diagonal vector, a sparse matrix or none)
+    M, K, C = (combine((1.0, np.zeros((n, n))), (1.0, A)) for A in (ev.mass, K0, ev.damping))
     try:
         L = np.linalg.cholesky(M)
     except np.linalg.LinAlgError:
