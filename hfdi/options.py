@@ -9,8 +9,8 @@ import math
 import numpy as np
 
 from . import checks
-from .controller import (DEFAULT_RTOL, TOL_RANGE, Combined, Controller, ErrorControl, FixedStep,
-                         IterationCount)
+from .controller import (DEFAULT_RTOL, RTOL_RANGE, TOL_RANGE, Combined, Controller, ErrorControl,
+                         FixedStep, IterationCount)
 from .evaluation import brief
 from .linsolve.sparse import DENSE_BELOW, Factorization, SingularMatrixError, combine
 
@@ -154,10 +154,18 @@ def state_scales(u0, v0, u_scale, span, driven_scale=None):
     ``τ`` the run's span (one length per span: the slowest motion the run
     can show), or ``max(‖v0‖∞, U)`` (per unit of time) when the span is not
     known."""
-    U = float(np.max(np.abs(u0), initial=0.0)) or float(u_scale or driven_scale or 1.0)
+    # the first scale whose atol (1e-3·rtol of it, at the smallest rtol) is a
+    # normal number: a subnormal u0 or v0 gave atol 0, and no first step passed
+    U = next(float(scale) for scale in (np.max(np.abs(u0), initial=0.0), u_scale or 0.0,
+                                        driven_scale or 0.0, 1.0)
+             if scale >= _SMALLEST_SCALE)
     V = max(float(np.max(np.abs(v0), initial=0.0)), U / span if span else U)
     return U, V
 
+
+#: The smallest scale of the default atol: ``1e-3·rtol`` of it is a normal
+#: number at the smallest ``rtol``.
+_SMALLEST_SCALE = float(np.finfo(float).tiny) / (1e-3 * RTOL_RANGE[0])
 
 #: Times in the span where the load is sampled for :func:`load_response_scale`.
 LOAD_SAMPLES = 17
@@ -193,7 +201,7 @@ def load_response_scale(ev, K0, t0, span) -> float | None:
         return None
     P = np.column_stack(loads)
     tau = span if span is not None else 1.0
-    shift = 2.0 / (tau * tau)
+    shift = 2.0 / (tau * tau) if tau * tau > 0.0 else math.inf
     floor = ev.mass_floor()
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # without a positive bound of λ_min(M) nothing bounds the solve's
@@ -259,8 +267,8 @@ def velocity_response_scale(ev, K0, v0, span) -> float | None:
             mass, stiffness = ev.mass_diagonal, np.abs(np.asarray(K0.diagonal()).ravel())
             damping = 0.0 if ev.damping is None else np.abs(
                 ev.damping if ev.damping.ndim == 1 else np.asarray(ev.damping.diagonal()).ravel())
-            rate = np.sqrt(stiffness / mass + (damping / mass) ** 2 + 1.0 / (tau * tau))
-            response = np.abs(v0) / rate
+            rate = np.hypot(np.sqrt(stiffness / mass), damping / mass)
+            response = np.abs(v0) * tau / np.hypot(1.0, tau * rate)
             response = response[np.isfinite(response)]
             scale = float(response.max(initial=0.0))
     return scale if scale > 0.0 else None
@@ -284,8 +292,9 @@ def _modal_velocity_response(ev, K0, v0, tau):
     Phi = np.linalg.solve(L.T, Y)
     modal_velocity = Y.T @ (L.T @ v0)
     modal_damping = np.einsum("ik,ij,jk->k", Phi, C, Phi)
-    amplitude = np.abs(modal_velocity) / np.sqrt(np.abs(lam) + modal_damping ** 2
-                                                 + 1.0 / (tau * tau))
+    # |q̇|/√(|λ| + c² + 1/τ²) without forming 1/τ² (a span of 1e-200 made it 1/0)
+    rate = np.hypot(np.sqrt(np.abs(lam)), modal_damping)
+    amplitude = np.abs(modal_velocity) * tau / np.hypot(1.0, tau * rate)
     response = np.abs(Phi) @ amplitude
     return float(response.max()) if np.all(np.isfinite(response)) else None
 

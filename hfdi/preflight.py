@@ -120,8 +120,9 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
 
     First ``d_i = s·√ε·max(|u0_i|, 1e-3·U) w_i`` (``U = max(max|u0|,
     u_scale)``, ``w`` a fixed direction): each degree of freedom moved by
-    its own size. Where those sizes differ, then ``d_i = s·√ε·U·w'_i`` with
-    entries of ``w'`` of one size: moved by 1e-3 of the others, a degree of
+    its own size. Where those sizes differ, then ``d_i = s·√ε·m·w'_i``
+    (``m`` the smallest of those sizes) with entries of ``w'`` of one size:
+    moved by 1e-3 of the others, a degree of
     freedom at 0 hid a wrong column of ``K`` under the threshold (``K_01``
     left out of a 2-DOF chain started at ``u0 = (1, 0)`` passed, and HFDI
     erred by 1.85e-3 with SUCCESS at a fixed step, or stalled under error
@@ -135,9 +136,12 @@ def check_stiffness_of(ev, u0, K, call, name, floor, where="at u0"):
     size_u = max(float(np.abs(u0).max()), floor)
     own = np.maximum(np.abs(u0), 1e-3 * size_u)
     _check_stiffness_along(ev, u0, K, call, name, where, _SQRT_EPS * own * _direction(ev.n))
-    if own.min() < size_u:
+    if own.min() < own.max():
+        # every degree of freedom by the smallest size: by the largest, a force
+        # that varies on a length below it (a degree of freedom in nm beside
+        # one in m) was refused though its K was right
         _check_stiffness_along(ev, u0, K, call, name, where,
-                               _SQRT_EPS * size_u * _even_direction(ev.n))
+                               _SQRT_EPS * own.min() * _even_direction(ev.n))
 
 
 def _check_stiffness_along(ev, u0, K, call, name, where, base):

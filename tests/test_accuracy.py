@@ -427,6 +427,23 @@ def test_the_velocity_scale_of_a_model_at_rest_is_its_motion():
         assert 0.5 <= U / motion <= 3.0, (model.initial_velocity, U, motion)
 
 
+def test_the_driven_scale_of_odd_spans_and_kicks_is_a_normal_number():
+    """A span of 1e-200 (1/τ² was 1/0: ZeroDivisionError) gives the kick's
+    flight ``v0·τ``; a subnormal kick (atol was 0, and no first step passed)
+    or a load over such a span takes the scale 1."""
+    kicked = hfdi.LinearSystem(np.eye(2), np.eye(2), initial_velocity=[1.0, 0.0])
+    atol = hfdi.Integrator(kicked, "hfdi", rtol=1e-6, t_bound=1e-200).tolerances[1]
+    assert atol[0] == pytest.approx(1e-9 * 1e-200)
+    loaded = hfdi.LinearSystem(np.eye(2), np.eye(2), load=lambda t: np.array([1.0, 0.0]))
+    assert hfdi.Integrator(loaded, "hfdi", rtol=1e-6, t_bound=1e-200).tolerances[1][0] == \
+        pytest.approx(1e-9)
+    for v0 in (5e-324, 1e-320):
+        tiny = hfdi.LinearSystem(np.eye(2), np.eye(2), initial_velocity=[v0, 0.0])
+        result = hfdi.integrate(tiny, "hfdi", 10.0, rtol=1e-6)
+        assert result.success, result.message
+        assert result.atol[0] == pytest.approx(1e-9)
+
+
 @functools.lru_cache(maxsize=None)
 def _structure_at_rest():
     """``(M, K, C, times, u at times)`` of a stiff structure at rest under a

@@ -1050,6 +1050,29 @@ def test_a_wrong_column_of_a_degree_of_freedom_at_rest_is_refused(scheme):
         hfdi.Integrator(chain(np.array([[2.0, 0.0], [-1.0, 2.0]])), scheme, step=0.01)
 
 
+@pytest.mark.parametrize("length", [1e-5, 1e-7])
+def test_a_force_varying_below_the_largest_size_passes_the_stiffness_check(length):
+    """The second direction moves every degree of freedom by the smallest size:
+    moved by the largest (u0 = (1e3, 0.3·length)), a right K of a force that
+    varies on ``length`` was refused; and a one-DOF model in metres at the
+    nanometre scale without a u_scale (the largest size being 1 there)."""
+    chain = hfdi.System(
+        mass=[1.0, 1.0],
+        internal_force=lambda u: np.array([u[0], 1e3 * length * np.sin(u[1] / length)]),
+        stiffness=lambda u: np.array([[1.0, 0.0], [0.0, 1e3 * np.cos(u[1] / length)]]),
+        stiffness_derivative=lambda u, w: np.array(
+            [[0.0, 0.0], [0.0, -1e3 / length * np.sin(u[1] / length) * w[1]]]),
+        initial_displacement=[1e3, 0.3 * length])
+    hfdi.Integrator(chain, "hfdi", rtol=1e-6)
+    q, depth = 2.0 * np.pi / 2.5e-10, 1e-19
+    tip = hfdi.System(
+        mass=[1e-11], internal_force=lambda u: u + depth * q * np.sin(q * u),
+        stiffness=lambda u: np.array([[1.0 + depth * q * q * np.cos(q * u[0])]]),
+        stiffness_derivative=lambda u, w: np.array([[-depth * q ** 3 * np.sin(q * u[0]) * w[0]]]),
+        initial_displacement=[3e-10])
+    hfdi.Integrator(tip, "hfdi", rtol=1e-6)
+
+
 def _one_dof(force, stiffness, u0=0.0, **kwargs):
     return hfdi.System(mass=[1.0], internal_force=lambda u: np.array([force(u[0])]),
                        stiffness=lambda u: np.array([[stiffness(u[0])]]),
