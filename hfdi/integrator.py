@@ -30,7 +30,7 @@ from .event_steps import EventSteps
 from .state_access import StateAccess
 from .messages import Status, stop_message
 from .options import (NEWTON_TESTS, breakpoints_of, fit_error_control, initial_vector,
-                      driven_scale, make_controller, needs_load_scale,
+                      driven_scale, make_controller, needs_driven_scale,
                       newton_tolerance, optional_positive, time_value)
 from .preflight import default_first_step, initial_state
 from .result import STATISTICS_FIELDS, Statistics
@@ -307,7 +307,7 @@ class Integrator(CompiledSteps, EventSteps, StateAccess):
         declared = declared_u_scale(system)
         error_span = span if error_span is None else error_span
         driven = driven_scale(ev, K0, self.t0, v0, error_span) \
-            if needs_load_scale(c, u0, declared) else None
+            if needs_driven_scale(c, u0, declared) else None
         fit_error_control(c, error_span, u0, v0, declared, driven)
         c.prepare(ev.n, self.scheme.order)
         if self.energy_limit is not None and math.isnan(potential):

@@ -145,6 +145,11 @@ def make_controller(controller, rtol, atol, target, step, span, min_step, max_st
     return error if iteration is None else Combined(iteration, error)
 
 
+#: The smallest scale of the default atol: ``1e-3·rtol`` of it is a normal
+#: number at the smallest ``rtol``.
+_SMALLEST_SCALE = float(np.finfo(float).tiny) / (1e-3 * RTOL_RANGE[0])
+
+
 def state_scales(u0, v0, u_scale, span, driven_scale=None):
     """``(U, V)``, the scales of ``u`` and ``v`` of the default ``atol``:
     ``U = ‖u0‖∞``; for a model starting at ``u0 = 0`` the model's declared
@@ -162,10 +167,6 @@ def state_scales(u0, v0, u_scale, span, driven_scale=None):
     V = max(float(np.max(np.abs(v0), initial=0.0)), U / span if span else U)
     return U, V
 
-
-#: The smallest scale of the default atol: ``1e-3·rtol`` of it is a normal
-#: number at the smallest ``rtol``.
-_SMALLEST_SCALE = float(np.finfo(float).tiny) / (1e-3 * RTOL_RANGE[0])
 
 #: Times in the span where the load is sampled for :func:`load_response_scale`.
 LOAD_SAMPLES = 17
@@ -208,7 +209,7 @@ def load_response_scale(ev, K0, t0, span) -> float | None:
         # answer (K may cancel 2M/τ²): the diagonal's
         response = _static_response(ev, K0, shift, P) if floor > 0.0 else None
         if response is None:
-            stiffness = np.abs(np.asarray(K0.diagonal()).ravel())
+            stiffness = np.abs(_diagonal(K0))
             response = np.abs(P).max(axis=1) / (stiffness + shift * ev.mass_diagonal)
         response = response[np.isfinite(response)]
         scale = float(response.max(initial=0.0))
@@ -225,6 +226,11 @@ def _static_response(ev, K0, shift, P):
     except SingularMatrixError:
         return None
     return np.abs(X).max(axis=1) if np.all(np.isfinite(X)) else None
+
+
+def _diagonal(A) -> np.ndarray:
+    """The diagonal (N,) of ``A``: a diagonal vector, a dense or a sparse matrix."""
+    return A if A.ndim == 1 else np.asarray(A.diagonal()).ravel()
 
 
 def fit_error_control(controller, span, u0, v0, u_scale, driven_scale=None):
@@ -264,9 +270,8 @@ def velocity_response_scale(ev, K0, v0, span) -> float | None:
     with np.errstate(all="ignore"):
         scale = _modal_velocity_response(ev, K0, v0, tau) if ev.n < DENSE_BELOW else None
         if scale is None:
-            mass, stiffness = ev.mass_diagonal, np.abs(np.asarray(K0.diagonal()).ravel())
-            damping = 0.0 if ev.damping is None else np.abs(
-                ev.damping if ev.damping.ndim == 1 else np.asarray(ev.damping.diagonal()).ravel())
+            mass, stiffness = ev.mass_diagonal, np.abs(_diagonal(K0))
+            damping = 0.0 if ev.damping is None else np.abs(_diagonal(ev.damping))
             rate = np.hypot(np.sqrt(stiffness / mass), damping / mass)
             response = np.abs(v0) * tau / np.hypot(1.0, tau * rate)
             response = response[np.isfinite(response)]
@@ -299,7 +304,7 @@ def _modal_velocity_response(ev, K0, v0, tau):
     return float(response.max()) if np.all(np.isfinite(response)) else None
 
 
-def needs_load_scale(controller, u0, u_scale) -> bool:
+def needs_driven_scale(controller, u0, u_scale) -> bool:
     """Whether the default ``atol`` of ``controller`` would take its scale of
     ``u`` from what drives a model at rest (:func:`state_scales`)."""
     if np.any(u0) or u_scale:
